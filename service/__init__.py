@@ -1,0 +1,1 @@
+"""shaftgauge: lathe-side shaft diameter measurement with a line laser and a camera."""

@@ -1,0 +1,215 @@
+"""One frame to one diameter: stripe -> points -> section -> fit, with a status for every way
+it can fail (no stripe, too few points, arc too short, fit failed, wrong image)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from service.measure import fit as fits
+from service.measure.geometry import RigGeometry
+from service.measure.result import Measurement, Method, Status
+from service.measure.section import (
+    light_plane_basis,
+    light_plane_coordinates,
+    orthonormal_basis,
+    project_to_section,
+)
+from service.measure.stripe import StripeParams, StripePoints, extract_stripe
+from service.measure.triangulate import triangulate
+
+DEFAULT_METHOD = Method.GEOMETRIC
+"""The most accurate method (see README's accuracy table)."""
+
+
+@dataclass(frozen=True)
+class MeasureParams:
+    """Settings of the per-frame measurement.
+
+    Attributes
+    ----------
+    stripe : StripeParams
+        Stripe extractor settings.
+    min_points : int
+        Fewest stripe points for a measurement.
+    min_arc_deg : float
+        Shortest arc (degrees around the fitted centre) for a measurement.
+    max_diameter_mm : float
+        Larger fitted diameters are refused as a failed fit.
+    max_rms_mm : float
+        Points scattered more than this (RMS, mm) about the fit are not a shaft's section.
+    max_view_angle_deg : float
+        Points the camera sees at a more grazing angle (between the surface normal and the
+        line of sight) are dropped before fitting: there the stripe is squeezed into a sliver
+        and its centre leaves the light plane by tens of micrometres.
+    """
+
+    stripe: StripeParams = field(default_factory=StripeParams)
+    min_points: int = 20
+    min_arc_deg: float = 30.0
+    max_diameter_mm: float = 1000.0
+    max_rms_mm: float = 0.05
+    max_view_angle_deg: float = 75.0
+
+
+@dataclass(frozen=True)
+class SectionPoints:
+    """Stripe points carried through triangulation and projection.
+
+    Attributes
+    ----------
+    stripe : StripePoints
+        Image centres (px) with a finite 3-D point.
+    points3d : ndarray, shape (N, 3)
+        Camera-frame points on the light plane, mm.
+    section : ndarray, shape (N, 2)
+        Coordinates on the plane perpendicular to the axis, mm.
+    """
+
+    stripe: StripePoints
+    points3d: np.ndarray
+    section: np.ndarray
+
+
+def check_image(image: np.ndarray, geometry: RigGeometry) -> str:
+    """Why ``image`` cannot be measured with ``geometry`` ('' when it can)."""
+    if not isinstance(image, np.ndarray) or image.ndim != 2:
+        shape = getattr(image, "shape", None)
+        return f"expected a single-channel (grey) image, got shape {shape}"
+    w, h = geometry.image_size
+    if image.shape != (h, w):
+        return (f"image is {image.shape[1]}x{image.shape[0]} px but the calibration is for "
+                f"{w}x{h} px")
+    if not (np.issubdtype(image.dtype, np.integer) or np.issubdtype(image.dtype, np.floating)):
+        return f"image has unsupported pixel type {image.dtype}"
+    return ""
+
+
+def section_points(stripe: StripePoints, geometry: RigGeometry) -> SectionPoints:
+    """Triangulate stripe centres on the light plane and project them onto the section."""
+    pts3 = triangulate(stripe.xy, geometry.camera_matrix, geometry.dist_coeffs,
+                       geometry.plane_normal, geometry.plane_d)
+    finite = np.isfinite(pts3).all(axis=1)
+    stripe, pts3 = stripe.subset(finite), pts3[finite]
+    return SectionPoints(stripe, pts3, project_to_section(pts3, geometry.axis_direction))
+
+
+def view_angles_deg(points: SectionPoints, center: np.ndarray, axis_direction: np.ndarray
+                    ) -> np.ndarray:
+    """Angle between the surface normal and the line of sight at each point, degrees.
+
+    The normal of a cylinder is radial: in the section it points from ``center`` to the point;
+    in 3-D that is ``dx e1 + dy e2``. The camera sits at the origin of the camera frame.
+    """
+    e1, e2 = orthonormal_basis(axis_direction)
+    radial = points.section - center
+    normal = radial[:, :1] * e1 + radial[:, 1:] * e2
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    sight = -points.points3d / np.linalg.norm(points.points3d, axis=1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.sum(normal * sight, axis=1), -1.0, 1.0)))
+
+
+def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasureParams
+                 ) -> SectionPoints:
+    """Drop points seen at a grazing angle, judged on a preliminary (Hyper) circle."""
+    prelim = fits.fit_hyper(points.section)
+    if not prelim:
+        return points
+    keep = view_angles_deg(points, prelim.center, geometry.axis_direction) \
+        <= params.max_view_angle_deg
+    if keep.mean() < 0.5:
+        # A preliminary circle that calls most points grazing is itself wrong (a short or
+        # broken stripe): leave the judgement to the fit and its checks.
+        return points
+    return SectionPoints(points.stripe.subset(keep), points.points3d[keep],
+                         points.section[keep])
+
+
+def fit_section(
+    points: SectionPoints, geometry: RigGeometry, method: Method, params: MeasureParams
+) -> Measurement:
+    """Fit the section points by ``method`` and judge the result."""
+    sec = points.section
+    if method is Method.ELLIPSE:
+        plane_xy = light_plane_coordinates(points.points3d, geometry.plane_normal,
+                                           geometry.axis_direction)
+        ell = fits.fit_ellipse(plane_xy)
+        if not ell:
+            return Measurement.failed(Status.FIT_FAILED, method, ell.reason,
+                                      n_points=len(sec), points_px=points.stripe.xy)
+        # The ellipse centre lies on the light plane (and on the axis): show it on the section.
+        u1, u2 = light_plane_basis(geometry.plane_normal, geometry.axis_direction)
+        c3 = ell.center[0] * u1 + ell.center[1] * u2 + geometry.plane_d * geometry.plane_normal
+        e1, e2 = orthonormal_basis(geometry.axis_direction)
+        center = np.array([c3 @ e1, c3 @ e2])
+        diameter, rms, used = ell.minor_diameter, ell.rms, np.ones(len(sec), bool)
+    else:
+        fitter = {Method.CIRCLE: fits.fit_kasa, Method.PAPER: fits.fit_paper,
+                  Method.GEOMETRIC: fits.fit_geometric}[method]
+        circ = fitter(sec)
+        if not circ:
+            return Measurement.failed(Status.FIT_FAILED, method, circ.reason,
+                                      n_points=len(sec), points_px=points.stripe.xy)
+        center, diameter, rms, used = circ.center, circ.diameter, circ.rms, circ.inliers
+    n_used = int(used.sum())
+    arc = fits.arc_span_deg(sec[used], center)
+    common = dict(center_mm=(float(center[0]), float(center[1])), n_points=n_used, arc_deg=arc,
+                  rms_residual_mm=float(rms), points_px=points.stripe.xy[used])
+    if n_used < params.min_points:
+        return Measurement.failed(Status.TOO_FEW_POINTS, method,
+                                  f"{n_used} points after outlier rejection, need "
+                                  f"{params.min_points}", **common)
+    if not arc >= params.min_arc_deg:
+        return Measurement.failed(Status.ARC_TOO_SHORT, method,
+                                  f"stripe covers {arc:.1f} degrees of the section, need "
+                                  f"{params.min_arc_deg:.0f}", **common)
+    if not (np.isfinite(diameter) and 0 < diameter <= params.max_diameter_mm):
+        return Measurement.failed(Status.FIT_FAILED, method,
+                                  f"fitted diameter {diameter:.4g} mm is implausible", **common)
+    if not rms <= params.max_rms_mm:
+        return Measurement.failed(Status.FIT_FAILED, method,
+                                  f"points scatter {rms * 1000:.0f} um RMS about the fit (limit "
+                                  f"{params.max_rms_mm * 1000:.0f} um): not a clean section",
+                                  **common)
+    return Measurement(status=Status.OK, method=method, diameter_mm=float(diameter), **common)
+
+
+def measure_frame(
+    image: np.ndarray, geometry: RigGeometry, method: Method = DEFAULT_METHOD,
+    params: MeasureParams | None = None,
+) -> Measurement:
+    """Measure the shaft diameter in one stripe image.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        Grey stripe image (uint8, uint16 or float) of the size the calibration is for.
+    geometry : RigGeometry
+        Calibration.
+    method : Method
+        Fitting method.
+    params : MeasureParams, optional
+        Settings.
+
+    Returns
+    -------
+    Measurement
+        ``status`` OK with ``diameter_mm`` in mm, or a failure status with its reason; this
+        function does not raise for bad frames.
+    """
+    params = params or MeasureParams()
+    method = Method(method)
+    problem = check_image(image, geometry)
+    if problem:
+        return Measurement.failed(Status.BAD_IMAGE, method, problem)
+    stripe = extract_stripe(image, params.stripe)
+    if not stripe:
+        return Measurement.failed(Status.NO_STRIPE, method, stripe.reason or "no stripe found")
+    points = drop_grazing(section_points(stripe, geometry), geometry, params)
+    if len(points.section) < params.min_points:
+        return Measurement.failed(
+            Status.TOO_FEW_POINTS, method,
+            f"{len(points.section)} stripe points, need {params.min_points}",
+            n_points=len(points.section), points_px=points.stripe.xy)
+    return fit_section(points, geometry, method, params)

@@ -1,0 +1,416 @@
+"""Circle and ellipse fits of 2-D section points (mm), the paper's and better ones.
+
+Every fit returns a result object that is falsy on failure (with a reason) rather than raising,
+in the manner of scikit-image's ``measure.fit``:
+
+- ``fit_kasa``: algebraic circle ``x^2 + y^2 + a x + b y + c = 0`` (paper Eq. 12-13, with the
+  erratum ``d = 2 sqrt((a^2 + b^2)/4 - c)``);
+- ``fit_hyper``: Al-Sharadqah and Chernov's "Hyper" algebraic fit, essentially unbiased, used
+  to start the geometric fit;
+- ``fit_geometric``: orthogonal-distance circle fit by Levenberg-Marquardt from ``fit_hyper``,
+  with iterative rejection of outliers by a robust (MAD) scale;
+- ``fit_paper``: the constrained centre fit of paper Eq. 19-23, as ``paper-notes.md`` item 7
+  describes it;
+- ``fit_ellipse``: conic ``x^2 + A xy + B y^2 + C x + D y + E = 0`` by least squares (paper
+  Eq. 10-11); the minor axis is the diameter.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+_MAD_TO_SIGMA = 1.4826
+
+
+@dataclass(frozen=True)
+class CircleFit:
+    """A fitted circle, or why there is none.
+
+    Attributes
+    ----------
+    center : ndarray, shape (2,)
+        Centre, mm (NaN on failure).
+    radius : float
+        Radius, mm (NaN on failure).
+    rms : float
+        RMS orthogonal residual of the inliers, mm.
+    inliers : ndarray of bool, shape (N,)
+        Points the fit kept.
+    reason : str
+        Empty on success; why the fit failed otherwise.
+    """
+
+    center: np.ndarray
+    radius: float
+    rms: float = math.nan
+    inliers: np.ndarray = field(default_factory=lambda: np.empty(0, bool), repr=False)
+    reason: str = ""
+
+    def __bool__(self) -> bool:
+        return not self.reason and math.isfinite(self.radius) and self.radius > 0
+
+    @property
+    def diameter(self) -> float:
+        """Diameter, mm."""
+        return 2.0 * self.radius
+
+    @classmethod
+    def failure(cls, reason: str, n: int = 0) -> CircleFit:
+        """A failed fit."""
+        return cls(np.full(2, np.nan), math.nan, math.nan, np.zeros(n, bool), reason)
+
+
+@dataclass(frozen=True)
+class EllipseFit:
+    """A fitted ellipse (conic), or why there is none.
+
+    Attributes
+    ----------
+    coeffs : ndarray, shape (5,)
+        ``(A, B, C, D, E)`` of ``x^2 + A xy + B y^2 + C x + D y + E = 0`` in the fit's centred
+        coordinates.
+    center : ndarray, shape (2,)
+        Ellipse centre in the input coordinates, mm.
+    semi_axes : tuple of float
+        (semi-major, semi-minor), mm.
+    rms : float
+        RMS Sampson (first-order geometric) distance of the points, mm.
+    reason : str
+        Empty on success.
+    """
+
+    coeffs: np.ndarray
+    center: np.ndarray
+    semi_axes: tuple[float, float]
+    rms: float = math.nan
+    reason: str = ""
+
+    def __bool__(self) -> bool:
+        return not self.reason and all(math.isfinite(s) and s > 0 for s in self.semi_axes)
+
+    @property
+    def minor_diameter(self) -> float:
+        """Length of the minor axis, mm: the shaft diameter."""
+        return 2.0 * self.semi_axes[1]
+
+
+def _check_points(points: np.ndarray, need: int) -> str:
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        return f"points must have shape (N, 2), got {pts.shape}"
+    if pts.shape[0] < need:
+        return f"{pts.shape[0]} points, need at least {need}"
+    if not np.isfinite(pts).all():
+        return "points contain NaN or infinity"
+    return ""
+
+
+def circle_rms(points: np.ndarray, center: np.ndarray, radius: float) -> float:
+    """RMS orthogonal distance of points (mm) to a circle, mm."""
+    r = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1]) - radius
+    return float(np.sqrt(np.mean(r * r))) if r.size else math.nan
+
+
+def fit_kasa(points: np.ndarray) -> CircleFit:
+    """Algebraic (Kasa) circle fit, paper Eq. 12-13 with the erratum.
+
+    Minimises ``sum (x^2 + y^2 + a x + b y + c)^2``. Fast and closed-form, but its radius is
+    biased low on short, noisy arcs.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Points, mm; N >= 3.
+
+    Returns
+    -------
+    CircleFit
+    """
+    reason = _check_points(points, 3)
+    if reason:
+        return CircleFit.failure(reason, len(np.atleast_2d(points)))
+    pts = np.asarray(points, np.float64)
+    mean = pts.mean(axis=0)
+    x, y = (pts - mean).T  # the fit is translation invariant; centring keeps it well posed
+    design = np.column_stack([x, y, np.ones_like(x)])
+    (a, b, c), _, rank, _ = np.linalg.lstsq(design, -(x * x + y * y), rcond=None)
+    r2 = (a * a + b * b) / 4.0 - c
+    if rank < 3:
+        return CircleFit.failure("Kasa fit is degenerate (points on a line)", len(pts))
+    if not (np.isfinite(r2) and r2 > 0):
+        return CircleFit.failure("Kasa fit is degenerate (points on a line?)", len(pts))
+    center = mean + np.array([-a / 2.0, -b / 2.0])
+    radius = math.sqrt(r2)
+    return CircleFit(center, radius, circle_rms(pts, center, radius), np.ones(len(pts), bool))
+
+
+def fit_hyper(points: np.ndarray) -> CircleFit:
+    """Hyper algebraic circle fit (Al-Sharadqah & Chernov 2009), SVD form.
+
+    Its radius has no essential bias, so it is a good start for the geometric fit.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Points, mm; N >= 3.
+
+    Returns
+    -------
+    CircleFit
+    """
+    reason = _check_points(points, 3)
+    if reason:
+        return CircleFit.failure(reason, len(np.atleast_2d(points)))
+    pts = np.asarray(points, np.float64)
+    mean = pts.mean(axis=0)
+    x, y = (pts - mean).T
+    z = x * x + y * y
+    m = np.column_stack([z, x, y, np.ones_like(x)])
+    _, s, vt = np.linalg.svd(m, full_matrices=False)
+    v = vt.T
+    if s[-1] / s[0] < 1e-12:  # points exactly on a circle
+        coef = v[:, -1]
+    else:
+        zm, xm, ym = z.mean(), x.mean(), y.mean()
+        hyper_n = np.array([
+            [8.0 * zm, 4.0 * xm, 4.0 * ym, 2.0],
+            [4.0 * xm, 1.0, 0.0, 0.0],
+            [4.0 * ym, 0.0, 1.0, 0.0],
+            [2.0, 0.0, 0.0, 0.0],
+        ])  # Hyper's constraint matrix N
+        n_inv = np.linalg.inv(hyper_n)
+        w = v @ np.diag(s) @ v.T
+        evals, evecs = np.linalg.eig(w @ n_inv @ w)
+        evals = evals.real
+        order = np.argsort(evals)
+        pos = [i for i in order if evals[i] > 0]
+        if not pos:
+            return CircleFit.failure("Hyper fit found no positive eigenvalue", len(pts))
+        coef = np.linalg.solve(w, evecs[:, pos[0]].real)
+    if abs(coef[0]) < 1e-300:
+        return CircleFit.failure("Hyper fit is degenerate (points on a line?)", len(pts))
+    center = mean - coef[1:3] / (2.0 * coef[0])
+    r2 = (coef[1] ** 2 + coef[2] ** 2 - 4.0 * coef[0] * coef[3]) / (4.0 * coef[0] ** 2)
+    if not (np.isfinite(r2) and r2 > 0):
+        return CircleFit.failure("Hyper fit gave no real circle", len(pts))
+    radius = math.sqrt(r2)
+    return CircleFit(center, radius, circle_rms(pts, center, radius), np.ones(len(pts), bool))
+
+
+def _lm_circle(pts: np.ndarray, start: CircleFit) -> tuple[np.ndarray, float] | None:
+    def residuals(p: np.ndarray) -> np.ndarray:
+        return np.hypot(pts[:, 0] - p[0], pts[:, 1] - p[1]) - p[2]
+
+    def jac(p: np.ndarray) -> np.ndarray:
+        dx, dy = pts[:, 0] - p[0], pts[:, 1] - p[1]
+        dist = np.maximum(np.hypot(dx, dy), 1e-300)
+        return np.column_stack([-dx / dist, -dy / dist, -np.ones(len(pts))])
+
+    x0 = np.array([start.center[0], start.center[1], start.radius])
+    sol = least_squares(residuals, x0, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
+    if not sol.success or not np.isfinite(sol.x).all() or sol.x[2] <= 0:
+        return None
+    return sol.x[:2], float(sol.x[2])
+
+
+def fit_geometric(
+    points: np.ndarray, reject_k: float = 3.5, max_rounds: int = 6, floor_mm: float = 1e-4
+) -> CircleFit:
+    """Orthogonal-distance circle fit with robust outlier rejection.
+
+    Minimises ``sum (|p_i - c| - r)^2`` by Levenberg-Marquardt, started from ``fit_hyper``.
+    After each fit the points farther than ``reject_k`` robust standard deviations (MAD of the
+    inliers' residuals) are set aside and the fit repeats on the rest, until the inlier set
+    stops changing.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Points, mm; N >= 3.
+    reject_k : float
+        Rejection threshold in robust standard deviations.
+    max_rounds : int
+        Most fit-and-reject rounds.
+    floor_mm : float
+        Least rejection distance, mm, so that near-perfect data keeps its points.
+
+    Returns
+    -------
+    CircleFit
+        ``inliers`` marks the points kept.
+    """
+    reason = _check_points(points, 3)
+    if reason:
+        return CircleFit.failure(reason, len(np.atleast_2d(points)))
+    pts = np.asarray(points, np.float64)
+    inliers = np.ones(len(pts), bool)
+    fit = fit_hyper(pts)
+    if not fit:
+        return fit
+    center, radius = fit.center, fit.radius
+    for _ in range(max_rounds):
+        if inliers.sum() < 3:
+            return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
+        solved = _lm_circle(pts[inliers], CircleFit(center, radius))
+        if solved is None:
+            return CircleFit.failure("geometric fit did not converge", len(pts))
+        center, radius = solved
+        res = np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) - radius
+        scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
+        new = np.abs(res) <= max(reject_k * scale, floor_mm)
+        if np.array_equal(new, inliers):
+            break
+        inliers = new
+    return CircleFit(center, radius, circle_rms(pts[inliers], center, radius), inliers)
+
+
+def order_along_arc(points: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """Indices that sort points by angle around ``center``, starting after the largest gap."""
+    ang = np.arctan2(points[:, 1] - center[1], points[:, 0] - center[0])
+    order = np.argsort(ang)
+    a = ang[order]
+    gaps = np.diff(np.concatenate([a, [a[0] + 2 * math.pi]]))
+    start = (int(np.argmax(gaps)) + 1) % len(a)
+    return np.roll(order, -start)
+
+
+def arc_span_deg(points: np.ndarray, center: np.ndarray) -> float:
+    """Angular span of points around a centre, degrees: 360 minus the largest empty gap."""
+    if len(points) < 2 or not np.isfinite(center).all():
+        return 0.0
+    a = np.sort(np.arctan2(points[:, 1] - center[1], points[:, 0] - center[0]))
+    gaps = np.diff(np.concatenate([a, [a[0] + 2 * math.pi]]))
+    return float(np.degrees(2 * math.pi - gaps.max()))
+
+
+def _chord_crossings(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Intersection E of chords AC and BD, row by row (NaN where they are parallel)."""
+    u, v = c - a, d - b
+    cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    w = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (w[:, 0] * v[:, 1] - w[:, 1] * v[:, 0]) / cross
+    return a + s[:, None] * u
+
+
+def fit_paper(points: np.ndarray) -> CircleFit:
+    """The paper's constrained centre fit (Eq. 19-23), as ``paper-notes.md`` item 7 fixes it.
+
+    Points are put in arc order around the Kasa centre; with ``m = N // 4`` the quadruples are
+    ``A, B, C, D = p[i], p[i+m], p[i+2m], p[i+3m]`` for every ``i + 3m < N``, so chords AC and
+    BD cross inside the circle at E. For unknowns ``(x0, y0, r)`` the residuals are the power of
+    E, ``|AE||CE| - (r^2 - |OE|^2)`` and ``|BE||DE| - (r^2 - |OE|^2)``, and the perpendicular
+    bisectors, ``(O - mid(A, C)) . (A - C)`` and ``(O - mid(B, D)) . (B - D)``; their sum of
+    squares is minimised by Levenberg-Marquardt from the Kasa fit. The diameter is
+    ``2 mean |p_i - O|`` (Eq. 23), so the returned radius is that mean distance.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Points, mm; N >= 8.
+
+    Returns
+    -------
+    CircleFit
+    """
+    reason = _check_points(points, 8)
+    if reason:
+        return CircleFit.failure(reason, len(np.atleast_2d(points)))
+    pts = np.asarray(points, np.float64)
+    start = fit_kasa(pts)
+    if not start:
+        return start
+    p = pts[order_along_arc(pts, start.center)]
+    n = len(p)
+    m = n // 4
+    idx = np.arange(0, n - 3 * m)
+    a, b, c, d = p[idx], p[idx + m], p[idx + 2 * m], p[idx + 3 * m]
+    e = _chord_crossings(a, b, c, d)
+    good = np.isfinite(e).all(axis=1)
+    a, b, c, d, e = a[good], b[good], c[good], d[good], e[good]
+    if len(e) == 0:
+        return CircleFit.failure("no crossing chord pairs (points on a line?)", n)
+    ae_ce = np.linalg.norm(a - e, axis=1) * np.linalg.norm(c - e, axis=1)
+    be_de = np.linalg.norm(b - e, axis=1) * np.linalg.norm(d - e, axis=1)
+    mid_ac, dir_ac = 0.5 * (a + c), a - c
+    mid_bd, dir_bd = 0.5 * (b + d), b - d
+
+    def residuals(q: np.ndarray) -> np.ndarray:
+        o, r = q[:2], q[2]
+        oe2 = np.sum((o - e) ** 2, axis=1)
+        return np.concatenate([
+            ae_ce - (r * r - oe2),
+            be_de - (r * r - oe2),
+            np.sum((o - mid_ac) * dir_ac, axis=1),
+            np.sum((o - mid_bd) * dir_bd, axis=1),
+        ])
+
+    x0 = np.array([start.center[0], start.center[1], start.radius])
+    sol = least_squares(residuals, x0, method="lm", xtol=1e-12, ftol=1e-12)
+    if not sol.success or not np.isfinite(sol.x).all():
+        return CircleFit.failure("constrained centre fit did not converge", n)
+    center = sol.x[:2]
+    radius = float(np.mean(np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1])))
+    if not radius > 0 or abs(radius - start.radius) > start.radius:
+        return CircleFit.failure("constrained centre fit diverged from its start", n)
+    return CircleFit(center, radius, circle_rms(pts, center, radius), np.ones(n, bool))
+
+
+def conic_semi_axes(coeffs: np.ndarray) -> tuple[np.ndarray, float, float] | None:
+    """Centre and semi-axes (major, minor) of ``x^2 + A xy + B y^2 + C x + D y + E = 0``.
+
+    The minor semi-axis squared is ``2 N / ((4B - A^2)(1 + B + s))`` with
+    ``N = D^2 + B C^2 - A C D + (A^2 - 4B) E`` and ``s = sqrt(A^2 + (1 - B)^2)``: paper Eq. 11
+    (signs rearranged); the major uses ``1 + B - s``. None when the conic is not a real ellipse.
+    """
+    A, B, C, D, E = (float(v) for v in coeffs)
+    disc = 4.0 * B - A * A
+    if disc <= 0:
+        return None
+    num = D * D + B * C * C - A * C * D - disc * E
+    s = math.hypot(A, 1.0 - B)
+    if num <= 0 or 1.0 + B - s <= 0:
+        return None
+    minor2 = 2.0 * num / (disc * (1.0 + B + s))
+    major2 = 2.0 * num / (disc * (1.0 + B - s))
+    center = np.array([(A * D - 2.0 * B * C) / disc, (A * C - 2.0 * D) / disc])
+    return center, math.sqrt(major2), math.sqrt(minor2)
+
+
+def fit_ellipse(points: np.ndarray) -> EllipseFit:
+    """Least-squares conic with unit ``x^2`` coefficient (paper Eq. 10-11, Appendix B).
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Points in light-plane coordinates, mm; N >= 5. They are centred on their mean first
+        (the algebraic fit is not translation invariant; centring keeps it well conditioned).
+
+    Returns
+    -------
+    EllipseFit
+        ``minor_diameter`` is the shaft diameter.
+    """
+    reason = _check_points(points, 5)
+    nan2 = np.full(2, np.nan)
+    if reason:
+        return EllipseFit(np.full(5, np.nan), nan2, (math.nan, math.nan), reason=reason)
+    pts = np.asarray(points, np.float64)
+    mean = pts.mean(axis=0)
+    x, y = (pts - mean).T
+    design = np.column_stack([x * y, y * y, x, y, np.ones_like(x)])
+    coeffs, *_ = np.linalg.lstsq(design, -(x * x), rcond=None)
+    axes = conic_semi_axes(coeffs)
+    if axes is None:
+        return EllipseFit(coeffs, nan2, (math.nan, math.nan),
+                          reason="conic fit is not an ellipse (arc too short or too noisy)")
+    center, major, minor = axes
+    A, B, C, D, _ = coeffs
+    f = x * x + design @ coeffs
+    grad = np.hypot(2 * x + A * y + C, A * x + 2 * B * y + D)
+    rms = float(np.sqrt(np.mean((f / np.maximum(grad, 1e-300)) ** 2)))
+    return EllipseFit(coeffs, center + mean, (major, minor), rms)

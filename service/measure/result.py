@@ -1,0 +1,92 @@
+"""Result types of the measurement core: a status, never an exception, for a failed frame."""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+class Status(enum.StrEnum):
+    """Outcome of measuring one frame (or one fused window)."""
+
+    OK = "ok"
+    NO_STRIPE = "no_stripe"
+    TOO_FEW_POINTS = "too_few_points"
+    ARC_TOO_SHORT = "arc_too_short"
+    FIT_FAILED = "fit_failed"
+    BAD_IMAGE = "bad_image"
+
+
+class Method(enum.StrEnum):
+    """Fitting method; the first three are the reference paper's comparison."""
+
+    ELLIPSE = "ellipse"
+    CIRCLE = "circle"
+    PAPER = "paper"
+    GEOMETRIC = "geometric"
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One diameter measurement, or the reason there is none.
+
+    Attributes
+    ----------
+    status : Status
+        ``Status.OK`` when ``diameter_mm`` is a real measurement.
+    method : Method
+        The fit that produced it.
+    diameter_mm : float or None
+        Shaft diameter in mm; None unless ``status`` is OK.
+    center_mm : tuple of float or None
+        Fitted section centre in the section basis (mm).
+    n_points : int
+        Stripe points that entered the fit (after rejection).
+    arc_deg : float
+        Angular span of those points around the centre, degrees (0 when unknown).
+    rms_residual_mm : float or None
+        RMS distance of the points to the fitted curve, mm.
+    reason : str
+        Human-readable explanation, empty when OK.
+    points_px : ndarray, shape (N, 2)
+        Sub-pixel stripe centres (x, y) in pixels that were used, for display.
+    """
+
+    status: Status
+    method: Method
+    diameter_mm: float | None = None
+    center_mm: tuple[float, float] | None = None
+    n_points: int = 0
+    arc_deg: float = 0.0
+    rms_residual_mm: float | None = None
+    reason: str = ""
+    points_px: np.ndarray = field(default_factory=lambda: np.empty((0, 2)), repr=False)
+
+    def __bool__(self) -> bool:
+        return self.status is Status.OK
+
+    @classmethod
+    def failed(cls, status: Status, method: Method, reason: str, **kw: Any) -> Measurement:
+        """A measurement that carries only a failure status and its reason."""
+        return cls(status=status, method=method, reason=reason, **kw)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready dict (no arrays); non-finite numbers become None."""
+
+        def num(x: float | None) -> float | None:
+            return None if x is None or not math.isfinite(x) else float(x)
+
+        return {
+            "status": self.status.value,
+            "method": self.method.value,
+            "diameter_mm": num(self.diameter_mm) if self.status is Status.OK else None,
+            "center_mm": None if self.center_mm is None else [num(c) for c in self.center_mm],
+            "n_points": int(self.n_points),
+            "arc_deg": num(self.arc_deg),
+            "rms_residual_mm": num(self.rms_residual_mm),
+            "reason": self.reason,
+        }

@@ -1,0 +1,90 @@
+"""3-D stripe points to 2-D coordinates: on the section perpendicular to the shaft axis (paper
+Eq. 16-18, the "virtual plane"), or within the light plane (for the paper's ellipse fit).
+
+Projecting along the axis onto a perpendicular plane and expressing the result in an orthonormal
+basis ``(e1, e2)`` of that plane is the same as taking ``(X . e1, X . e2)``: where the plane sits
+along the axis does not matter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def orthonormal_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``e1, e2`` that with ``direction`` form a right-handed basis.
+
+    Parameters
+    ----------
+    direction : ndarray, shape (3,)
+        Any non-zero vector; it is normalised here.
+
+    Returns
+    -------
+    e1, e2 : ndarray, shape (3,)
+        ``e1 x e2`` is parallel to ``direction``.
+    """
+    a = np.asarray(direction, np.float64)
+    a = a / np.linalg.norm(a)
+    ref = np.eye(3)[int(np.argmin(np.abs(a)))]  # the axis least aligned with a
+    e1 = np.cross(a, ref)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    return e1, e2
+
+
+def project_to_section(points: np.ndarray, axis_direction: np.ndarray) -> np.ndarray:
+    """Project 3-D points along the axis onto the perpendicular plane.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        Camera-frame points, mm.
+    axis_direction : ndarray, shape (3,)
+        Spindle axis direction.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Section coordinates ``(X . e1, X . e2)``, mm. A point on the axis maps to the axis's
+        own section coordinates, so the centre of a turned surface is the axis there.
+    """
+    e1, e2 = orthonormal_basis(axis_direction)
+    return np.column_stack([points @ e1, points @ e2])
+
+
+def light_plane_coordinates(
+    points: np.ndarray, plane_normal: np.ndarray, axis_direction: np.ndarray
+) -> np.ndarray:
+    """2-D coordinates of points within the light plane.
+
+    The first basis vector is the axis direction projected into the plane (the major axis of
+    the section ellipse), the second is ``n x u1``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        Camera-frame points on the light plane, mm.
+    plane_normal : ndarray, shape (3,)
+        Light-plane unit normal.
+    axis_direction : ndarray, shape (3,)
+        Spindle axis direction.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        In-plane coordinates, mm.
+    """
+    u1, u2 = light_plane_basis(plane_normal, axis_direction)
+    return np.column_stack([points @ u1, points @ u2])
+
+
+def light_plane_basis(
+    plane_normal: np.ndarray, axis_direction: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal in-plane basis ``(u1, u2)``: ``u1`` along the axis projected into the plane."""
+    n = np.asarray(plane_normal, np.float64)
+    a = np.asarray(axis_direction, np.float64)
+    u1 = a - (a @ n) * n
+    u1 /= np.linalg.norm(u1)
+    return u1, np.cross(n, u1)

@@ -1,0 +1,55 @@
+"""The simulated rig: a valid exact calibration, deterministic frames, turning speckle."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drivers.sim.rig import RigConfig, ShaftRenderer, rig_calibration
+
+
+def test_calibration_is_valid_and_matches_the_config() -> None:
+    cfg = RigConfig(triangulation_deg=40.0)
+    cal = rig_calibration(cfg)
+    geo = cal.to_geometry()
+    assert geo.camera_matrix[0, 0] == pytest.approx(25.0 / 6.45e-3)
+    assert geo.image_size == (1376, 1024)
+    # The light plane makes the triangulation angle with the camera's viewing direction, up to
+    # the small misalignment of the camera.
+    view = math.degrees(math.asin(abs(geo.plane_normal[2])))
+    assert view == pytest.approx(40.0, abs=2.5)
+    # The axis point lies on the light plane and about standoff_mm in front of the camera.
+    assert geo.plane_normal @ geo.axis_point == pytest.approx(geo.plane_d, abs=1e-9)
+    assert np.linalg.norm(geo.axis_point) == pytest.approx(300.0, rel=1e-9)
+
+
+def test_frames_are_deterministic_and_speckle_changes_between_frames() -> None:
+    a = ShaftRenderer(RigConfig(), seed=3)
+    b = ShaftRenderer(RigConfig(), seed=3)
+    f0, f0b, f1 = a.render(25.0, 0), b.render(25.0, 0), a.render(25.0, 1)
+    assert f0.dtype == np.uint8 and f0.shape == (1024, 1376)
+    assert np.array_equal(f0, f0b)
+    assert not np.array_equal(f0, f1)
+
+
+def test_the_stripe_moves_with_the_diameter(renderer) -> None:
+    def stripe_centroid(img: np.ndarray) -> np.ndarray:
+        ys, xs = np.nonzero(img > 60)
+        return np.array([xs.mean(), ys.mean()])
+
+    c20, c40 = stripe_centroid(renderer.render(20.0)), stripe_centroid(renderer.render(40.0))
+    assert np.linalg.norm(c40 - c20) > 20
+
+
+def test_laser_azimuth_sets_the_visible_arc() -> None:
+    from service.measure.diameter import measure_frame
+
+    arcs = []
+    for az in (40.0, 75.0):
+        r = ShaftRenderer(RigConfig(laser_azimuth_deg=az), seed=1)
+        m = measure_frame(r.render(30.0), r.calibration.to_geometry())
+        assert m, m.reason
+        arcs.append(m.arc_deg)
+    assert arcs[0] > arcs[1] + 20
