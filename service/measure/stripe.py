@@ -333,9 +333,10 @@ def correct_curvature_bias(points: StripePoints, sigma_px: float, window_px: flo
     its ridge toward the centre of curvature by about ``s^2 kappa / 2`` (in polar form the heat
     equation has a drift term ``u_r / r``; the line's own width does not matter). Near the ends
     of the stripe on a shaft, where its image bends sharply, that is several hundredths of a
-    pixel: micrometres that a short-arc fit amplifies tenfold. Here each centre's curvature comes from a parabola ``v = a + b u + c u^2`` fitted,
-    with Gaussian weights along the stripe, to its neighbours in the frame of its own tangent
-    ``u`` and normal ``v`` (``kappa = 2c``); the centre then moves by ``-(s^2 + w^2) c`` along
+    pixel: micrometres that a short-arc fit amplifies tenfold. Here each centre's curvature
+    comes from a parabola ``v = a + b u + c u^2`` fitted, with Gaussian weights along the
+    stripe, to its neighbours in the frame of its own tangent ``u`` and normal ``v``
+    (``kappa = 2c``); the centre then moves by ``-s^2 c`` along
     its normal.
 
     Parameters
