@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 # Robust standard deviation from the median absolute deviation of a normal sample.
@@ -54,6 +56,10 @@ class StripeParams:
         ... and this fraction of the 90th percentile of the centres' curvatures (weak tails).
     width_range : tuple of float
         Accepted stripe width relative to the median width (smeared or split points outside).
+    link_gap_px : float
+        Centres closer than this belong to the same line (Steger's linking).
+    min_chain : int
+        Shortest line, in centres, that is kept: shorter chains are noise or specks.
     curvature_correction : bool
         Undo the shift of a curved stripe's smoothed ridge toward its centre of curvature
         (``correct_curvature_bias``).
@@ -71,6 +77,8 @@ class StripeParams:
     min_strength_sigma: float = 6.0
     min_relative_strength: float = 0.08
     width_range: tuple[float, float] = (0.4, 2.5)
+    link_gap_px: float = 2.0
+    min_chain: int = 10
     curvature_correction: bool = True
     curvature_window_px: float = 5.0
     optics_blur_px: float = 0.0
@@ -325,6 +333,22 @@ def reject_weak(points: StripePoints, params: StripeParams) -> StripePoints:
     return points.subset(keep)
 
 
+def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int) -> StripePoints:
+    """Link centres closer than ``gap_px`` into lines; keep lines of ``min_chain`` or more.
+
+    A laser stripe gives about one centre per pixel along its length, so its centres form long
+    chains; noise and specks that pass Steger's test give isolated centres or short chains.
+    """
+    if len(points) == 0:
+        return points
+    pairs = cKDTree(points.xy).query_pairs(gap_px, output_type="ndarray")
+    n = len(points)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    sizes = np.bincount(labels)
+    return points.subset(sizes[labels] >= min_chain)
+
+
 def correct_curvature_bias(points: StripePoints, sigma_px: float, window_px: float = 5.0
                            ) -> StripePoints:
     """Move centres of a curved stripe back out of the curve.
@@ -397,6 +421,10 @@ def extract_stripe(image: np.ndarray, params: StripeParams | None = None) -> Str
     if band is None:
         return StripePoints.empty(reason, background, noise)
     points = reject_weak(steger_centres(image, band, params, background, noise), params)
+    points = keep_long_chains(points, params.link_gap_px, params.min_chain)
+    if not points:
+        return StripePoints.empty("no stripe: no line of centres long enough", background,
+                                  noise)
     if params.curvature_correction:
         smoothing = math.hypot(params.sigma_px, params.optics_blur_px)
         points = correct_curvature_bias(points, smoothing, params.curvature_window_px)

@@ -67,9 +67,8 @@ def intersect_plane(rays_xy: np.ndarray, normal: np.ndarray, d: float) -> np.nda
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = d / denom
     bad = (np.abs(denom) < 1e-9) | ~(scale > 0)
-    pts = rays * scale[:, None]
-    pts[bad] = np.nan
-    return pts
+    scale[bad] = np.nan
+    return rays * scale[:, None]
 
 
 def triangulate(

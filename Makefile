@@ -1,0 +1,35 @@
+# shaftgauge: every target installs what it needs first (apt packages, .venv), idempotently.
+SHELL := /bin/bash
+VENV  := .venv
+PY    := $(VENV)/bin/python
+STAMP := $(VENV)/.shaftgauge-installed
+
+.PHONY: setup run test bench soak lint clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml deploy/bootstrap.sh
+	bash deploy/bootstrap.sh
+
+## make run: until the service lands, the offline demo on the simulated rig.
+run: setup
+	$(VENV)/bin/shaftgauge demo
+
+## make test: lint, then the whole suite (short fault runs included, long soak runs left out).
+test: setup
+	$(VENV)/bin/ruff check .
+	$(PY) -m pytest -m "not slow" -q
+
+## make bench: accuracy and speed figures; results land in bench-results/.
+bench: setup
+	$(PY) -m tests.bench.paper_comparison
+
+## make soak: the long soak and fault runs.
+soak: setup
+	$(PY) -m pytest -m slow -q
+
+lint: setup
+	$(VENV)/bin/ruff check .
+
+clean:
+	rm -rf $(VENV) bench-results test-artifacts .pytest_cache .ruff_cache

@@ -1,0 +1,142 @@
+"""`shaftgauge measure` as scripts use it: a subprocess, JSON lines, exit codes 0 and 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers.sim.frames import write_frames
+
+SHAFTGAUGE = str(Path(sys.executable).with_name("shaftgauge"))
+KEYS = {"image", "method", "status", "diameter_mm", "n_points", "arc_deg", "rms_residual_mm"}
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([SHAFTGAUGE, *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory) -> tuple[Path, list[Path]]:
+    out = tmp_path_factory.mktemp("frames")
+    paths = write_frames(out, [20.113, 47.062], count=1, seed=3)
+    return out / "calibration.json", paths
+
+
+def lines(stdout: str) -> list[dict]:
+    return [json.loads(line) for line in stdout.splitlines()]
+
+
+@pytest.mark.parametrize("method", ["ellipse", "circle", "paper", "geometric", None])
+def test_measure_prints_one_json_line_per_image(frames, method) -> None:
+    cal, paths = frames
+    extra = ["--method", method] if method else []
+    res = run("measure", "--calibration", str(cal), *extra, *map(str, paths))
+    assert res.returncode == 0, res.stderr
+    recs = lines(res.stdout)
+    assert [r["image"] for r in recs] == [str(p) for p in paths]
+    for rec, truth in zip(recs, [20.113, 47.062], strict=True):
+        assert rec.keys() >= KEYS
+        assert rec["status"] == "ok"
+        assert rec["method"] == (method or "geometric")
+        bound = 2.0 if method == "ellipse" else 0.1
+        assert abs(rec["diameter_mm"] - truth) < bound
+        assert rec["n_points"] > 100 and 60 < rec["arc_deg"] < 140
+
+
+def test_a_frame_without_stripe_is_reported_and_the_run_still_exits_0(frames, tmp_path) -> None:
+    cal, paths = frames
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((1024, 1376), 5, np.uint8))
+    res = run("measure", "--calibration", str(cal), str(blank), str(paths[0]))
+    assert res.returncode == 0, res.stderr
+    first, second = lines(res.stdout)
+    assert first["status"] == "no_stripe" and first["diameter_mm"] is None
+    assert second["status"] == "ok"
+
+
+def one_line_error(res: subprocess.CompletedProcess) -> str:
+    assert res.returncode == 2
+    assert res.stdout == ""
+    err = res.stderr.strip()
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def test_bad_calibration_field_exits_2_naming_the_field(frames, tmp_path) -> None:
+    cal, paths = frames
+    doc = json.loads(cal.read_text())
+    doc["light_plane"]["normal"] = [1.0, 0.1, 0.0]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    err = one_line_error(run("measure", "--calibration", str(bad), str(paths[0])))
+    assert "light_plane.normal" in err and "unit vector" in err
+
+
+@pytest.mark.parametrize("content", ["{not json", '{"schema": "other/9"}', ""])
+def test_corrupt_calibration_exits_2(frames, tmp_path, content) -> None:
+    _, paths = frames
+    bad = tmp_path / "corrupt.json"
+    bad.write_text(content)
+    err = one_line_error(run("measure", "--calibration", str(bad), str(paths[0])))
+    assert str(bad) in err
+
+
+def test_missing_calibration_exits_2(frames, tmp_path) -> None:
+    _, paths = frames
+    err = one_line_error(run("measure", "--calibration", str(tmp_path / "x.json"),
+                             str(paths[0])))
+    assert "cannot read" in err
+
+
+def test_non_image_file_exits_2_before_any_output(frames, tmp_path) -> None:
+    cal, paths = frames
+    txt = tmp_path / "notes.png"
+    txt.write_text("this is not a picture")
+    err = one_line_error(run("measure", "--calibration", str(cal), str(paths[0]), str(txt)))
+    assert "notes.png" in err and "not an image" in err
+
+
+def test_missing_image_exits_2(frames, tmp_path) -> None:
+    cal, _ = frames
+    err = one_line_error(run("measure", "--calibration", str(cal), str(tmp_path / "no.png")))
+    assert "no such file" in err
+
+
+def test_image_of_another_size_exits_2(frames, tmp_path) -> None:
+    cal, _ = frames
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((480, 640), np.uint8))
+    err = one_line_error(run("measure", "--calibration", str(cal), str(small)))
+    assert "640x480" in err and "1376x1024" in err
+
+
+@pytest.mark.parametrize("args", [["measure"], ["measure", "--calibration", "c.json"],
+                                  ["measure", "--calibration", "c.json", "--method", "magic",
+                                   "x.png"], ["frobnicate"]])
+def test_bad_arguments_exit_2(args) -> None:
+    res = run(*args)
+    assert res.returncode == 2 and res.stderr and res.stdout == ""
+
+
+def test_sixteen_bit_png_measures(frames, tmp_path) -> None:
+    cal, paths = frames
+    img = cv2.imread(str(paths[0]), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 257
+    p16 = tmp_path / "f16.png"
+    cv2.imwrite(str(p16), img)
+    res = run("measure", "--calibration", str(cal), str(p16))
+    assert res.returncode == 0
+    assert abs(lines(res.stdout)[0]["diameter_mm"] - 20.113) < 0.1
+
+
+def test_render_writes_frames_and_calibration(tmp_path) -> None:
+    res = run("render", "--diameter", "25", "--diameter", "30", "--count", "2",
+              "--output", str(tmp_path))
+    assert res.returncode == 0, res.stderr
+    assert len(list(tmp_path.glob("*.png"))) == 4
+    assert (tmp_path / "calibration.json").is_file()
