@@ -68,6 +68,92 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_sim_camera(args: argparse.Namespace) -> int:
+    """Serve a simulated GigE Vision camera until interrupted."""
+    import signal
+    import threading
+
+    from calib_store.model import save_calibration
+    from drivers.sim.control import serve_control
+    from drivers.sim.gige import SimCameraSettings, SimGigECamera
+
+    settings = SimCameraSettings(
+        serial=args.serial, address=args.address, diameter_mm=args.diameter,
+        drift_um_per_min=args.drift_um_per_min, fps=args.fps, lost_ratio=args.lost_ratio,
+        seed=args.seed)
+    camera = SimGigECamera(settings)
+    try:
+        camera.start()
+    except (RuntimeError, ValueError) as err:
+        return _fail(str(err))
+    if args.calibration_out:
+        save_calibration(camera.renderer.calibration, args.calibration_out)
+    server = serve_control(camera, args.control_port)
+    done = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: done.set())
+    print(json.dumps({"event": "ready", "device_id": camera.device_id,
+                      "address": args.address, "control_port": server.server_address[1],
+                      "calibration": args.calibration_out}), flush=True)
+    done.wait()
+    server.shutdown()
+    camera.stop()
+    return EXIT_OK
+
+
+def cmd_camera_list(args: argparse.Namespace) -> int:
+    """One JSON line per camera Aravis sees."""
+    from drivers.camera.aravis import enable_fake_interface, list_devices
+
+    if args.fake:
+        enable_fake_interface()
+    for dev in list_devices():
+        print(json.dumps(dev.__dict__))
+    return EXIT_OK
+
+
+def cmd_camera_grab(args: argparse.Namespace) -> int:
+    """Save N frames as PNG, then print one JSON line with the counters."""
+    from pathlib import Path
+
+    import cv2
+
+    from drivers.camera.aravis import AravisCamera, enable_fake_interface
+    from drivers.camera.base import CameraConfig, CameraError
+
+    if args.fake:
+        enable_fake_interface()
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        config = CameraConfig(pixel_format=args.pixel_format, exposure_us=args.exposure_us,
+                              packet_size=args.packet_size, queue_size=max(4, args.count))
+    except CameraError as err:
+        return _fail(str(err))
+    camera = AravisCamera(args.device_id, config)
+    saved, deadline = 0, None
+    import time
+
+    camera.start()
+    try:
+        deadline = time.monotonic() + args.timeout
+        while saved < args.count and time.monotonic() < deadline:
+            frame = camera.get_frame(timeout_s=0.5)
+            if frame is None:
+                continue
+            cv2.imwrite(str(out / f"frame_{frame.frame_id:08d}.png"), frame.image)
+            saved += 1
+    finally:
+        status = camera.status()
+        camera.stop()
+    print(json.dumps({"device_id": args.device_id, "saved": saved, "state": status.state.value,
+                      "message": status.message, "counters": status.counters.__dict__}))
+    if saved < args.count:
+        return _fail(f"{args.device_id}: got {saved} of {args.count} frames in "
+                     f"{args.timeout:g} s ({status.message})")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = argparse.ArgumentParser(
@@ -90,6 +176,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="speckle and noise seed")
     p.add_argument("--output", required=True, metavar="DIR", help="folder to write into")
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("sim-camera", help="serve a simulated GigE Vision camera (Aravis fake "
+                       "camera streaming the simulated rig)")
+    p.add_argument("--serial", default="SIM001", help="serial number (device id "
+                   "Aravis-Fake-SERIAL)")
+    p.add_argument("--address", default="127.0.0.1", help="IPv4 address to serve on")
+    p.add_argument("--diameter", type=float, required=True, metavar="MM")
+    p.add_argument("--fps", type=float, default=10.0)
+    p.add_argument("--drift-um-per-min", type=float, default=0.0,
+                   help="tool wear: diameter change in um per minute")
+    p.add_argument("--lost-ratio", type=float, default=0.0, help="GVSP packet loss (0-1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--control-port", type=int, default=0,
+                   help="loopback TCP port of the JSON-lines control (0: any free port)")
+    p.add_argument("--calibration-out", metavar="FILE",
+                   help="write the simulated rig's exact calibration here")
+    p.set_defaults(func=cmd_sim_camera)
+
+    cam = sub.add_parser("camera", help="GigE Vision cameras (any that Aravis sees)")
+    cam_sub = cam.add_subparsers(dest="camera_command", required=True, metavar="ACTION")
+    p = cam_sub.add_parser("list", help="one JSON line per camera found")
+    p.add_argument("--fake", action="store_true", help="include Aravis's in-process fake")
+    p.set_defaults(func=cmd_camera_list)
+    p = cam_sub.add_parser("grab", help="save N frames as PNG, then print the counters")
+    p.add_argument("device_id")
+    p.add_argument("--count", type=int, default=1)
+    p.add_argument("--output", required=True, metavar="DIR")
+    p.add_argument("--pixel-format", default="Mono8", choices=["Mono8", "Mono12", "Mono16"])
+    p.add_argument("--exposure-us", type=float)
+    p.add_argument("--packet-size", type=int, help="bytes (default: negotiate)")
+    p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for frames")
+    p.add_argument("--fake", action="store_true", help="enable Aravis's in-process fake")
+    p.set_defaults(func=cmd_camera_grab)
 
     p = sub.add_parser("demo", help="offline demo: render the paper's shafts and measure them")
     p.add_argument("--method", choices=methods, default=DEFAULT_METHOD.value)

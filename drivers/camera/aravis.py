@@ -1,0 +1,385 @@
+"""Any GigE Vision camera (or Aravis's in-process fake) through Aravis 0.8 and PyGObject.
+
+One acquisition thread per camera: it opens and configures the camera, pre-allocates a pool of
+stream buffers, pops them with a timeout, hands only complete frames on (copied, the buffer
+pushed back at once) to a bounded drop-oldest queue, and watches for the camera going away
+(Aravis's ``control-lost`` signal, or a stalled stream whose camera no longer answers). Then it
+tears everything down and reconnects with exponential backoff: re-discover, re-open,
+re-configure, resume. Nothing raised inside the thread escapes it; what happened is in
+``status()``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from drivers.camera.base import (
+    Camera,
+    CameraConfig,
+    CameraCounters,
+    CameraError,
+    CameraState,
+    CameraStatus,
+    DeviceInfo,
+    Frame,
+)
+from drivers.camera.queue import DropOldestQueue
+
+log = logging.getLogger("shaftgauge.camera")
+
+_POP_TIMEOUT_US = 100_000
+# A free-running stream that delivers nothing for this long gets its camera probed.
+_STALL_S = 2.0
+
+
+def _aravis() -> Any:
+    """The Aravis GI module (imported lazily so that pure code never needs GObject)."""
+    import gi
+
+    gi.require_version("Aravis", "0.8")
+    from gi.repository import Aravis
+
+    return Aravis
+
+
+def _glib_error() -> type[Exception]:
+    from gi.repository import GLib
+
+    return GLib.Error
+
+
+_fake_lock = threading.Lock()
+
+
+def enable_fake_interface() -> None:
+    """Make Aravis's in-process fake camera (device id ``Fake_1``) discoverable."""
+    with _fake_lock:
+        _aravis().enable_interface("Fake")
+
+
+def list_devices() -> list[DeviceInfo]:
+    """Every camera Aravis sees (GigE Vision, USB3 Vision, and the fake when enabled)."""
+    Aravis = _aravis()
+    Aravis.update_device_list()
+    return [
+        DeviceInfo(
+            device_id=Aravis.get_device_id(i) or "",
+            vendor=Aravis.get_device_vendor(i) or "",
+            model=Aravis.get_device_model(i) or "",
+            serial=Aravis.get_device_serial_nbr(i) or "",
+            address=Aravis.get_device_address(i) or "",
+            protocol=Aravis.get_device_protocol(i) or "",
+        )
+        for i in range(Aravis.get_n_devices())
+    ]
+
+
+def bits_per_pixel(pixel_format: int) -> int:
+    """Bits per pixel of a GenICam pixel format code (bits 16-23 of the PFNC value)."""
+    return (int(pixel_format) >> 16) & 0xFF
+
+
+@dataclass
+class _Session:
+    """The Aravis objects of one connection."""
+
+    camera: Any
+    device: Any
+    stream: Any
+    handler_id: int
+    lost: threading.Event
+    packet_size: int | None
+    infos: dict[str, str]  # our counter -> the stream's info name, for the infos it has
+
+
+_STREAM_INFOS = {
+    "failed": "n_failures",
+    "underruns": "n_underruns",
+    "missing_packets": "n_missing_packets",
+    "resent_packets": "n_resent_packets",
+}
+
+
+class AravisCamera(Camera):
+    """A GigE Vision camera through Aravis.
+
+    Parameters
+    ----------
+    device_id : str
+        Aravis device id (``shaftgauge camera list``), e.g. ``Basler-21234567`` or
+        ``Aravis-Fake-SIM001``; ``Fake_1`` after ``enable_fake_interface()``.
+    config : CameraConfig
+        What to configure on every (re)connection.
+    """
+
+    def __init__(self, device_id: str, config: CameraConfig | None = None) -> None:
+        self.device_id = device_id
+        self.config = config or CameraConfig()
+        self._queue: DropOldestQueue[Frame] = DropOldestQueue(self.config.queue_size)
+        self._lock = threading.Lock()          # status fields
+        self._cam_lock = threading.Lock()      # control-channel calls from two threads
+        self._state = CameraState.STOPPED
+        self._message = "not started"
+        self._counters = CameraCounters()
+        self._stream_base = dict.fromkeys(_STREAM_INFOS, 0)
+        self._last_frame_ns: int | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._session: _Session | None = None
+
+    # ---- public interface --------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._thread and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._queue.reopen()
+        self._thread = threading.Thread(target=self._run, name=f"camera:{self.device_id}",
+                                        daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread:
+            self._thread.join(timeout=15.0)
+            if self._thread.is_alive():  # pragma: no cover - Aravis hung in a call
+                log.error("camera thread of %s did not end within 15 s", self.device_id)
+        self._thread = None
+        self._queue.close()
+        self._set_state(CameraState.STOPPED, "stopped")
+
+    def get_frame(self, timeout_s: float | None = None) -> Frame | None:
+        return self._queue.get(timeout_s)
+
+    def status(self) -> CameraStatus:
+        with self._lock:
+            counters = replace(self._counters, dropped=self._queue.dropped)
+            return CameraStatus(self.device_id, self._state, self._message, counters,
+                                self._last_frame_ns)
+
+    def software_trigger(self) -> None:
+        with self._cam_lock:
+            session = self._session
+            if session is None:
+                raise CameraError(f"{self.device_id}: not connected")
+            try:
+                session.camera.software_trigger()
+            except _glib_error() as err:
+                raise CameraError(f"{self.device_id}: software trigger failed: "
+                                  f"{err.message}") from None
+
+    # ---- the acquisition thread ----------------------------------------------------------
+
+    def _set_state(self, state: CameraState, message: str) -> None:
+        with self._lock:
+            changed = state != self._state or message != self._message
+            self._state, self._message = state, message
+        if changed:
+            log.info("camera %s: %s (%s)", self.device_id, state.value, message)
+
+    def _run(self) -> None:
+        backoff = self.config.reconnect_initial_s
+        first = True
+        while not self._stop.is_set():
+            try:
+                self._set_state(CameraState.CONNECTING if first else CameraState.RECONNECTING,
+                                f"opening {self.device_id}")
+                session = self._open()
+            except CameraError as err:  # the camera answers but refuses our configuration
+                self._set_state(CameraState.FAILED, f"{err}; retrying in "
+                                f"{self.config.reconnect_max_s:g} s")
+                self._stop.wait(self.config.reconnect_max_s)
+                continue
+            except Exception as err:  # not found, not reachable, taken by another host
+                wait = backoff
+                backoff = min(backoff * 2.0, self.config.reconnect_max_s)
+                state = CameraState.CONNECTING if first else CameraState.RECONNECTING
+                self._set_state(state, f"cannot open {self.device_id}: {_describe(err)}; "
+                                f"retrying in {wait:g} s")
+                self._stop.wait(wait)
+                continue
+            if not first:
+                with self._lock:
+                    self._counters.reconnects += 1
+            first = False
+            backoff = self.config.reconnect_initial_s
+            with self._cam_lock:
+                self._session = session
+            self._set_state(CameraState.STREAMING,
+                            f"streaming (packet size {session.packet_size or 'n/a'})")
+            try:
+                reason = self._stream(session)
+            except Exception as err:  # pragma: no cover - defensive: keep the thread alive
+                reason = f"acquisition error: {_describe(err)}"
+                log.exception("camera %s", self.device_id)
+            if reason:  # say so at once: releasing a dead camera takes seconds of timeouts
+                self._set_state(CameraState.LOST, f"{reason}; reconnecting")
+            with self._cam_lock:
+                self._session = None
+            self._close(session, lost=bool(reason))
+
+    def _open(self) -> _Session:
+        Aravis = _aravis()
+        GLibError = _glib_error()
+        cfg = self.config
+        Aravis.update_device_list()
+        camera = Aravis.Camera.new(self.device_id)
+        device = camera.get_device()
+        lost = threading.Event()
+        handler_id = device.connect("control-lost", lambda *_: lost.set())
+        try:
+            packet_size = self._configure(camera, Aravis)
+            stream = camera.create_stream(None, None)
+            if stream is None:
+                raise CameraError("cannot create a stream")
+            if hasattr(Aravis, "GvStream") and isinstance(stream, Aravis.GvStream):
+                stream.set_property("socket-buffer", Aravis.GvStreamSocketBuffer.AUTO)
+            payload = camera.get_payload()
+            for _ in range(cfg.n_buffers):
+                stream.push_buffer(Aravis.Buffer.new_allocate(payload))
+            camera.start_acquisition()
+        except GLibError as err:
+            device.disconnect(handler_id)
+            raise CameraError(f"{self.device_id}: {err.message}") from None
+        except Exception:
+            device.disconnect(handler_id)
+            raise
+        names = {stream.get_info_name(i) for i in range(stream.get_n_infos())}
+        infos = {k: v for k, v in _STREAM_INFOS.items() if v in names}
+        return _Session(camera, device, stream, handler_id, lost, packet_size, infos)
+
+    def _configure(self, camera: Any, Aravis: Any) -> int | None:
+        """Apply the configuration; return the stream packet size (GigE only)."""
+        cfg = self.config
+        GLibError = _glib_error()
+
+        def attempt(what: str, fn: Any, *args: Any) -> None:
+            try:
+                fn(*args)
+            except GLibError as err:
+                raise CameraError(f"{self.device_id}: cannot set {what}: {err.message}") \
+                    from None
+
+        attempt("pixel format " + cfg.pixel_format, camera.set_pixel_format_from_string,
+                cfg.pixel_format)
+        if cfg.region is not None:
+            attempt(f"region {cfg.region}", camera.set_region, *cfg.region)
+        if cfg.exposure_us is not None and camera.is_exposure_time_available():
+            attempt("exposure", camera.set_exposure_time, float(cfg.exposure_us))
+        if cfg.gain_db is not None and camera.is_gain_available():
+            attempt("gain", camera.set_gain, float(cfg.gain_db))
+        if cfg.trigger == "free_run":
+            if camera.is_feature_available("TriggerMode"):
+                attempt("free-run trigger mode", camera.clear_triggers)
+            if cfg.frame_rate_hz is not None and camera.is_frame_rate_available():
+                attempt("frame rate", camera.set_frame_rate, float(cfg.frame_rate_hz))
+        elif cfg.trigger == "software":
+            attempt("software trigger", camera.set_trigger, "Software")
+        else:
+            attempt(f"hardware trigger on {cfg.trigger_line}", camera.set_trigger,
+                    cfg.trigger_line)
+        if not camera.is_gv_device():
+            return None
+        if not cfg.packet_socket:
+            camera.gv_set_stream_options(Aravis.GvStreamOption.PACKET_SOCKET_DISABLED)
+        if cfg.packet_size:
+            attempt(f"packet size {cfg.packet_size}", camera.gv_set_packet_size,
+                    int(cfg.packet_size))
+        else:
+            attempt("packet size (negotiated)", camera.gv_auto_packet_size)
+        return int(camera.gv_get_packet_size())
+
+    def _stream(self, session: _Session) -> str:
+        """Pop buffers until stop (returns '') or loss (returns the reason)."""
+        Aravis = _aravis()
+        success = Aravis.BufferStatus.SUCCESS
+        stream = session.stream
+        last_ok = time.monotonic()
+        while not self._stop.is_set():
+            if session.lost.is_set():
+                return f"camera {self.device_id} lost (no answer to control messages)"
+            buf = stream.timeout_pop_buffer(_POP_TIMEOUT_US)
+            self._update_stream_counters(session)
+            if buf is None:
+                if (self.config.trigger == "free_run" and time.monotonic() - last_ok > _STALL_S
+                        and not self._answers(session)):
+                    return f"camera {self.device_id} lost (stream stalled, camera silent)"
+                continue
+            if buf.get_status() != success:
+                stream.push_buffer(buf)
+                continue
+            try:
+                frame = self._to_frame(buf)
+            finally:
+                stream.push_buffer(buf)  # back to the pool at once: get_data() copied it
+            if frame is None:
+                continue
+            last_ok = time.monotonic()
+            self._queue.put(frame)
+            with self._lock:
+                self._counters.completed += 1
+                self._last_frame_ns = frame.received_ns
+        return ""
+
+    def _answers(self, session: _Session) -> bool:
+        """Whether the camera still answers a control read."""
+        try:
+            with self._cam_lock:
+                session.camera.get_payload()
+            return True
+        except Exception:
+            return False
+
+    def _to_frame(self, buf: Any) -> Frame | None:
+        w, h = buf.get_image_width(), buf.get_image_height()
+        bits = bits_per_pixel(buf.get_image_pixel_format())
+        if bits not in (8, 16):
+            with self._lock:
+                self._message = f"unsupported pixel format ({bits} bits per pixel)"
+            return None
+        dtype = np.uint8 if bits == 8 else np.dtype("<u2")
+        data = buf.get_data()
+        need = w * h * (bits // 8)
+        if len(data) < need:  # a buffer that reported success yet is short: never hand it on
+            log.warning("camera %s: frame %d has %d bytes, %dx%d needs %d", self.device_id,
+                        buf.get_frame_id(), len(data), w, h, need)
+            return None
+        image = np.frombuffer(data, dtype=dtype, count=w * h).reshape(h, w)
+        if bits == 16:
+            image = image.astype(np.uint16, copy=False)
+        return Frame(image, int(buf.get_frame_id()), int(buf.get_timestamp()),
+                     time.monotonic_ns())
+
+    def _update_stream_counters(self, session: _Session) -> None:
+        stream = session.stream
+        values = {k: int(stream.get_info_uint64_by_name(v)) for k, v in session.infos.items()}
+        with self._lock:
+            for k, v in values.items():
+                setattr(self._counters, k, self._stream_base[k] + v)
+
+    def _close(self, session: _Session, lost: bool) -> None:
+        """Stop and release everything of one connection, dead camera or not."""
+        self._update_stream_counters(session)
+        with self._lock:
+            for k in session.infos:
+                self._stream_base[k] = getattr(self._counters, k)
+        if not lost:  # a lost camera would only make the command time out
+            try:
+                session.camera.stop_acquisition()
+            except Exception as err:
+                log.debug("stop_acquisition on %s: %s", self.device_id, _describe(err))
+        with contextlib.suppress(Exception):
+            session.device.disconnect(session.handler_id)
+        # Dropping the last references ends Aravis's stream and heartbeat threads.
+        session.stream = session.camera = session.device = None
+
+
+def _describe(err: Exception) -> str:
+    return getattr(err, "message", None) or str(err) or type(err).__name__

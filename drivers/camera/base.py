@@ -1,0 +1,177 @@
+"""The camera interface: configuration, frames, counters and status."""
+
+from __future__ import annotations
+
+import abc
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+PIXEL_FORMATS = ("Mono8", "Mono12", "Mono16")
+TRIGGER_MODES = ("free_run", "software", "hardware")
+
+
+class CameraError(RuntimeError):
+    """A camera that cannot be opened or configured; the message says what and why."""
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """What to ask of a camera. ``None`` leaves the camera's own setting.
+
+    Attributes
+    ----------
+    exposure_us : float or None
+        Exposure time, microseconds.
+    gain_db : float or None
+        Analogue gain, dB (or the camera's gain unit).
+    region : tuple of int or None
+        (x, y, width, height) in pixels; None for the camera's current region.
+    pixel_format : str
+        ``Mono8`` (uint8 frames), ``Mono12`` or ``Mono16`` (uint16 frames).
+    frame_rate_hz : float or None
+        Frame rate in free-run mode.
+    trigger : str
+        ``free_run``, ``software`` (``Camera.software_trigger``) or ``hardware``.
+    trigger_line : str
+        Input line of the hardware trigger (GenICam name, e.g. ``Line0``).
+    packet_size : int or None
+        GigE Vision stream packet size, bytes; None negotiates the largest that works.
+    packet_socket : bool
+        Let Aravis use a packet socket when it runs as root (faster); False forces the
+        ordinary UDP socket that an unprivileged service uses.
+    n_buffers : int
+        Pre-allocated stream buffers.
+    queue_size : int
+        Frames held for a slow consumer before the oldest is dropped.
+    reconnect_initial_s, reconnect_max_s : float
+        Backoff between reconnection attempts: doubles from the first to the most.
+    """
+
+    exposure_us: float | None = None
+    gain_db: float | None = None
+    region: tuple[int, int, int, int] | None = None
+    pixel_format: str = "Mono8"
+    frame_rate_hz: float | None = None
+    trigger: str = "free_run"
+    trigger_line: str = "Line0"
+    packet_size: int | None = None
+    packet_socket: bool = True
+    n_buffers: int = 8
+    queue_size: int = 4
+    reconnect_initial_s: float = 0.5
+    reconnect_max_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.pixel_format not in PIXEL_FORMATS:
+            raise CameraError(f"pixel_format {self.pixel_format!r}: use one of {PIXEL_FORMATS}")
+        if self.trigger not in TRIGGER_MODES:
+            raise CameraError(f"trigger {self.trigger!r}: use one of {TRIGGER_MODES}")
+        if self.n_buffers < 2 or self.queue_size < 1:
+            raise CameraError("n_buffers must be >= 2 and queue_size >= 1")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One complete image.
+
+    Attributes
+    ----------
+    image : ndarray, shape (H, W)
+        uint8 for Mono8, uint16 for Mono12/Mono16.
+    frame_id : int
+        The camera's frame number.
+    timestamp_ns : int
+        The device's timestamp, as it came (ns, device clock).
+    received_ns : int
+        ``time.monotonic_ns()`` when the driver received it.
+    """
+
+    image: np.ndarray
+    frame_id: int
+    timestamp_ns: int
+    received_ns: int
+
+
+class CameraState(enum.StrEnum):
+    """Where the driver is."""
+
+    STOPPED = "stopped"
+    CONNECTING = "connecting"
+    STREAMING = "streaming"
+    LOST = "lost"            # the camera went away; reconnection follows
+    RECONNECTING = "reconnecting"
+    FAILED = "failed"        # cannot be opened as configured; a person must act
+
+
+@dataclass
+class CameraCounters:
+    """Running totals since ``start``, carried across reconnections."""
+
+    completed: int = 0        # complete frames handed on
+    failed: int = 0           # buffers that arrived incomplete or late, never handed on
+    missing_packets: int = 0
+    resent_packets: int = 0
+    underruns: int = 0        # the camera had no free buffer to fill
+    dropped: int = 0          # frames dropped because the consumer was slow
+    reconnects: int = 0
+
+
+@dataclass(frozen=True)
+class CameraStatus:
+    """A snapshot of the driver, safe to hand to another thread."""
+
+    device_id: str
+    state: CameraState
+    message: str
+    counters: CameraCounters = field(default_factory=CameraCounters)
+    last_frame_ns: int | None = None
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """A camera found on the network."""
+
+    device_id: str
+    vendor: str
+    model: str
+    serial: str
+    address: str
+    protocol: str
+
+
+class Camera(abc.ABC):
+    """A source of frames with its own acquisition thread.
+
+    ``start`` returns at once; frames then arrive in a bounded queue that ``get_frame`` reads.
+    The driver survives the camera going away: it reports the loss in ``status`` and
+    reconnects by itself. No exception escapes its thread.
+    """
+
+    @abc.abstractmethod
+    def start(self) -> None:
+        """Start acquisition (idempotent)."""
+
+    @abc.abstractmethod
+    def stop(self) -> None:
+        """Stop acquisition and end the acquisition thread (idempotent)."""
+
+    @abc.abstractmethod
+    def get_frame(self, timeout_s: float | None = None) -> Frame | None:
+        """The oldest queued frame, waiting up to ``timeout_s``; None on timeout or stop."""
+
+    @abc.abstractmethod
+    def status(self) -> CameraStatus:
+        """State, message and counters."""
+
+    def software_trigger(self) -> None:
+        """Ask for one frame (trigger mode ``software``)."""
+        raise CameraError("this camera has no software trigger")
+
+    def __enter__(self) -> Camera:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,73 @@
+"""A JSON-lines control port for a running simulated camera (loopback only).
+
+Requests, one JSON object per line: ``{"set": {"diameter_mm": 30.0, "drift_um_per_min": 5,
+"lost_ratio": 0.001, "fps": 10}}`` or ``{"get": "stats"}``. Every reply is one line:
+``{"ok": true, "stats": {...}}`` or ``{"ok": false, "error": "..."}``.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import socketserver
+import threading
+from typing import Any
+
+from drivers.sim.gige import SimGigECamera
+
+_SETTERS = ("diameter_mm", "drift_um_per_min", "lost_ratio", "fps")
+
+
+def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
+    """Carry out one control request; errors become an ``ok: false`` reply."""
+    try:
+        if not isinstance(request, dict):
+            raise ValueError("a request is a JSON object")
+        if "set" in request:
+            changes = request["set"]
+            if not isinstance(changes, dict) or not changes:
+                raise ValueError("'set' takes an object of settings")
+            unknown = set(changes) - set(_SETTERS)
+            if unknown:
+                raise ValueError(f"unknown settings {sorted(unknown)}; known: {_SETTERS}")
+            values = {k: float(v) for k, v in changes.items()}
+            if "diameter_mm" in values or "drift_um_per_min" in values:
+                camera.set_diameter(values.get("diameter_mm", camera.current_diameter()),
+                                    values.get("drift_um_per_min"))
+            if "lost_ratio" in values:
+                camera.set_lost_ratio(values["lost_ratio"])
+            if "fps" in values:
+                camera.set_fps(values["fps"])
+        elif request.get("get") != "stats":
+            raise ValueError("use {'set': {...}} or {'get': 'stats'}")
+        return {"ok": True, "stats": camera.stats()}
+    except (ValueError, TypeError) as err:
+        return {"ok": False, "error": str(err)}
+
+
+def serve_control(camera: SimGigECamera, port: int = 0,
+                  host: str = "127.0.0.1") -> socketserver.ThreadingTCPServer:
+    """Serve the control port in a daemon thread; ``server.server_address[1]`` is the port."""
+
+    class Handler(socketserver.StreamRequestHandler):
+        def handle(self) -> None:
+            for line in self.rfile:
+                try:
+                    reply = apply_request(camera, json.loads(line))
+                except json.JSONDecodeError as err:
+                    reply = {"ok": False, "error": f"not JSON: {err}"}
+                self.wfile.write((json.dumps(reply) + "\n").encode())
+
+    socketserver.ThreadingTCPServer.allow_reuse_address = True
+    server = socketserver.ThreadingTCPServer((host, port), Handler)
+    server.daemon_threads = True
+    threading.Thread(target=server.serve_forever, name="sim-control", daemon=True).start()
+    return server
+
+
+def control(port: int, request: dict[str, Any], host: str = "127.0.0.1",
+            timeout_s: float = 5.0) -> dict[str, Any]:
+    """Send one request to a simulated camera's control port and return its reply."""
+    with socket.create_connection((host, port), timeout=timeout_s) as sock:
+        sock.sendall((json.dumps(request) + "\n").encode())
+        return json.loads(sock.makefile().readline())

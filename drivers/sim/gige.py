@@ -1,0 +1,225 @@
+"""A simulated GigE Vision camera that streams the simulated rig's stripe images.
+
+Aravis's ``ArvGvFakeCamera`` speaks real GVCP and GVSP on an IPv4 address (127.0.0.1 here) and
+is discoverable like any GigE Vision camera. PyGObject cannot hold a Python callback for its
+fill pattern (a "scope call" argument), so the library is driven through ctypes. A renderer
+thread keeps the next frame ready; the fill callback, called by Aravis's streaming thread, only
+copies it into the buffer (whose size reads 0 there: it holds width * height bytes).
+
+Each frame's first row carries a stamp: bytes 0-7 the frame counter and bytes 8-11 the CRC-32
+of rows 1 onward (little-endian), so tests can prove that no incomplete frame was delivered.
+The diameter (with a wear drift), the packet loss ratio and the frame rate can be changed while
+it runs.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import threading
+import time
+import zlib
+from ctypes import CFUNCTYPE, POINTER, byref, c_char_p, c_double, c_size_t, c_uint32, c_void_p
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.sim.rig import RigConfig, ShaftRenderer
+
+log = logging.getLogger("shaftgauge.sim.gige")
+
+_REG_WIDTH, _REG_HEIGHT = 0x100, 0x104
+_REG_SENSOR_HEIGHT, _REG_SENSOR_WIDTH = 0x118, 0x11C
+_REG_FRAME_PERIOD_US = 0x138
+STAMP_BYTES = 12
+
+_FillPattern = CFUNCTYPE(None, c_void_p, c_void_p, c_uint32, c_uint32, c_uint32)
+
+
+def _libs() -> tuple[ctypes.CDLL, ctypes.CDLL]:
+    lib = ctypes.CDLL("libaravis-0.8.so.0")
+    gobject = ctypes.CDLL("libgobject-2.0.so.0")
+    lib.arv_gv_fake_camera_new_full.restype = c_void_p
+    lib.arv_gv_fake_camera_new_full.argtypes = [c_char_p, c_char_p, c_char_p]
+    lib.arv_gv_fake_camera_is_running.restype = ctypes.c_int
+    lib.arv_gv_fake_camera_is_running.argtypes = [c_void_p]
+    lib.arv_gv_fake_camera_get_fake_camera.restype = c_void_p
+    lib.arv_gv_fake_camera_get_fake_camera.argtypes = [c_void_p]
+    lib.arv_fake_camera_write_register.argtypes = [c_void_p, c_uint32, c_uint32]
+    lib.arv_fake_camera_set_fill_pattern.argtypes = [c_void_p, _FillPattern, c_void_p]
+    lib.arv_buffer_get_data.restype = c_void_p
+    lib.arv_buffer_get_data.argtypes = [c_void_p, POINTER(c_size_t)]
+    gobject.g_object_unref.argtypes = [c_void_p]
+    return lib, gobject
+
+
+def stamp_frame(image: np.ndarray, counter: int) -> None:
+    """Write the frame counter and the CRC-32 of rows 1.. into the first 12 bytes, in place."""
+    flat = image.reshape(-1)
+    crc = zlib.crc32(image[1:].tobytes())
+    flat[:8] = np.frombuffer(int(counter).to_bytes(8, "little"), np.uint8)
+    flat[8:12] = np.frombuffer(crc.to_bytes(4, "little"), np.uint8)
+
+
+def check_stamp(image: np.ndarray) -> tuple[int, bool]:
+    """(frame counter, whether the CRC of rows 1.. matches) of a stamped 8-bit frame."""
+    flat = image.reshape(-1)
+    counter = int.from_bytes(flat[:8].tobytes(), "little")
+    crc = int.from_bytes(flat[8:12].tobytes(), "little")
+    return counter, crc == zlib.crc32(image[1:].tobytes())
+
+
+@dataclass
+class SimCameraSettings:
+    """What a simulated GigE camera shows; the ``set_*`` methods change it while running."""
+
+    serial: str = "SIM001"
+    address: str = "127.0.0.1"
+    diameter_mm: float = 30.0
+    drift_um_per_min: float = 0.0
+    fps: float = 10.0
+    lost_ratio: float = 0.0
+    seed: int = 0
+    rig: RigConfig = field(default_factory=RigConfig)
+
+
+class SimGigECamera:
+    """The simulated GigE Vision camera, in this process (run it in its own process for tests
+    that kill it: ``shaftgauge sim-camera``)."""
+
+    def __init__(self, settings: SimCameraSettings) -> None:
+        self.settings = settings
+        self.renderer = ShaftRenderer(settings.rig, seed=settings.seed)
+        self._lib, self._gobject = _libs()
+        self._lock = threading.Lock()
+        self._ready: np.ndarray | None = None   # next frame to send
+        self._want = threading.Event()
+        self._stop = threading.Event()
+        self._counter = 0
+        self._sent = 0
+        self._repeats = 0
+        self._t0 = time.monotonic()
+        self._d0 = settings.diameter_mm
+        self._gv: int | None = None
+        self._callback = _FillPattern(self._fill)  # keep a reference: C holds the pointer
+        self._thread = threading.Thread(target=self._render_loop, name="sim-render", daemon=True)
+
+    # ---- life cycle ------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Render the first frame, then start serving GVCP/GVSP on the address."""
+        self._ready = self._render_next()
+        w, h = self.settings.rig.image_size
+        gv = self._lib.arv_gv_fake_camera_new_full(
+            self.settings.address.encode(), self.settings.serial.encode(), None)
+        if not gv or not self._lib.arv_gv_fake_camera_is_running(gv):
+            raise RuntimeError(f"cannot serve a GigE Vision camera on {self.settings.address} "
+                               "(address not on this host, or port 3956 taken?)")
+        self._gv = gv
+        fake = self._lib.arv_gv_fake_camera_get_fake_camera(gv)
+        for reg, value in ((_REG_SENSOR_WIDTH, w), (_REG_SENSOR_HEIGHT, h), (_REG_WIDTH, w),
+                           (_REG_HEIGHT, h)):
+            self._lib.arv_fake_camera_write_register(fake, reg, value)
+        self.set_fps(self.settings.fps)
+        self.set_lost_ratio(self.settings.lost_ratio)
+        self._lib.arv_fake_camera_set_fill_pattern(fake, self._callback, None)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop serving (the camera vanishes from the network)."""
+        self._stop.set()
+        self._want.set()
+        if self._gv:
+            self._gobject.g_object_unref(self._gv)
+            self._gv = None
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+
+    @property
+    def device_id(self) -> str:
+        """The Aravis device id clients open it by."""
+        return f"Aravis-Fake-{self.settings.serial}"
+
+    # ---- live changes ------------------------------------------------------------------
+
+    def set_diameter(self, diameter_mm: float, drift_um_per_min: float | None = None) -> None:
+        """Jump to a diameter (and optionally change the wear drift) from now on."""
+        with self._lock:
+            self._d0, self._t0 = float(diameter_mm), time.monotonic()
+            if drift_um_per_min is not None:
+                self.settings.drift_um_per_min = float(drift_um_per_min)
+
+    def current_diameter(self) -> float:
+        """The diameter being rendered now, mm (with the drift so far)."""
+        with self._lock:
+            minutes = (time.monotonic() - self._t0) / 60.0
+            return self._d0 + self.settings.drift_um_per_min * minutes / 1000.0
+
+    def set_lost_ratio(self, ratio: float) -> None:
+        """Fraction of GVSP packets the camera drops (0 to 1)."""
+        if not 0.0 <= ratio <= 1.0:
+            raise ValueError("lost ratio must be within [0, 1]")
+        self.settings.lost_ratio = ratio
+        if self._gv:
+            self._gobject.g_object_set(c_void_p(self._gv), b"gvsp-lost-ratio", c_double(ratio),
+                                       None)
+
+    def set_fps(self, fps: float) -> None:
+        """Free-running frame rate (clients can change it too, through GenICam)."""
+        if not 0.1 <= fps <= 1000:
+            raise ValueError("fps must be within [0.1, 1000]")
+        self.settings.fps = fps
+        if self._gv:
+            fake = self._lib.arv_gv_fake_camera_get_fake_camera(self._gv)
+            self._lib.arv_fake_camera_write_register(fake, _REG_FRAME_PERIOD_US,
+                                                     round(1e6 / fps))
+
+    def stats(self) -> dict[str, float]:
+        """Frames rendered (the stamp counter of the next frame) and sent, frames sent again
+        because the renderer was behind, the current diameter."""
+        return {"rendered": self._counter, "sent": self._sent, "repeats": self._repeats,
+                "diameter_mm": round(self.current_diameter(), 7),
+                "lost_ratio": self.settings.lost_ratio, "fps": self.settings.fps}
+
+    # ---- frames --------------------------------------------------------------------------
+
+    def _render_next(self) -> np.ndarray:
+        image = self.renderer.render(self.current_diameter(), self._counter)
+        stamp_frame(image, self._counter)
+        self._counter += 1
+        return image
+
+    def _render_loop(self) -> None:
+        while not self._stop.is_set():
+            self._want.wait()
+            self._want.clear()
+            if self._stop.is_set():
+                break
+            image = self._render_next()
+            with self._lock:
+                self._ready = image
+
+    def _fill(self, buffer: int, _data: int, _exposure: int, _gain: int, fmt: int) -> None:
+        """Called by Aravis's streaming thread for every frame: copy the ready frame (8-bit,
+        or scaled to 16 bits when the client chose a 16-bit pixel format)."""
+        try:
+            with self._lock:
+                image = self._ready
+                fresh = image is not None and image.flags.writeable
+                if image is not None:
+                    image.flags.writeable = False  # mark as sent
+            if image is None:
+                return
+            size = c_size_t(0)
+            ptr = self._lib.arv_buffer_get_data(buffer, byref(size))
+            if ptr:
+                if (fmt >> 16) & 0xFF == 16:
+                    image = image.astype("<u2") * 257
+                ctypes.memmove(ptr, image.ctypes.data, image.nbytes)
+            self._sent += 1
+            if fresh:
+                self._want.set()  # render the next one; never overwrite an unsent frame
+            else:
+                self._repeats += 1
+        except Exception:  # pragma: no cover - never let an exception into C
+            log.exception("fill callback")

@@ -1,0 +1,80 @@
+"""Real peers on loopback: a simulated GigE Vision camera in its own process."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+SHAFTGAUGE = str(Path(sys.executable).with_name("shaftgauge"))
+
+
+@dataclass
+class SimCameraProcess:
+    """A running ``shaftgauge sim-camera``."""
+
+    args: list[str]
+    calibration: Path
+    proc: subprocess.Popen | None = None
+    device_id: str = ""
+    control_port: int = 0
+
+    def start(self, timeout_s: float = 30.0) -> SimCameraProcess:
+        self.proc = subprocess.Popen(self.args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, start_new_session=True)
+        deadline = time.monotonic() + timeout_s
+        line = ""
+        while time.monotonic() < deadline and not line:
+            line = self.proc.stdout.readline()
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"sim-camera exited: {self.proc.stderr.read()}")
+        ready = json.loads(line)
+        assert ready["event"] == "ready"
+        self.device_id, self.control_port = ready["device_id"], ready["control_port"]
+        return self
+
+    def kill(self) -> None:
+        """Vanish at once, as a camera whose cable is pulled."""
+        if self.proc and self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
+
+def sim_camera_process(tmp: Path, serial: str, diameter: float = 30.0, fps: float = 10.0,
+                       extra: tuple[str, ...] = ()) -> SimCameraProcess:
+    cal = tmp / f"{serial}.json"
+    args = [SHAFTGAUGE, "sim-camera", "--serial", serial, "--address", "127.0.0.1",
+            "--diameter", str(diameter), "--fps", str(fps), "--calibration-out", str(cal),
+            "--seed", "5", *extra]
+    return SimCameraProcess(args, cal)
+
+
+@pytest.fixture
+def sim_camera_factory(tmp_path) -> Iterator:
+    """Start simulated cameras (one at a time on 127.0.0.1); all are stopped afterwards."""
+    started: list[SimCameraProcess] = []
+
+    def make(serial: str = "TEST01", **kw) -> SimCameraProcess:
+        cam = sim_camera_process(tmp_path, serial, **kw).start()
+        started.append(cam)
+        return cam
+
+    yield make
+    for cam in started:
+        cam.stop()
