@@ -126,6 +126,7 @@ def cmd_camera_grab(args: argparse.Namespace) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     try:
+        # Change nothing the user did not ask for: any GigE Vision camera, as it is set up.
         config = CameraConfig(pixel_format=args.pixel_format, exposure_us=args.exposure_us,
                               packet_size=args.packet_size, queue_size=max(4, args.count))
     except CameraError as err:
@@ -203,7 +204,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("device_id")
     p.add_argument("--count", type=int, default=1)
     p.add_argument("--output", required=True, metavar="DIR")
-    p.add_argument("--pixel-format", default="Mono8", choices=["Mono8", "Mono12", "Mono16"])
+    p.add_argument("--pixel-format", choices=["Mono8", "Mono12", "Mono16"],
+                   help="default: leave the camera's own")
     p.add_argument("--exposure-us", type=float)
     p.add_argument("--packet-size", type=int, help="bytes (default: negotiate)")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for frames")

@@ -240,7 +240,11 @@ class AravisCamera(Camera):
             if stream is None:
                 raise CameraError("cannot create a stream")
             if hasattr(Aravis, "GvStream") and isinstance(stream, Aravis.GvStream):
-                stream.set_property("socket-buffer", Aravis.GvStreamSocketBuffer.AUTO)
+                if cfg.socket_buffer_bytes:
+                    stream.set_property("socket-buffer", Aravis.GvStreamSocketBuffer.FIXED)
+                    stream.set_property("socket-buffer-size", int(cfg.socket_buffer_bytes))
+                else:
+                    stream.set_property("socket-buffer", Aravis.GvStreamSocketBuffer.AUTO)
             payload = camera.get_payload()
             for _ in range(cfg.n_buffers):
                 stream.push_buffer(Aravis.Buffer.new_allocate(payload))
@@ -267,8 +271,9 @@ class AravisCamera(Camera):
                 raise CameraError(f"{self.device_id}: cannot set {what}: {err.message}") \
                     from None
 
-        attempt("pixel format " + cfg.pixel_format, camera.set_pixel_format_from_string,
-                cfg.pixel_format)
+        if cfg.pixel_format:
+            attempt("pixel format " + cfg.pixel_format, camera.set_pixel_format_from_string,
+                    cfg.pixel_format)
         if cfg.region is not None:
             attempt(f"region {cfg.region}", camera.set_region, *cfg.region)
         if cfg.exposure_us is not None and camera.is_exposure_time_available():

@@ -28,8 +28,9 @@ class CameraConfig:
         Analogue gain, dB (or the camera's gain unit).
     region : tuple of int or None
         (x, y, width, height) in pixels; None for the camera's current region.
-    pixel_format : str
-        ``Mono8`` (uint8 frames), ``Mono12`` or ``Mono16`` (uint16 frames).
+    pixel_format : str or None
+        ``Mono8`` (uint8 frames), ``Mono12`` or ``Mono16`` (uint16 frames); None keeps the
+        camera's own (frames of 8 or 16 bits per pixel are delivered, others refused).
     frame_rate_hz : float or None
         Frame rate in free-run mode.
     trigger : str
@@ -41,6 +42,10 @@ class CameraConfig:
     packet_socket : bool
         Let Aravis use a packet socket when it runs as root (faster); False forces the
         ordinary UDP socket that an unprivileged service uses.
+    socket_buffer_bytes : int or None
+        None: Aravis sizes the stream socket's receive buffer to the payload (AUTO). A size
+        fixes it (FIXED), capped by the kernel's ``net.core.rmem_max``: an unprivileged
+        receiver of a camera that bursts whole frames needs a few megabytes.
     n_buffers : int
         Pre-allocated stream buffers.
     queue_size : int
@@ -52,19 +57,20 @@ class CameraConfig:
     exposure_us: float | None = None
     gain_db: float | None = None
     region: tuple[int, int, int, int] | None = None
-    pixel_format: str = "Mono8"
+    pixel_format: str | None = "Mono8"
     frame_rate_hz: float | None = None
     trigger: str = "free_run"
     trigger_line: str = "Line0"
     packet_size: int | None = None
     packet_socket: bool = True
+    socket_buffer_bytes: int | None = None
     n_buffers: int = 8
     queue_size: int = 4
     reconnect_initial_s: float = 0.5
     reconnect_max_s: float = 5.0
 
     def __post_init__(self) -> None:
-        if self.pixel_format not in PIXEL_FORMATS:
+        if self.pixel_format is not None and self.pixel_format not in PIXEL_FORMATS:
             raise CameraError(f"pixel_format {self.pixel_format!r}: use one of {PIXEL_FORMATS}")
         if self.trigger not in TRIGGER_MODES:
             raise CameraError(f"trigger {self.trigger!r}: use one of {TRIGGER_MODES}")

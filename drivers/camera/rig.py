@@ -114,7 +114,7 @@ class RigCamera(Camera):
                     break
                 next_t = max(next_t + period, time.monotonic() - period)
             image = self.renderer.render(self.diameter_mm, self._frame_id)
-            if self.config.pixel_format != "Mono8":
+            if self.config.pixel_format in ("Mono12", "Mono16"):
                 image = image.astype(np.uint16) * np.uint16(257)
             frame = Frame(image, self._frame_id, time.monotonic_ns(), time.monotonic_ns())
             self._frame_id += 1
