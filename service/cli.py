@@ -101,6 +101,39 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_sim_plc(args: argparse.Namespace) -> int:
+    """Serve a simulated CNC's offset registers until interrupted."""
+    import asyncio
+    import signal
+    from pathlib import Path
+
+    from drivers.plc.offsets import PlcOffsetMap
+    from drivers.plc.registers import WordOrder
+    from drivers.plc.sim import SimPlc
+
+    async def serve() -> int:
+        plc = SimPlc(args.host, args.port,
+                     PlcOffsetMap(args.offset_address, args.ack_address, args.total_address,
+                                  args.unit_id, WordOrder(args.word_order)),
+                     ack_delay_s=args.ack_delay,
+                     log_path=Path(args.log) if args.log else None,
+                     state_path=Path(args.state) if args.state else None)
+        try:
+            port = await plc.start()
+        except (OSError, RuntimeError) as err:
+            return _fail(f"cannot listen on {args.host}:{args.port}: {err}")
+        done = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, done.set)
+        print(json.dumps({"event": "ready", "host": args.host, "port": port}), flush=True)
+        await done.wait()
+        await plc.stop()
+        return EXIT_OK
+
+    return asyncio.run(serve())
+
+
 def cmd_camera_list(args: argparse.Namespace) -> int:
     """One JSON line per camera Aravis sees."""
     from drivers.camera.aravis import enable_fake_interface, list_devices
@@ -194,6 +227,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration-out", metavar="FILE",
                    help="write the simulated rig's exact calibration here")
     p.set_defaults(func=cmd_sim_camera)
+
+    p = sub.add_parser("sim-plc", help="serve a simulated CNC's offset registers over "
+                       "Modbus TCP")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=5021)
+    p.add_argument("--unit-id", type=int, default=1)
+    p.add_argument("--offset-address", type=int, default=100)
+    p.add_argument("--ack-address", type=int, default=104)
+    p.add_argument("--total-address", type=int, default=106)
+    p.add_argument("--word-order", choices=["big", "little"], default="big")
+    p.add_argument("--ack-delay", type=float, default=0.0, metavar="S",
+                   help="seconds between receiving and acknowledging an offset")
+    p.add_argument("--log", metavar="FILE", help="JSON-lines log of writes and applications")
+    p.add_argument("--state", metavar="FILE", help="keep the applied total across restarts")
+    p.set_defaults(func=cmd_sim_plc)
 
     cam = sub.add_parser("camera", help="GigE Vision cameras (any that Aravis sees)")
     cam_sub = cam.add_subparsers(dest="camera_command", required=True, metavar="ACTION")

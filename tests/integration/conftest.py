@@ -78,3 +78,59 @@ def sim_camera_factory(tmp_path) -> Iterator:
     yield make
     for cam in started:
         cam.stop()
+
+
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 right now."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class SimPlcProcess:
+    """A running ``shaftgauge sim-plc``."""
+
+    args: list[str]
+    port: int
+    proc: subprocess.Popen | None = None
+
+    def start(self) -> SimPlcProcess:
+        self.proc = subprocess.Popen(self.args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, start_new_session=True)
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"sim-plc exited: {self.proc.stderr.read()}")
+        assert json.loads(line)["port"] == self.port
+        return self
+
+    def kill(self) -> None:
+        if self.proc and self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc and self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(10)
+
+
+@pytest.fixture
+def sim_plc_factory(tmp_path) -> Iterator:
+    """Start simulated PLC processes on free ports; all are stopped afterwards."""
+    started: list[SimPlcProcess] = []
+
+    def make(port: int | None = None, *extra: str) -> SimPlcProcess:
+        port = port or free_port()
+        plc = SimPlcProcess([SHAFTGAUGE, "sim-plc", "--port", str(port), "--log",
+                             str(tmp_path / "plc.log"), "--state",
+                             str(tmp_path / "plc.state"), *extra], port).start()
+        started.append(plc)
+        return plc
+
+    make.log = tmp_path / "plc.log"
+    yield make
+    for plc in started:
+        plc.stop()

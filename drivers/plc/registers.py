@@ -1,0 +1,249 @@
+"""The Modbus register map the CNC polls, and a thread-safe bank of its values.
+
+One table (``REGISTERS``) defines every register; ``deploy/modbus-register-map.md`` is checked
+against it by a test. Addresses are 0-based. 32-bit values take two registers; their word
+order is configurable (big-endian words, high word first, by default). Diameters and offsets
+are signed 32-bit integers in 0.1 um; ``NO_VALUE`` (0x80000000) means "no value".
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import threading
+from dataclasses import dataclass
+
+NO_VALUE = -0x80000000  # 0x80000000 as a signed 32-bit integer
+TEST_PATTERN = 0x12345678
+MAP_VERSION = 1
+UM_PER_UNIT = 0.1  # 0.1 um per count
+
+
+class WordOrder(enum.StrEnum):
+    """Order of the two 16-bit words of a 32-bit value."""
+
+    BIG = "big"        # high word at the lower address (Modbus convention, the default)
+    LITTLE = "little"  # low word first (some PLCs)
+
+
+class Kind(enum.StrEnum):
+    """Data type of a register entry."""
+
+    U16 = "uint16"
+    I32 = "int32"
+    U32 = "uint32"
+
+    @property
+    def words(self) -> int:
+        """Registers it takes."""
+        return 1 if self is Kind.U16 else 2
+
+
+@dataclass(frozen=True)
+class Register:
+    """One entry of the map."""
+
+    name: str
+    address: int
+    kind: Kind
+    unit: str
+    writable: bool
+    description: str
+
+
+def _r(name: str, address: int, kind: Kind, unit: str, description: str,
+       writable: bool = False) -> Register:
+    return Register(name, address, kind, unit, writable, description)
+
+
+REGISTERS: tuple[Register, ...] = (
+    _r("test_pattern", 0, Kind.U32, "-", "always 0x12345678: reads 0x1234, 0x5678 with "
+       "big-endian words; check your word order with it"),
+    _r("map_version", 2, Kind.U16, "-", "version of this map (1)"),
+    _r("heartbeat", 3, Kind.U16, "count", "counts up once a second while the service is "
+       "healthy (wraps at 65535); stands still when it is not"),
+    _r("status", 4, Kind.U16, "bits", "status bits, see below"),
+    _r("faults", 5, Kind.U16, "bits", "fault bits, see below"),
+    _r("diameter", 6, Kind.I32, "0.1 um", "latest measured diameter"),
+    _r("uncertainty", 8, Kind.I32, "0.1 um", "standard uncertainty of the latest diameter"),
+    _r("measurement_seq", 10, Kind.U32, "count", "sequence number of the latest measurement"),
+    _r("measurement_age", 12, Kind.U16, "ms", "age of the latest measurement (65535: older)"),
+    _r("command_seq", 13, Kind.U16, "count", "counts commands carried out (wraps)"),
+    _r("nominal", 14, Kind.I32, "0.1 um", "nominal diameter of the current feature",
+       writable=True),
+    _r("tol_upper", 16, Kind.I32, "0.1 um", "upper tolerance, deviation above nominal "
+       "(>= 0)", writable=True),
+    _r("tol_lower", 18, Kind.I32, "0.1 um", "lower tolerance, deviation below nominal "
+       "(<= 0)", writable=True),
+    _r("command", 20, Kind.U16, "code", "write 1 measure now, 2 reset compensation, "
+       "3 acknowledge alarm; reads 0 once carried out", writable=True),
+    _r("last_command", 21, Kind.U16, "code", "code of the last command carried out"),
+    _r("proposed_offset", 22, Kind.I32, "0.1 um", "latest tool-wear offset the controller "
+       "proposed (also in shadow mode)"),
+    _r("offset_seq", 24, Kind.U32, "count", "sequence number of the latest offset sent"),
+    _r("offset_ack", 26, Kind.U32, "count", "acknowledgement the CNC echoed for it"),
+    _r("cumulative_offset", 28, Kind.I32, "0.1 um", "sum of the offsets the CNC "
+       "acknowledged since the last reset"),
+)
+
+BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}
+SIZE = max(r.address + r.kind.words for r in REGISTERS)
+
+
+def _check_contiguous() -> None:
+    pos = 0
+    for reg in sorted(REGISTERS, key=lambda r: r.address):
+        if reg.address != pos:
+            raise AssertionError(f"register map: gap or overlap at {pos} ({reg.name})")
+        pos += reg.kind.words
+
+
+_check_contiguous()
+
+
+class StatusBit(enum.IntFlag):
+    """Bits of the ``status`` register."""
+
+    HEALTHY = 1 << 0
+    CAMERA_STREAMING = 1 << 1
+    MEASUREMENT_VALID = 1 << 2
+    IN_TOLERANCE = 1 << 3
+    COMPENSATION_ACTIVE = 1 << 4
+    SHADOW_MODE = 1 << 5
+    PLC_CONNECTED = 1 << 6
+    CALIBRATED = 1 << 7
+
+
+class FaultBit(enum.IntFlag):
+    """Bits of the ``faults`` register."""
+
+    CAMERA_LOST = 1 << 0
+    NO_MEASUREMENT = 1 << 1
+    OUT_OF_TOLERANCE = 1 << 2
+    SAFE_AREA_STOP = 1 << 3
+    OFFSET_WRITE_FAILED = 1 << 4
+    NO_CALIBRATION = 1 << 5
+    STALE_MEASUREMENT = 1 << 6
+    MASTER_CHECK_DUE = 1 << 7
+
+
+class Command(enum.IntEnum):
+    """Codes of the ``command`` register."""
+
+    NONE = 0
+    MEASURE_NOW = 1
+    RESET_COMPENSATION = 2
+    ACKNOWLEDGE_ALARM = 3
+
+
+def to_words(value: int, kind: Kind, order: WordOrder) -> list[int]:
+    """Register words of a value (two's complement for int32)."""
+    if kind is Kind.U16:
+        if not 0 <= value <= 0xFFFF:
+            raise ValueError(f"{value} does not fit uint16")
+        return [value]
+    lo_lim, hi_lim = (-(1 << 31), (1 << 31) - 1) if kind is Kind.I32 else (0, (1 << 32) - 1)
+    if not lo_lim <= value <= hi_lim:
+        raise ValueError(f"{value} does not fit {kind.value}")
+    raw = value & 0xFFFFFFFF
+    hi, lo = raw >> 16, raw & 0xFFFF
+    return [hi, lo] if order is WordOrder.BIG else [lo, hi]
+
+
+def from_words(words: list[int], kind: Kind, order: WordOrder) -> int:
+    """The value of register words."""
+    if kind is Kind.U16:
+        return words[0]
+    hi, lo = (words[0], words[1]) if order is WordOrder.BIG else (words[1], words[0])
+    raw = (hi << 16) | lo
+    if kind is Kind.I32 and raw & 0x80000000:
+        raw -= 1 << 32
+    return raw
+
+
+def mm_to_units(value_mm: float | None) -> int:
+    """mm to 0.1 um counts; None, NaN, infinity or out of range give ``NO_VALUE``."""
+    if value_mm is None or not math.isfinite(value_mm):
+        return NO_VALUE
+    units = round(value_mm * 1000.0 / UM_PER_UNIT)
+    return units if -(1 << 31) < units < (1 << 31) else NO_VALUE
+
+
+def units_to_mm(units: int) -> float | None:
+    """0.1 um counts to mm; ``NO_VALUE`` gives None."""
+    return None if units == NO_VALUE else units * UM_PER_UNIT / 1000.0
+
+
+class RegisterBank:
+    """The current register values, shared between the service and the Modbus server.
+
+    Thread-safe. Values are set and read by name in their own type; the Modbus server reads
+    and writes raw words.
+    """
+
+    def __init__(self, order: WordOrder = WordOrder.BIG) -> None:
+        self.order = WordOrder(order)
+        self._words = [0] * SIZE
+        self._lock = threading.Lock()
+        self.set("test_pattern", TEST_PATTERN)
+        self.set("map_version", MAP_VERSION)
+        for name in ("diameter", "uncertainty", "nominal", "proposed_offset",
+                     "cumulative_offset"):
+            self.set(name, NO_VALUE)
+        self.set("tol_upper", 0)
+        self.set("tol_lower", 0)
+
+    def set(self, name: str, value: int) -> None:
+        """Set a register (pair) by name."""
+        reg = BY_NAME[name]
+        words = to_words(int(value), reg.kind, self.order)
+        with self._lock:
+            self._words[reg.address:reg.address + len(words)] = words
+
+    def set_many(self, values: dict[str, int]) -> None:
+        """Set several registers at once (a reader never sees half of the update)."""
+        encoded = []
+        for name, value in values.items():
+            reg = BY_NAME[name]
+            encoded.append((reg.address, to_words(int(value), reg.kind, self.order)))
+        with self._lock:
+            for address, words in encoded:
+                self._words[address:address + len(words)] = words
+
+    def get(self, name: str) -> int:
+        """A register (pair) by name."""
+        reg = BY_NAME[name]
+        with self._lock:
+            words = self._words[reg.address:reg.address + reg.kind.words]
+        return from_words(words, reg.kind, self.order)
+
+    def words(self, address: int, count: int) -> list[int]:
+        """Raw words."""
+        with self._lock:
+            return self._words[address:address + count]
+
+    def write_words(self, address: int, words: list[int]) -> None:
+        """Store raw words (after the server validated the write)."""
+        with self._lock:
+            self._words[address:address + len(words)] = list(words)
+
+
+def markdown_tables() -> str:
+    """The register, status-bit, fault-bit and command tables as Markdown (the text that
+    ``deploy/modbus-register-map.md`` must contain; a test checks it)."""
+    lines = ["| address | name | type | unit | access | meaning |",
+             "|---:|---|---|---|---|---|"]
+    for r in REGISTERS:
+        span = str(r.address) if r.kind.words == 1 else f"{r.address}-{r.address + 1}"
+        lines.append(f"| {span} | `{r.name}` | {r.kind.value} | {r.unit} | "
+                     f"{'read/write' if r.writable else 'read'} | {r.description} |")
+    for title, flags in (("status", StatusBit), ("faults", FaultBit)):
+        lines += ["", f"`{title}` bits:", "", "| bit | name |", "|---:|---|"]
+        lines += [f"| {int(f).bit_length() - 1} | `{f.name.lower()}` |" for f in flags]
+    lines += ["", "`command` codes:", "", "| code | command |", "|---:|---|"]
+    lines += [f"| {int(c)} | `{c.name.lower()}` |" for c in Command]
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(markdown_tables(), end="")

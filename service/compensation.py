@@ -1,0 +1,429 @@
+"""Tool-wear compensation: a pure state machine in the manner of CNC measuring cycles.
+
+It turns measurements into tool-wear offsets and never does I/O: the service feeds it
+measurements and the outcome of each offset write, and carries out the writes it asks for.
+
+Per measurement, in this order (each step records a ``Decision`` with its reason):
+
+1. *Refuse* what is doubtful: status not ok, a non-finite diameter or uncertainty, an
+   uncertainty above ``max_uncertainty_fraction`` of the tolerance width, a sequence number not
+   above the last one (out of order or repeated), a measurement older than ``max_age_s``.
+2. *Stop* when the deviation from nominal exceeds the safe area (``safe_area_mm``): a broken
+   tool, a wrong part or a wrong nominal; nothing more is written until a person resets.
+3. *Hold* while stopped, while an alarm waits for acknowledgement, while an offset waits for
+   the CNC's acknowledgement, during the dead time after a correction, and until the filter
+   window holds ``window`` good measurements.
+4. *Alarm* when the filtered deviation (median or mean of the window) is outside the
+   tolerance: the part is already out; nothing is written; acknowledge to go on.
+5. *Hold* inside the deadband.
+6. Otherwise correct ``gain`` of the filtered deviation, converted to the CNC's offset
+   (diameter or radius programming, sign convention), clipped to ``max_step_mm``, and clipped
+   so the cumulative offset stays within ``max_total_mm`` (refused when already there). In
+   shadow mode the offset is *proposed* and nothing is written.
+
+The cumulative offset changes only when the CNC acknowledged a write. An offset whose fate is
+unknown (the PLC went silent after the write) blocks everything until ``reconcile`` says
+whether it was applied; it is never sent again.
+"""
+
+from __future__ import annotations
+
+import collections
+import enum
+import math
+import statistics
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Literal
+
+
+class Kind(enum.StrEnum):
+    """What a decision did."""
+
+    REFUSED = "refused"          # the measurement does not count
+    HELD = "held"                # counted or not, nothing to do now
+    ALARM = "alarm"              # out of tolerance: nothing written, acknowledge needed
+    STOPPED = "stopped"          # beyond the safe area: a person must check and reset
+    PROPOSED = "proposed"        # shadow mode: computed, shown, not written
+    WRITE = "write"              # the service must write this offset now
+    APPLIED = "applied"          # the CNC acknowledged it
+    NOT_APPLIED = "not_applied"  # definitely not applied (never re-sent)
+    UNCERTAIN = "uncertain"      # written, not acknowledged: holding until reconciled
+    LIMIT = "limit"              # the cumulative limit forbids any further correction
+    RESET = "reset"
+    ACKNOWLEDGED = "acknowledged"
+    SETTINGS = "settings"
+
+
+class State(enum.StrEnum):
+    """Where the controller is."""
+
+    ACTIVE = "active"
+    PENDING = "pending"        # an offset was handed out for writing
+    UNCERTAIN = "uncertain"    # its outcome is unknown
+    ALARM = "alarm"
+    STOPPED = "stopped"
+
+
+@dataclass(frozen=True)
+class CompensationSettings:
+    """Tuning of the controller. Lengths in mm of diameter unless named otherwise.
+
+    Attributes
+    ----------
+    nominal_mm : float or None
+        Nominal diameter of the current feature; None holds everything.
+    tol_upper_mm, tol_lower_mm : float
+        Tolerance as deviations from nominal (upper >= 0 >= lower).
+    window : int
+        Good measurements in the filter.
+    filter : {'median', 'mean'}
+        How the window is combined.
+    deadband_mm : float
+        No correction while the filtered deviation is within +-deadband.
+    gain : float
+        Fraction (0-1] of the filtered deviation corrected at once.
+    max_step_mm : float
+        Largest single offset, in offset units as sent (see ``programming``).
+    max_total_mm : float
+        Largest cumulative offset, in offset units.
+    dead_time_measurements, dead_time_s : int, float
+        After a correction, the next measurements within both limits are ignored (the cut
+        has to pass under the gauge first).
+    safe_area_mm : float
+        A deviation beyond this stops the controller.
+    max_uncertainty_fraction : float
+        Measurements with a larger uncertainty than this fraction of the tolerance width do
+        not count.
+    max_age_s : float
+        Older measurements do not count.
+    programming : {'diameter', 'radius'}
+        Whether the CNC's X offsets are diameter or radius values.
+    offset_sign : {+1, -1}
+        +1 when a positive wear offset makes the part larger, -1 when it makes it smaller.
+    shadow : bool
+        Compute and show offsets, write none.
+    """
+
+    nominal_mm: float | None = None
+    tol_upper_mm: float = 0.02
+    tol_lower_mm: float = -0.02
+    window: int = 5
+    filter: Literal["median", "mean"] = "median"
+    deadband_mm: float = 0.003
+    gain: float = 0.7
+    max_step_mm: float = 0.010
+    max_total_mm: float = 0.200
+    dead_time_measurements: int = 5
+    dead_time_s: float = 2.0
+    safe_area_mm: float = 0.5
+    max_uncertainty_fraction: float = 0.25
+    max_age_s: float = 10.0
+    programming: Literal["diameter", "radius"] = "diameter"
+    offset_sign: int = 1
+    shadow: bool = True
+
+    def problems(self) -> list[str]:
+        """What is inconsistent, each naming the setting (empty when fine)."""
+        p = []
+        finite = all(math.isfinite(v) for v in (
+            self.tol_upper_mm, self.tol_lower_mm, self.deadband_mm, self.gain,
+            self.max_step_mm, self.max_total_mm, self.dead_time_s, self.safe_area_mm,
+            self.max_uncertainty_fraction, self.max_age_s))
+        if not finite:
+            return ["settings: every number must be finite"]
+        if self.nominal_mm is not None and not (math.isfinite(self.nominal_mm)
+                                                and self.nominal_mm > 0):
+            p.append("nominal_mm must be a positive diameter")
+        if not self.tol_lower_mm <= 0 <= self.tol_upper_mm or \
+                self.tol_upper_mm == self.tol_lower_mm:
+            p.append("tolerance must satisfy tol_lower_mm <= 0 <= tol_upper_mm, not both 0")
+        if not 0 < self.gain <= 1:
+            p.append("gain must be within (0, 1]")
+        if self.window < 1:
+            p.append("window must be at least 1")
+        if self.filter not in ("median", "mean"):
+            p.append("filter must be 'median' or 'mean'")
+        if not 0 <= self.deadband_mm < max(self.tol_upper_mm, -self.tol_lower_mm):
+            p.append("deadband_mm must be >= 0 and inside the tolerance")
+        if not 0 < self.max_step_mm <= self.max_total_mm:
+            p.append("max_step_mm must be > 0 and <= max_total_mm")
+        if self.safe_area_mm <= max(self.tol_upper_mm, -self.tol_lower_mm):
+            p.append("safe_area_mm must be larger than the tolerance")
+        if self.dead_time_measurements < 0 or self.dead_time_s < 0:
+            p.append("dead time must be >= 0")
+        if not 0 < self.max_uncertainty_fraction <= 1:
+            p.append("max_uncertainty_fraction must be within (0, 1]")
+        if self.max_age_s <= 0:
+            p.append("max_age_s must be > 0")
+        if self.programming not in ("diameter", "radius"):
+            p.append("programming must be 'diameter' or 'radius'")
+        if self.offset_sign not in (1, -1):
+            p.append("offset_sign must be +1 or -1")
+        return p
+
+
+@dataclass(frozen=True)
+class MeasurementIn:
+    """What the controller needs of a measurement."""
+
+    seq: int
+    time_s: float                 # monotonic seconds when it was taken
+    status: str                   # "ok" or a failure status
+    diameter_mm: float | None
+    uncertainty_mm: float | None
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One step of the controller, for the log (and, for WRITE, an order to write).
+
+    ``offset_mm`` is in offset units as sent to the CNC; ``before_mm``/``after_mm`` are the
+    cumulative offset around the decision.
+    """
+
+    kind: Kind
+    reason: str
+    time_s: float
+    measurement_seq: int | None = None
+    deviation_mm: float | None = None
+    filtered_mm: float | None = None
+    offset_mm: float | None = None
+    offset_seq: int | None = None
+    before_mm: float = 0.0
+    after_mm: float = 0.0
+    shadow: bool = False
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        d = asdict(self)
+        d["kind"] = self.kind.value
+        return d
+
+
+@dataclass
+class ControllerState:
+    """What survives a restart (JSON-ready through ``asdict``)."""
+
+    cumulative_mm: float = 0.0
+    offset_seq: int = 0
+    state: str = State.ACTIVE.value
+    pending_seq: int | None = None
+    pending_offset_mm: float | None = None
+    last_measurement_seq: int = -1
+
+
+@dataclass
+class CompensationController:
+    """The state machine. Call ``on_measurement`` for every measurement, then carry out any
+    ``Kind.WRITE`` decision and report its outcome with ``on_write_outcome``."""
+
+    settings: CompensationSettings = field(default_factory=CompensationSettings)
+    persisted: ControllerState = field(default_factory=ControllerState)
+
+    def __post_init__(self) -> None:
+        problems = self.settings.problems()
+        if problems:
+            raise ValueError("; ".join(problems))
+        self._window: collections.deque[float] = collections.deque(maxlen=self.settings.window)
+        self._since_correction = self.settings.dead_time_measurements  # no dead time at start
+        self._correction_time = -math.inf
+        # A write handed out but never reported (the service died) is uncertain on restart.
+        if self.persisted.state == State.PENDING.value:
+            self.persisted.state = State.UNCERTAIN.value
+
+    # ---- read-only views ---------------------------------------------------------------
+
+    @property
+    def state(self) -> State:
+        """Current state."""
+        return State(self.persisted.state)
+
+    @property
+    def cumulative_mm(self) -> float:
+        """Sum of the acknowledged offsets since the last reset, offset units."""
+        return self.persisted.cumulative_mm
+
+    def _decision(self, kind: Kind, reason: str, now: float, **kw: Any) -> Decision:
+        cum = self.persisted.cumulative_mm
+        kw.setdefault("before_mm", cum)
+        kw.setdefault("after_mm", cum)
+        return Decision(kind, reason, now, shadow=self.settings.shadow, **kw)
+
+    # ---- inputs --------------------------------------------------------------------------
+
+    def update_settings(self, settings: CompensationSettings, now: float) -> Decision:
+        """New settings (a new feature, tolerance or tuning); the window starts afresh."""
+        problems = settings.problems()
+        if problems:
+            raise ValueError("; ".join(problems))
+        self.settings = settings
+        self._window = collections.deque(maxlen=settings.window)
+        return self._decision(Kind.SETTINGS, "settings changed: filter window restarted", now)
+
+    def set_shadow(self, shadow: bool, now: float) -> Decision:
+        """Switch shadow mode."""
+        return self.update_settings(replace(self.settings, shadow=shadow), now)
+
+    def on_measurement(self, m: MeasurementIn, now: float) -> Decision:
+        """Judge one measurement; see the module docstring for the order of the checks."""
+        s = self.settings
+        why = self._refusal(m, now)
+        if why:
+            return self._decision(Kind.REFUSED, why, now, measurement_seq=m.seq)
+        self.persisted.last_measurement_seq = m.seq
+        if s.nominal_mm is None:
+            return self._decision(Kind.HELD, "no nominal diameter set", now,
+                                  measurement_seq=m.seq)
+        deviation = float(m.diameter_mm) - s.nominal_mm
+        kw: dict[str, Any] = {"measurement_seq": m.seq, "deviation_mm": deviation}
+        if abs(deviation) > s.safe_area_mm:
+            self.persisted.state = State.STOPPED.value
+            self._window.clear()
+            return self._decision(
+                Kind.STOPPED, f"deviation {deviation * 1000:+.1f} um is beyond the safe area "
+                f"of {s.safe_area_mm * 1000:.0f} um (broken tool, wrong part or wrong "
+                "nominal?): stopped; a person must check and reset", now, **kw)
+        gate = {State.STOPPED: "stopped: waiting for a reset",
+                State.ALARM: "out-of-tolerance alarm: waiting for acknowledgement",
+                State.PENDING: f"waiting for the CNC to acknowledge offset "
+                               f"{self.persisted.pending_seq}",
+                State.UNCERTAIN: f"offset {self.persisted.pending_seq} was not acknowledged: "
+                                 "holding until the CNC's acknowledgement can be read"}
+        if self.state in gate:
+            return self._decision(Kind.HELD, gate[self.state], now, **kw)
+        self._since_correction += 1
+        if (self._since_correction <= s.dead_time_measurements
+                or now - self._correction_time < s.dead_time_s):
+            return self._decision(Kind.HELD, "dead time after a correction", now, **kw)
+        self._window.append(deviation)
+        if len(self._window) < s.window:
+            return self._decision(Kind.HELD, f"filling the window ({len(self._window)} of "
+                                  f"{s.window})", now, **kw)
+        combine = statistics.median if s.filter == "median" else statistics.fmean
+        filtered = float(combine(self._window))
+        kw["filtered_mm"] = filtered
+        if not s.tol_lower_mm <= filtered <= s.tol_upper_mm:
+            self.persisted.state = State.ALARM.value
+            self._window.clear()
+            return self._decision(
+                Kind.ALARM, f"filtered deviation {filtered * 1000:+.1f} um is outside the "
+                f"tolerance {s.tol_lower_mm * 1000:+.1f}/{s.tol_upper_mm * 1000:+.1f} um: "
+                "out of tolerance, nothing written; acknowledge to go on", now, **kw)
+        if abs(filtered) <= s.deadband_mm:
+            return self._decision(Kind.HELD, f"filtered deviation {filtered * 1000:+.1f} um "
+                                  f"inside the deadband of {s.deadband_mm * 1000:.1f} um",
+                                  now, **kw)
+        return self._correct(filtered, now, kw)
+
+    def _refusal(self, m: MeasurementIn, now: float) -> str:
+        s = self.settings
+        if m.status != "ok":
+            return f"measurement status {m.status!r}"
+        if m.diameter_mm is None or not math.isfinite(m.diameter_mm) or m.diameter_mm <= 0:
+            return f"diameter {m.diameter_mm!r} is not a positive finite number"
+        if m.uncertainty_mm is None or not math.isfinite(m.uncertainty_mm) \
+                or m.uncertainty_mm < 0:
+            return f"uncertainty {m.uncertainty_mm!r} is not a finite number >= 0"
+        limit = s.max_uncertainty_fraction * (s.tol_upper_mm - s.tol_lower_mm)
+        if m.uncertainty_mm > limit:
+            return (f"uncertainty {m.uncertainty_mm * 1000:.1f} um is above "
+                    f"{limit * 1000:.1f} um ({s.max_uncertainty_fraction:.0%} of the "
+                    "tolerance width)")
+        if m.seq <= self.persisted.last_measurement_seq:
+            return (f"measurement {m.seq} is not newer than {self.persisted.last_measurement_seq}"
+                    " (out of order or repeated)")
+        if not math.isfinite(m.time_s) or now - m.time_s > s.max_age_s:
+            return f"measurement is stale (older than {s.max_age_s:g} s)"
+        if m.time_s - now > 1.0:
+            return "measurement is from the future (clock jump?)"
+        return ""
+
+    def _correct(self, filtered: float, now: float, kw: dict[str, Any]) -> Decision:
+        s = self.settings
+        factor = 0.5 if s.programming == "radius" else 1.0
+        wanted = -s.gain * filtered * factor * s.offset_sign
+        step = max(-s.max_step_mm, min(s.max_step_mm, wanted))
+        cum = self.persisted.cumulative_mm
+        target = max(-s.max_total_mm, min(s.max_total_mm, cum + step))
+        step = target - cum
+        self._window.clear()
+        if abs(step) < 1e-7:  # already at the cumulative limit in this direction
+            return self._decision(
+                Kind.LIMIT, f"the cumulative offset {cum * 1000:+.1f} um is at its limit of "
+                f"{s.max_total_mm * 1000:.0f} um: change or re-measure the tool, then reset",
+                now, **kw)
+        note = "" if abs(step - wanted) < 1e-12 else \
+            f" (clipped from {wanted * 1000:+.2f} um)"
+        if s.shadow:
+            return self._decision(Kind.PROPOSED, f"shadow mode: offset {step * 1000:+.2f} um "
+                                  f"proposed, not written{note}", now, offset_mm=step,
+                                  after_mm=cum + step, **kw)
+        self.persisted.offset_seq += 1
+        self.persisted.pending_seq = self.persisted.offset_seq
+        self.persisted.pending_offset_mm = step
+        self.persisted.state = State.PENDING.value
+        return self._decision(Kind.WRITE, f"write offset {step * 1000:+.2f} um{note}", now,
+                              offset_mm=step, offset_seq=self.persisted.offset_seq,
+                              after_mm=cum + step, **kw)
+
+    def on_write_outcome(self, offset_seq: int, applied: bool | None, now: float,
+                         detail: str = "") -> Decision:
+        """The outcome of a WRITE: True acknowledged, False definitely not applied, None
+        unknown (written, then silence)."""
+        p = self.persisted
+        if p.pending_seq != offset_seq or self.state not in (State.PENDING, State.UNCERTAIN):
+            return self._decision(Kind.HELD, f"outcome of offset {offset_seq} ignored: it is "
+                                  "not the offset in flight", now, offset_seq=offset_seq)
+        step = p.pending_offset_mm or 0.0
+        if applied is None:
+            p.state = State.UNCERTAIN.value
+            return self._decision(Kind.UNCERTAIN, f"offset {offset_seq} "
+                                  f"({step * 1000:+.2f} um) not acknowledged{_colon(detail)}; "
+                                  "holding, it will not be sent again", now,
+                                  offset_mm=step, offset_seq=offset_seq)
+        before = p.cumulative_mm
+        p.pending_seq, p.pending_offset_mm = None, None
+        p.state = State.ACTIVE.value
+        self._window.clear()
+        if applied:
+            p.cumulative_mm = before + step
+            self._since_correction = 0
+            self._correction_time = now
+            return self._decision(Kind.APPLIED, f"offset {offset_seq} "
+                                  f"({step * 1000:+.2f} um) acknowledged by the CNC", now,
+                                  offset_mm=step, offset_seq=offset_seq, before_mm=before,
+                                  after_mm=p.cumulative_mm)
+        return self._decision(Kind.NOT_APPLIED, f"offset {offset_seq} ({step * 1000:+.2f} um) "
+                              f"was not applied{_colon(detail)}; it will not be sent again",
+                              now, offset_mm=step, offset_seq=offset_seq)
+
+    def reconcile(self, offset_seq: int, applied: bool, now: float) -> Decision:
+        """Settle an UNCERTAIN offset once the CNC's acknowledgement register is readable."""
+        return self.on_write_outcome(offset_seq, applied, now,
+                                     "settled from the CNC's acknowledgement register")
+
+    def acknowledge_alarm(self, now: float) -> Decision:
+        """Leave the out-of-tolerance alarm."""
+        if self.state is not State.ALARM:
+            return self._decision(Kind.HELD, f"no alarm to acknowledge ({self.state.value})",
+                                  now)
+        self.persisted.state = State.ACTIVE.value
+        self._window.clear()
+        return self._decision(Kind.ACKNOWLEDGED, "alarm acknowledged", now)
+
+    def reset(self, now: float) -> Decision:
+        """A person reset compensation (after a tool change): cumulative offset back to 0,
+        leave STOPPED or ALARM. Refused while an offset's fate is unknown."""
+        if self.state in (State.PENDING, State.UNCERTAIN):
+            return self._decision(Kind.HELD, f"reset refused: offset {self.persisted.pending_seq}"
+                                  " is still unsettled", now)
+        before = self.persisted.cumulative_mm
+        self.persisted.cumulative_mm = 0.0
+        self.persisted.state = State.ACTIVE.value
+        self._window.clear()
+        return self._decision(Kind.RESET, "compensation reset: cumulative offset back to 0",
+                              now, before_mm=before, after_mm=0.0)
+
+
+def _colon(detail: str) -> str:
+    return f": {detail}" if detail else ""
