@@ -9,7 +9,7 @@ import subprocess
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.plc.registers import RegisterBank, WordOrder, from_words, Kind
+from drivers.plc.registers import Kind, RegisterBank, WordOrder, from_words
 from drivers.plc.server import GaugeModbusServer, run_heartbeat
 
 
