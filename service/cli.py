@@ -25,12 +25,36 @@ def _fail(message: str) -> int:
 
 
 def cmd_measure(args: argparse.Namespace) -> int:
-    """Print one JSON line per image; exit 2 on a bad calibration or image file."""
-    from service.offline import ImageError, measure_files
+    """Print one JSON line per image (or one fused line); exit 2 on bad input files."""
+    from service.offline import (
+        ImageError,
+        add_temperature,
+        fused_record,
+        measure_images,
+        measurement_record,
+    )
 
+    if args.part_temp is not None:
+        from service.measure.thermal import diameter_at_reference
+
+        try:
+            diameter_at_reference(1.0, args.part_temp, args.alpha)
+        except ValueError as err:
+            return _fail(str(err))
     try:
         calibration = load_calibration(args.calibration)
-        for record in measure_files(args.images, calibration, Method(args.method)):
+        results = measure_images(args.images, calibration, Method(args.method))
+        if args.fuse:
+            paths, ms = [], []
+            for path, m in results:
+                paths.append(path)
+                ms.append(m)
+            records = [fused_record(paths, ms)]
+        else:
+            records = (measurement_record(path, m) for path, m in results)
+        for record in records:
+            if args.part_temp is not None:
+                add_temperature(record, args.part_temp, args.alpha)
             print(json.dumps(record), flush=True)
     except (CalibrationError, ImageError) as err:
         return _fail(str(err).replace("\n", " "))
@@ -200,6 +224,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="calibration file (shaftgauge.calibration/1)")
     p.add_argument("--method", choices=methods, default=DEFAULT_METHOD.value,
                    help=f"fitting method (default: {DEFAULT_METHOD.value}, the most accurate)")
+    p.add_argument("--fuse", action="store_true",
+                   help="combine all images into one robust diameter (one JSON line)")
+    p.add_argument("--part-temp", type=float, metavar="C",
+                   help="part temperature: adds the diameter at 20 C")
+    p.add_argument("--alpha", type=float, default=11.5e-6, metavar="PER_K",
+                   help="linear expansion coefficient (default steel, 11.5e-6 1/K)")
     p.add_argument("images", nargs="+", metavar="IMAGE", help="8- or 16-bit grey image files")
     p.set_defaults(func=cmd_measure)
 

@@ -11,7 +11,9 @@ import numpy as np
 
 from calib_store.model import Calibration
 from service.measure.diameter import MeasureParams, measure_frame
+from service.measure.fuse import fuse
 from service.measure.result import Measurement, Method
+from service.measure.thermal import diameter_at_reference
 
 
 class ImageError(ValueError):
@@ -64,16 +66,18 @@ def measurement_record(image: str, m: Measurement) -> dict[str, Any]:
         "n_points": d["n_points"],
         "arc_deg": rnd(d["arc_deg"], 2),
         "rms_residual_mm": rnd(d["rms_residual_mm"], 6),
+        "uncertainty_mm": rnd(d["uncertainty_mm"], 7),
         "reason": d["reason"],
+        "note": d["note"],
     }
 
 
-def measure_files(
+def measure_images(
     paths: list[str], calibration: Calibration, method: Method,
     params: MeasureParams | None = None,
-) -> Iterator[dict[str, Any]]:
+) -> Iterator[tuple[str, Measurement]]:
     """Check every file first (so that a bad one stops the run before any output), then yield
-    one record per image, in order.
+    ``(path, measurement)`` per image, in order.
 
     Raises
     ------
@@ -84,4 +88,36 @@ def measure_files(
         check_image_file(p, calibration)
     geometry = calibration.to_geometry()
     for p in paths:
-        yield measurement_record(p, measure_frame(read_grey_image(p), geometry, method, params))
+        yield p, measure_frame(read_grey_image(p), geometry, method, params)
+
+
+def measure_files(
+    paths: list[str], calibration: Calibration, method: Method,
+    params: MeasureParams | None = None,
+) -> Iterator[dict[str, Any]]:
+    """One ``measure`` record per image (see ``measure_images``)."""
+    for p, m in measure_images(paths, calibration, method, params):
+        yield measurement_record(p, m)
+
+
+def fused_record(paths: list[str], measurements: list[Measurement]) -> dict[str, Any]:
+    """The one JSON record of ``measure --fuse``."""
+    f = fuse(measurements)
+
+    def rnd(x: float | None, nd: int) -> float | None:
+        return None if x is None else round(x, nd)
+
+    return {
+        "images": len(paths), "method": f.method.value, "status": f.status.value,
+        "diameter_mm": rnd(f.diameter_mm, 6), "uncertainty_mm": rnd(f.uncertainty_mm, 7),
+        "n_frames": f.n_frames, "n_used": f.n_used, "n_rejected": f.n_rejected,
+        "spread_mm": rnd(f.spread_mm, 7), "reason": f.reason,
+    }
+
+
+def add_temperature(record: dict[str, Any], part_temp_c: float, alpha_per_k: float) -> None:
+    """Add the part temperature and the diameter at 20 C to a record (in place)."""
+    d = record.get("diameter_mm")
+    record["part_temp_c"] = part_temp_c
+    record["diameter_20c_mm"] = None if d is None else round(
+        diameter_at_reference(d, part_temp_c, alpha_per_k), 6)

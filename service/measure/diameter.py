@@ -19,7 +19,7 @@ from service.measure.section import (
 from service.measure.stripe import StripeParams, StripePoints, extract_stripe
 from service.measure.triangulate import triangulate
 
-DEFAULT_METHOD = Method.GEOMETRIC
+DEFAULT_METHOD = Method.AXIS
 """The most accurate method (see README's accuracy table)."""
 
 
@@ -43,6 +43,10 @@ class MeasureParams:
         Points the camera sees at a more grazing angle (between the surface normal and the
         line of sight) are dropped before fitting: there the stripe is squeezed into a sliver
         and its centre leaves the light plane by tens of micrometres.
+    axis_sigma_mm : float
+        Standard deviation of the spindle axis position as a prior on the section centre
+        (method ``axis``), mm: 1 um is the axis as known after mastering; a bare axis
+        calibration is good to tens of micrometres, and the service widens this accordingly.
     """
 
     stripe: StripeParams = field(default_factory=StripeParams)
@@ -51,6 +55,7 @@ class MeasureParams:
     max_diameter_mm: float = 1000.0
     max_rms_mm: float = 0.05
     max_view_angle_deg: float = 75.0
+    axis_sigma_mm: float = 0.001
 
 
 @dataclass(frozen=True)
@@ -126,11 +131,32 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
                          points.section[keep])
 
 
+def axis_center(geometry: RigGeometry) -> np.ndarray | None:
+    """The calibrated spindle axis in section coordinates, mm (None when not calibrated)."""
+    if geometry.axis_point is None:
+        return None
+    return project_to_section(geometry.axis_point[None, :], geometry.axis_direction)[0]
+
+
 def fit_section(
-    points: SectionPoints, geometry: RigGeometry, method: Method, params: MeasureParams
+    points: SectionPoints, geometry: RigGeometry, method: Method, params: MeasureParams,
+    center_prior: tuple[np.ndarray, float] | None = None,
 ) -> Measurement:
-    """Fit the section points by ``method`` and judge the result."""
+    """Fit the section points by ``method`` and judge the result.
+
+    ``center_prior`` (centre in section mm, sigma mm) overrides the calibrated axis for
+    ``axis`` (a tracked centre).
+    """
     sec = points.section
+    note = ""
+    free_extra: dict = {}
+    if method is Method.AXIS:
+        if center_prior is None:
+            c0 = axis_center(geometry)
+            center_prior = None if c0 is None else (c0, params.axis_sigma_mm)
+        if center_prior is None:
+            method = Method.GEOMETRIC
+            note = "the calibration has no axis point: measured with geometric instead of axis"
     if method is Method.ELLIPSE:
         plane_xy = light_plane_coordinates(points.points3d, geometry.plane_normal,
                                            geometry.axis_direction)
@@ -144,18 +170,33 @@ def fit_section(
         e1, e2 = orthonormal_basis(geometry.axis_direction)
         center = np.array([c3 @ e1, c3 @ e2])
         diameter, rms, used = ell.minor_diameter, ell.rms, np.ones(len(sec), bool)
+        std = 2.0 * ell.minor_std
     else:
-        fitter = {Method.CIRCLE: fits.fit_kasa, Method.PAPER: fits.fit_paper,
-                  Method.GEOMETRIC: fits.fit_geometric}[method]
-        circ = fitter(sec)
+        weights = fits.point_weights(points.stripe.strength, len(sec))
+        if method is Method.AXIS:
+            circ = fits.fit_axis_prior(sec, center_prior[0], center_prior[1], weights=weights)
+            free = fits.fit_geometric(sec, weights=weights)
+            if free:
+                cov = fits.circle_covariance(sec[free.inliers], free.center, free.radius,
+                                             weights=weights[free.inliers])
+                free_extra = {"free_center_mm": (float(free.center[0]), float(free.center[1])),
+                              "free_center_cov": (float(cov[0, 0]), float(cov[0, 1]),
+                                                  float(cov[1, 1]))}
+        elif method is Method.GEOMETRIC:
+            circ = fits.fit_geometric(sec, weights=weights)
+        else:  # the paper's algorithms, as the paper has them: unweighted
+            circ = (fits.fit_kasa if method is Method.CIRCLE else fits.fit_paper)(sec)
         if not circ:
             return Measurement.failed(Status.FIT_FAILED, method, circ.reason,
                                       n_points=len(sec), points_px=points.stripe.xy)
         center, diameter, rms, used = circ.center, circ.diameter, circ.rms, circ.inliers
+        std = 2.0 * circ.radius_std
     n_used = int(used.sum())
     arc = fits.arc_span_deg(sec[used], center)
     common = dict(center_mm=(float(center[0]), float(center[1])), n_points=n_used, arc_deg=arc,
-                  rms_residual_mm=float(rms), points_px=points.stripe.xy[used])
+                  rms_residual_mm=float(rms), points_px=points.stripe.xy[used],
+                  uncertainty_mm=float(std) if np.isfinite(std) else None, note=note,
+                  **free_extra)
     if n_used < params.min_points:
         return Measurement.failed(Status.TOO_FEW_POINTS, method,
                                   f"{n_used} points after outlier rejection, need "
@@ -178,6 +219,7 @@ def fit_section(
 def measure_frame(
     image: np.ndarray, geometry: RigGeometry, method: Method = DEFAULT_METHOD,
     params: MeasureParams | None = None,
+    center_prior: tuple[np.ndarray, float] | None = None,
 ) -> Measurement:
     """Measure the shaft diameter in one stripe image.
 
@@ -191,6 +233,9 @@ def measure_frame(
         Fitting method.
     params : MeasureParams, optional
         Settings.
+    center_prior : (ndarray, float), optional
+        Section centre (mm) and its standard deviation (mm) for ``axis``, replacing the
+        calibrated axis (the service passes its tracked centre).
 
     Returns
     -------
@@ -212,4 +257,4 @@ def measure_frame(
             Status.TOO_FEW_POINTS, method,
             f"{len(points.section)} stripe points, need {params.min_points}",
             n_points=len(points.section), points_px=points.stripe.xy)
-    return fit_section(points, geometry, method, params)
+    return fit_section(points, geometry, method, params, center_prior)

@@ -18,7 +18,7 @@ in the manner of scikit-image's ``measure.fit``:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -42,6 +42,8 @@ class CircleFit:
         Points the fit kept.
     reason : str
         Empty on success; why the fit failed otherwise.
+    radius_std : float
+        Standard uncertainty of the radius, mm (``circle_radius_std``).
     """
 
     center: np.ndarray
@@ -49,6 +51,7 @@ class CircleFit:
     rms: float = math.nan
     inliers: np.ndarray = field(default_factory=lambda: np.empty(0, bool), repr=False)
     reason: str = ""
+    radius_std: float = math.nan
 
     def __bool__(self) -> bool:
         return not self.reason and math.isfinite(self.radius) and self.radius > 0
@@ -81,6 +84,8 @@ class EllipseFit:
         RMS Sampson (first-order geometric) distance of the points, mm.
     reason : str
         Empty on success.
+    minor_std : float
+        Standard uncertainty of the semi-minor axis, mm.
     """
 
     coeffs: np.ndarray
@@ -88,6 +93,7 @@ class EllipseFit:
     semi_axes: tuple[float, float]
     rms: float = math.nan
     reason: str = ""
+    minor_std: float = math.nan
 
     def __bool__(self) -> bool:
         return not self.reason and all(math.isfinite(s) and s > 0 for s in self.semi_axes)
@@ -113,6 +119,106 @@ def circle_rms(points: np.ndarray, center: np.ndarray, radius: float) -> float:
     """RMS orthogonal distance of points (mm) to a circle, mm."""
     r = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1]) - radius
     return float(np.sqrt(np.mean(r * r))) if r.size else math.nan
+
+
+def correlation_factor(residuals: np.ndarray, max_lag_fraction: float = 0.2) -> float:
+    """Variance inflation for residuals that are correlated along the stripe.
+
+    Neighbouring stripe centres share speckle grains and the extractor's smoothing, so N points
+    carry the information of about N / tau independent ones, with ``tau = 1 + 2 sum rho_k``
+    the integrated autocorrelation of the residuals in arc order (summed while rho_k stays
+    above 0.05, as in Geyer's initial positive sequence).
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (N,)
+        Residuals in the order of the points along the arc, mm.
+    max_lag_fraction : float
+        Longest lag considered, as a fraction of N.
+
+    Returns
+    -------
+    float
+        ``tau >= 1``.
+    """
+    r = np.asarray(residuals, np.float64)
+    r = r - r.mean()
+    var = float(r @ r)
+    if r.size < 8 or var <= 0:
+        return 1.0
+    tau = 1.0
+    for k in range(1, max(2, int(max_lag_fraction * r.size))):
+        rho = float(r[:-k] @ r[k:]) / var
+        if rho < 0.05:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+def _circle_jacobian(points: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances to the centre and the Jacobian of ``|p - c| - r`` w.r.t. (cx, cy, r)."""
+    dx, dy = points[:, 0] - center[0], points[:, 1] - center[1]
+    dist = np.maximum(np.hypot(dx, dy), 1e-300)
+    return dist, np.column_stack([-dx / dist, -dy / dist, -np.ones(len(points))])
+
+
+def circle_covariance(points: np.ndarray, center: np.ndarray, radius: float,
+                      center_prior_sigma: float | None = None,
+                      weights: np.ndarray | None = None) -> np.ndarray:
+    """Covariance of (cx, cy, r) of a circle fit, mm^2, from its Jacobian and residuals.
+
+    ``s^2 (J^T W J)^-1`` with ``s^2`` the weighted residual variance, inflated by
+    ``correlation_factor`` for residuals correlated along the arc; with a centre prior of
+    standard deviation ``center_prior_sigma`` (mm) its information is added to the centre's.
+    """
+    dist, jac = _circle_jacobian(points, center)
+    res = dist - radius
+    w = np.ones(len(points)) if weights is None else np.asarray(weights, np.float64)
+    n_free = 3 if center_prior_sigma is None else 1
+    dof = max(len(points) - n_free, 1)
+    s2 = float(w @ (res * res)) / dof
+    order = order_along_arc(points, center)
+    s2 *= correlation_factor((res * np.sqrt(w))[order])
+    info = (jac * w[:, None]).T @ jac / max(s2, 1e-30)
+    if center_prior_sigma is not None:
+        info[0, 0] += 1.0 / center_prior_sigma**2
+        info[1, 1] += 1.0 / center_prior_sigma**2
+    try:
+        return np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return np.full((3, 3), np.inf)
+
+
+def circle_radius_std(points: np.ndarray, center: np.ndarray, radius: float,
+                      weights: np.ndarray | None = None) -> float:
+    """Standard uncertainty of a free circle fit's radius, mm (``circle_covariance``)."""
+    cov = circle_covariance(points, center, radius, weights=weights)
+    return float(math.sqrt(max(cov[2, 2], 0.0))) if np.isfinite(cov[2, 2]) else math.inf
+
+
+def _with_std(fit: CircleFit, points: np.ndarray, weights: np.ndarray | None = None
+              ) -> CircleFit:
+    if not fit:
+        return fit
+    keep = fit.inliers if fit.inliers.size == len(points) else np.ones(len(points), bool)
+    w = None if weights is None else weights[keep]
+    return replace(fit, radius_std=circle_radius_std(points[keep], fit.center, fit.radius, w))
+
+
+def point_weights(strength: np.ndarray | None, n: int) -> np.ndarray:
+    """Relative weights of stripe points from their strength (curvature across the stripe).
+
+    A Steger centre's noise scales as noise / curvature, so a weak point (where the stripe
+    fades) gets ``(strength / median)^2``; points at or above the median get 1, since speckle,
+    the larger error, is multiplicative and does not shrink with brightness.
+    """
+    if strength is None:
+        return np.ones(n)
+    s = np.asarray(strength, np.float64)
+    med = float(np.median(s)) if s.size else 0.0
+    if not med > 0:
+        return np.ones(n)
+    return np.clip((s / med) ** 2, 1e-3, 1.0)
 
 
 def fit_kasa(points: np.ndarray) -> CircleFit:
@@ -145,7 +251,8 @@ def fit_kasa(points: np.ndarray) -> CircleFit:
         return CircleFit.failure("Kasa fit is degenerate (points on a line?)", len(pts))
     center = mean + np.array([-a / 2.0, -b / 2.0])
     radius = math.sqrt(r2)
-    return CircleFit(center, radius, circle_rms(pts, center, radius), np.ones(len(pts), bool))
+    return _with_std(CircleFit(center, radius, circle_rms(pts, center, radius),
+                               np.ones(len(pts), bool)), pts)
 
 
 def fit_hyper(points: np.ndarray) -> CircleFit:
@@ -198,17 +305,21 @@ def fit_hyper(points: np.ndarray) -> CircleFit:
     if not (np.isfinite(r2) and r2 > 0):
         return CircleFit.failure("Hyper fit gave no real circle", len(pts))
     radius = math.sqrt(r2)
-    return CircleFit(center, radius, circle_rms(pts, center, radius), np.ones(len(pts), bool))
+    return _with_std(CircleFit(center, radius, circle_rms(pts, center, radius),
+                               np.ones(len(pts), bool)), pts)
 
 
-def _lm_circle(pts: np.ndarray, start: CircleFit) -> tuple[np.ndarray, float] | None:
+def _lm_circle(pts: np.ndarray, start: CircleFit, sqrt_w: np.ndarray | None = None
+               ) -> tuple[np.ndarray, float] | None:
+    sw = np.ones(len(pts)) if sqrt_w is None else sqrt_w
+
     def residuals(p: np.ndarray) -> np.ndarray:
-        return np.hypot(pts[:, 0] - p[0], pts[:, 1] - p[1]) - p[2]
+        return sw * (np.hypot(pts[:, 0] - p[0], pts[:, 1] - p[1]) - p[2])
 
     def jac(p: np.ndarray) -> np.ndarray:
         dx, dy = pts[:, 0] - p[0], pts[:, 1] - p[1]
         dist = np.maximum(np.hypot(dx, dy), 1e-300)
-        return np.column_stack([-dx / dist, -dy / dist, -np.ones(len(pts))])
+        return sw[:, None] * np.column_stack([-dx / dist, -dy / dist, -np.ones(len(pts))])
 
     x0 = np.array([start.center[0], start.center[1], start.radius])
     sol = least_squares(residuals, x0, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
@@ -218,7 +329,8 @@ def _lm_circle(pts: np.ndarray, start: CircleFit) -> tuple[np.ndarray, float] | 
 
 
 def fit_geometric(
-    points: np.ndarray, reject_k: float = 3.5, max_rounds: int = 6, floor_mm: float = 1e-4
+    points: np.ndarray, reject_k: float = 3.5, max_rounds: int = 6, floor_mm: float = 1e-4,
+    weights: np.ndarray | None = None,
 ) -> CircleFit:
     """Orthogonal-distance circle fit with robust outlier rejection.
 
@@ -237,6 +349,8 @@ def fit_geometric(
         Most fit-and-reject rounds.
     floor_mm : float
         Least rejection distance, mm, so that near-perfect data keeps its points.
+    weights : ndarray, shape (N,), optional
+        Relative weights (``point_weights``); residuals are judged scaled by sqrt(weight).
 
     Returns
     -------
@@ -247,6 +361,8 @@ def fit_geometric(
     if reason:
         return CircleFit.failure(reason, len(np.atleast_2d(points)))
     pts = np.asarray(points, np.float64)
+    w = np.ones(len(pts)) if weights is None else np.asarray(weights, np.float64)
+    sw = np.sqrt(w)
     inliers = np.ones(len(pts), bool)
     fit = fit_hyper(pts)
     if not fit:
@@ -255,17 +371,18 @@ def fit_geometric(
     for _ in range(max_rounds):
         if inliers.sum() < 3:
             return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
-        solved = _lm_circle(pts[inliers], CircleFit(center, radius))
+        solved = _lm_circle(pts[inliers], CircleFit(center, radius), sw[inliers])
         if solved is None:
             return CircleFit.failure("geometric fit did not converge", len(pts))
         center, radius = solved
-        res = np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) - radius
+        res = (np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) - radius) * sw
         scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
         new = np.abs(res) <= max(reject_k * scale, floor_mm)
         if np.array_equal(new, inliers):
             break
         inliers = new
-    return CircleFit(center, radius, circle_rms(pts[inliers], center, radius), inliers)
+    return _with_std(CircleFit(center, radius, circle_rms(pts[inliers], center, radius),
+                               inliers), pts, w)
 
 
 def order_along_arc(points: np.ndarray, center: np.ndarray) -> np.ndarray:
@@ -357,7 +474,83 @@ def fit_paper(points: np.ndarray) -> CircleFit:
     radius = float(np.mean(np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1])))
     if not radius > 0 or abs(radius - start.radius) > start.radius:
         return CircleFit.failure("constrained centre fit diverged from its start", n)
-    return CircleFit(center, radius, circle_rms(pts, center, radius), np.ones(n, bool))
+    return _with_std(CircleFit(center, radius, circle_rms(pts, center, radius),
+                               np.ones(n, bool)), pts)
+
+
+def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: float,
+                   reject_k: float = 3.5, max_rounds: int = 6,
+                   floor_mm: float = 1e-4, weights: np.ndarray | None = None) -> CircleFit:
+    """Circle with a Gaussian prior on its centre, by maximum a posteriori.
+
+    A surface turned on the lathe is concentric with the spindle axis, so the section centre
+    is known beforehand to within ``center_sigma``. The fit minimises
+    ``sum ((|p_i - c| - r) / s)^2 + |c - c0|^2 / center_sigma^2`` over ``(c, r)``, with ``s``
+    the points' noise (estimated robustly from the residuals about the prior centre and
+    inflated for correlation along the arc), by Levenberg-Marquardt, rejecting outliers by
+    a MAD scale as ``fit_geometric`` does. On a short arc, where a free fit trades centre
+    against radius, the prior pins the centre and leaves the radius to the data.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Section points, mm; N >= 3.
+    center_prior : ndarray, shape (2,)
+        Prior centre ``c0`` (the spindle axis in section coordinates), mm.
+    center_sigma : float
+        Standard deviation of the prior centre, mm (> 0).
+    reject_k, max_rounds, floor_mm, weights
+        Outlier rejection and point weights, as in ``fit_geometric``.
+
+    Returns
+    -------
+    CircleFit
+        With ``radius_std`` from the posterior covariance.
+    """
+    reason = _check_points(points, 3)
+    if reason:
+        return CircleFit.failure(reason, len(np.atleast_2d(points)))
+    c0 = np.asarray(center_prior, np.float64)
+    if not (np.isfinite(c0).all() and center_sigma > 0):
+        return CircleFit.failure("centre prior must be finite with a positive sigma",
+                                 len(points))
+    pts = np.asarray(points, np.float64)
+    w = np.ones(len(pts)) if weights is None else np.asarray(weights, np.float64)
+    sw_all = np.sqrt(w)
+    inliers = np.ones(len(pts), bool)
+    center = c0.copy()
+    radius = float(np.average(np.hypot(*(pts - c0).T), weights=w))
+    for _ in range(max_rounds):
+        use, sw = pts[inliers], sw_all[inliers]
+        if len(use) < 3:
+            return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
+        dist0 = np.hypot(*(use - center).T)
+        res0 = (dist0 - np.median(dist0)) * sw
+        order = order_along_arc(use, center)
+        noise = _MAD_TO_SIGMA * float(np.median(np.abs(res0 - np.median(res0))))
+        noise = max(noise, 1e-6) * math.sqrt(correlation_factor(res0[order]))
+
+        def residuals(q: np.ndarray, use: np.ndarray = use, sw: np.ndarray = sw,
+                      noise: float = noise) -> np.ndarray:
+            d = (np.hypot(use[:, 0] - q[0], use[:, 1] - q[1]) - q[2]) * sw
+            return np.concatenate([d / noise, (q[:2] - c0) / center_sigma])
+
+        sol = least_squares(residuals, np.array([center[0], center[1], radius]), method="lm",
+                            xtol=1e-12, ftol=1e-12)
+        if not sol.success or not np.isfinite(sol.x).all() or sol.x[2] <= 0:
+            return CircleFit.failure("axis-prior fit did not converge", len(pts))
+        center, radius = sol.x[:2], float(sol.x[2])
+        res = (np.hypot(*(pts - center).T) - radius) * sw_all
+        scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
+        new = np.abs(res - np.median(res[inliers])) <= max(reject_k * scale, floor_mm)
+        if np.array_equal(new, inliers):
+            break
+        inliers = new
+    use = pts[inliers]
+    cov = circle_covariance(use, center, radius, center_prior_sigma=center_sigma,
+                            weights=w[inliers])
+    std = float(math.sqrt(max(cov[2, 2], 0.0))) if np.isfinite(cov[2, 2]) else math.inf
+    return CircleFit(center, radius, circle_rms(use, center, radius), inliers, radius_std=std)
 
 
 def conic_semi_axes(coeffs: np.ndarray) -> tuple[np.ndarray, float, float] | None:
@@ -412,5 +605,31 @@ def fit_ellipse(points: np.ndarray) -> EllipseFit:
     A, B, C, D, _ = coeffs
     f = x * x + design @ coeffs
     grad = np.hypot(2 * x + A * y + C, A * x + 2 * B * y + D)
-    rms = float(np.sqrt(np.mean((f / np.maximum(grad, 1e-300)) ** 2)))
-    return EllipseFit(coeffs, center + mean, (major, minor), rms)
+    sampson = f / np.maximum(grad, 1e-300)
+    rms = float(np.sqrt(np.mean(sampson**2)))
+    return EllipseFit(coeffs, center + mean, (major, minor), rms,
+                      minor_std=_minor_std(design, f, coeffs, sampson, x, y))
+
+
+def _minor_std(design: np.ndarray, f: np.ndarray, coeffs: np.ndarray, sampson: np.ndarray,
+               x: np.ndarray, y: np.ndarray) -> float:
+    """Standard uncertainty of the semi-minor axis: the coefficients' least-squares covariance
+    (inflated for correlation along the arc) propagated by a numerical gradient."""
+    dof = max(len(f) - 5, 1)
+    order = np.argsort(np.arctan2(y - y.mean(), x - x.mean()))
+    s2 = float(f @ f) / dof * correlation_factor(sampson[order])
+    try:
+        cov = s2 * np.linalg.inv(design.T @ design)
+    except np.linalg.LinAlgError:
+        return math.inf
+    grad = np.zeros(5)
+    for i in range(5):
+        h = 1e-6 * max(abs(coeffs[i]), 1e-3)
+        up, dn = coeffs.copy(), coeffs.copy()
+        up[i] += h
+        dn[i] -= h
+        a_up, a_dn = conic_semi_axes(up), conic_semi_axes(dn)
+        if a_up is None or a_dn is None:
+            return math.inf
+        grad[i] = (a_up[2] - a_dn[2]) / (2 * h)
+    return float(math.sqrt(max(grad @ cov @ grad, 0.0)))

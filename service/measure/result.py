@@ -28,6 +28,7 @@ class Method(enum.StrEnum):
     CIRCLE = "circle"
     PAPER = "paper"
     GEOMETRIC = "geometric"
+    AXIS = "axis"
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,13 @@ class Measurement:
         RMS distance of the points to the fitted curve, mm.
     reason : str
         Human-readable explanation, empty when OK.
+    uncertainty_mm : float or None
+        Standard uncertainty of ``diameter_mm``, mm.
+    note : str
+        Something worth knowing about a good result (e.g. a fallback), empty otherwise.
+    free_center_mm, free_center_cov : tuple or None
+        For ``axis``: the free (geometric) fit's centre and its covariance ``(xx, xy, yy)`` in
+        mm^2, for the axis tracker.
     points_px : ndarray, shape (N, 2)
         Sub-pixel stripe centres (x, y) in pixels that were used, for display.
     """
@@ -64,6 +72,10 @@ class Measurement:
     arc_deg: float = 0.0
     rms_residual_mm: float | None = None
     reason: str = ""
+    uncertainty_mm: float | None = None
+    note: str = ""
+    free_center_mm: tuple[float, float] | None = None
+    free_center_cov: tuple[float, float, float] | None = None
     points_px: np.ndarray = field(default_factory=lambda: np.empty((0, 2)), repr=False)
 
     def __bool__(self) -> bool:
@@ -88,5 +100,7 @@ class Measurement:
             "n_points": int(self.n_points),
             "arc_deg": num(self.arc_deg),
             "rms_residual_mm": num(self.rms_residual_mm),
+            "uncertainty_mm": num(self.uncertainty_mm) if self.status is Status.OK else None,
             "reason": self.reason,
+            "note": self.note,
         }

@@ -32,7 +32,7 @@ def lines(stdout: str) -> list[dict]:
     return [json.loads(line) for line in stdout.splitlines()]
 
 
-@pytest.mark.parametrize("method", ["ellipse", "circle", "paper", "geometric", None])
+@pytest.mark.parametrize("method", ["ellipse", "circle", "paper", "geometric", "axis", None])
 def test_measure_prints_one_json_line_per_image(frames, method) -> None:
     cal, paths = frames
     extra = ["--method", method] if method else []
@@ -43,7 +43,7 @@ def test_measure_prints_one_json_line_per_image(frames, method) -> None:
     for rec, truth in zip(recs, [20.113, 47.062], strict=True):
         assert rec.keys() >= KEYS
         assert rec["status"] == "ok"
-        assert rec["method"] == (method or "geometric")
+        assert rec["method"] == (method or "axis")
         bound = 2.0 if method == "ellipse" else 0.1
         assert abs(rec["diameter_mm"] - truth) < bound
         assert rec["n_points"] > 100 and 60 < rec["arc_deg"] < 140
@@ -140,3 +140,31 @@ def test_render_writes_frames_and_calibration(tmp_path) -> None:
     assert res.returncode == 0, res.stderr
     assert len(list(tmp_path.glob("*.png"))) == 4
     assert (tmp_path / "calibration.json").is_file()
+
+
+def test_every_line_has_an_uncertainty_and_axis_is_the_default(frames) -> None:
+    cal, paths = frames
+    res = run("measure", "--calibration", str(cal), *map(str, paths))
+    for rec in lines(res.stdout):
+        assert rec["method"] == "axis" and 0 < rec["uncertainty_mm"] < 0.05
+
+
+def test_fuse_prints_one_line(frames, tmp_path) -> None:
+    cal, _ = frames
+    paths = write_frames(tmp_path, [31.473], count=5, seed=11)
+    res = run("measure", "--calibration", str(cal), "--fuse", *map(str, paths))
+    assert res.returncode == 0, res.stderr
+    (rec,) = lines(res.stdout)
+    assert rec["status"] == "ok" and rec["n_frames"] == 5 and rec["images"] == 5
+    assert abs(rec["diameter_mm"] - 31.473) < 0.01 and rec["uncertainty_mm"] > 0
+
+
+def test_part_temperature_adds_the_diameter_at_20c(frames) -> None:
+    cal, paths = frames
+    res = run("measure", "--calibration", str(cal), "--part-temp", "30", str(paths[1]))
+    (rec,) = lines(res.stdout)
+    assert rec["part_temp_c"] == 30
+    shrink_um = (rec["diameter_mm"] - rec["diameter_20c_mm"]) * 1000
+    assert shrink_um == pytest.approx(47.062 * 11.5e-6 * 10 * 1000, rel=0.01)
+    bad = run("measure", "--calibration", str(cal), "--part-temp", "900", str(paths[1]))
+    assert bad.returncode == 2 and "temperature" in bad.stderr
