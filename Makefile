@@ -23,6 +23,7 @@ test: setup
 ## make bench: accuracy and speed figures; results land in bench-results/.
 bench: setup
 	$(PY) -m tests.bench.paper_comparison
+	$(PY) -m tests.bench.beyond_paper
 	$(PY) -m tests.bench.camera_throughput
 
 ## make soak: the long soak and fault runs.
