@@ -4,12 +4,12 @@ survives a restart, and the offset log can be read back (newest first)."""
 from __future__ import annotations
 
 import json
-import sqlite3
 import threading
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from calib_store.store import open_database
 from service.compensation import ControllerState, Decision
 
 _SCHEMA = """
@@ -37,17 +37,17 @@ CREATE TABLE IF NOT EXISTS compensation_state (
 class CompensationLog:
     """SQLite store of decisions and state. Thread-safe; one connection."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, create_if_missing: bool = True) -> None:
         self.path = Path(path)
         self._lock = threading.Lock()
-        self._db = sqlite3.connect(str(self.path), check_same_thread=False)
-        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db = open_database(self.path, create_if_missing)
         self._db.executescript(_SCHEMA)
 
     def record(self, decision: Decision, wall_time: float, state: ControllerState) -> None:
         """Store a decision and the state after it, in one transaction."""
         d = decision.as_dict()
-        with self._lock, self._db:
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
             self._db.execute(
                 "INSERT INTO compensation_decisions (wall_time, kind, reason, measurement_seq,"
                 " deviation_mm, filtered_mm, offset_mm, offset_seq, before_mm, after_mm, shadow)"
@@ -57,6 +57,7 @@ class CompensationLog:
                  d["after_mm"], int(d["shadow"])))
             self._db.execute("INSERT OR REPLACE INTO compensation_state (id, state) "
                              "VALUES (1, ?)", (json.dumps(asdict(state)),))
+            self._db.execute("COMMIT")
 
     def load_state(self) -> ControllerState:
         """The last saved state, or a fresh one."""

@@ -92,6 +92,21 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_serve(args: argparse.Namespace) -> int:
+    """Run the service."""
+    from service.config import ConfigError, load_settings
+    from service.serve import main as serve_main
+
+    try:
+        settings = load_settings(args.config)
+    except ConfigError as err:
+        return _fail(str(err))
+    try:
+        return serve_main(settings)
+    except (ValueError, RuntimeError, OSError) as err:
+        return _fail(str(err))
+
+
 def cmd_sim_camera(args: argparse.Namespace) -> int:
     """Serve a simulated GigE Vision camera until interrupted."""
     import signal
@@ -240,6 +255,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="speckle and noise seed")
     p.add_argument("--output", required=True, metavar="DIR", help="folder to write into")
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("serve", help="run the measuring service (REST, dashboard, Modbus)")
+    p.add_argument("--config", metavar="FILE", help="TOML settings (default: the embedded "
+                   "default, a simulated camera and PLC on loopback)")
+    p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("sim-camera", help="serve a simulated GigE Vision camera (Aravis fake "
                        "camera streaming the simulated rig)")

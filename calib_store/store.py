@@ -1,0 +1,218 @@
+"""Calibrations in SQLite: versioned, one active at a time, an audit log of every change.
+
+Each version keeps the interchange document exactly (``shaftgauge.calibration/1``), who made
+it, when, a note and its quality figures. Activation is one transaction. A file that is not a
+healthy SQLite database, or a stored document that no longer validates, is reported with what
+is wrong and left untouched: the store never replaces or repairs a database by itself.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from calib_store.model import Calibration, CalibrationError, parse_calibration
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS calibrations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    created REAL NOT NULL,
+    created_by TEXT NOT NULL,
+    note TEXT NOT NULL,
+    document TEXT NOT NULL,
+    quality TEXT
+);
+CREATE TABLE IF NOT EXISTS active_calibration (
+    id INTEGER PRIMARY KEY CHECK (id = 1),
+    calibration_id INTEGER NOT NULL REFERENCES calibrations(id)
+);
+CREATE TABLE IF NOT EXISTS audit (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time REAL NOT NULL,
+    who TEXT NOT NULL,
+    action TEXT NOT NULL,
+    calibration_id INTEGER,
+    detail TEXT NOT NULL
+);
+"""
+
+
+class StoreError(RuntimeError):
+    """The store cannot be used; the message says which file and what is wrong."""
+
+
+@dataclass(frozen=True)
+class CalibrationInfo:
+    """A stored calibration's metadata."""
+
+    id: int
+    created: float
+    created_by: str
+    note: str
+    active: bool
+    quality: dict[str, Any] | None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {"id": self.id, "created": self.created, "created_by": self.created_by,
+                "note": self.note, "active": self.active, "quality": self.quality}
+
+
+def open_database(path: Path, create_if_missing: bool) -> sqlite3.Connection:
+    """Open (or create) the service's SQLite file, refusing a missing or damaged one.
+
+    Raises
+    ------
+    StoreError
+        Missing (when not allowed to create), not a database, or failing its integrity check.
+    """
+    if not path.exists():
+        if not create_if_missing:
+            raise StoreError(f"calibration store {path} is missing (store.create_if_missing is "
+                             "off: restore the file from a backup, or allow a new store)")
+        path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
+        check = db.execute("PRAGMA integrity_check").fetchone()
+        if not check or check[0] != "ok":
+            db.close()
+            raise StoreError(f"calibration store {path} is damaged (integrity check: "
+                             f"{check[0] if check else 'no answer'}); it was left untouched")
+        db.execute("PRAGMA journal_mode=WAL")
+        db.execute("PRAGMA foreign_keys=ON")
+        db.executescript(_SCHEMA)
+    except sqlite3.DatabaseError as err:
+        raise StoreError(f"calibration store {path} cannot be used: {err}; it was left "
+                         "untouched") from None
+    return db
+
+
+class CalibrationStore:
+    """The versioned calibration store. Thread-safe."""
+
+    def __init__(self, path: str | Path, create_if_missing: bool = True) -> None:
+        self.path = Path(path)
+        self._lock = threading.Lock()
+        self._db = open_database(self.path, create_if_missing)
+
+    def close(self) -> None:
+        """Close the database."""
+        with self._lock:
+            self._db.close()
+
+    # ---- reading ---------------------------------------------------------------------------
+
+    def _active_id(self) -> int | None:
+        row = self._db.execute("SELECT calibration_id FROM active_calibration WHERE id = 1"
+                               ).fetchone()
+        return None if row is None else int(row[0])
+
+    def _info(self, row: tuple, active_id: int | None) -> CalibrationInfo:
+        cid, created, by, note, quality = row
+        return CalibrationInfo(cid, created, by, note, cid == active_id,
+                               json.loads(quality) if quality else None)
+
+    def list(self) -> list[CalibrationInfo]:
+        """Every version, newest first."""
+        with self._lock:
+            active = self._active_id()
+            rows = self._db.execute("SELECT id, created, created_by, note, quality FROM "
+                                    "calibrations ORDER BY id DESC").fetchall()
+        return [self._info(r, active) for r in rows]
+
+    def get(self, calibration_id: int) -> tuple[CalibrationInfo, Calibration]:
+        """One version and its document.
+
+        Raises
+        ------
+        KeyError
+            No such version.
+        StoreError
+            The stored document no longer validates.
+        """
+        with self._lock:
+            active = self._active_id()
+            row = self._db.execute("SELECT id, created, created_by, note, quality, document "
+                                   "FROM calibrations WHERE id = ?",
+                                   (calibration_id,)).fetchone()
+        if row is None:
+            raise KeyError(calibration_id)
+        try:
+            calibration = parse_calibration(json.loads(row[5]))
+        except (CalibrationError, json.JSONDecodeError) as err:
+            raise StoreError(f"stored calibration {calibration_id} is damaged: {err}") from None
+        return self._info(row[:5], active), calibration
+
+    def active(self) -> tuple[CalibrationInfo, Calibration] | None:
+        """The active version, or None when none was activated."""
+        with self._lock:
+            active = self._active_id()
+        return None if active is None else self.get(active)
+
+    def audit(self, limit: int = 100) -> list[dict[str, Any]]:
+        """The audit log, newest first."""
+        with self._lock:
+            cur = self._db.execute("SELECT id, time, who, action, calibration_id, detail FROM "
+                                   "audit ORDER BY id DESC LIMIT ?", (int(limit),))
+            cols = [c[0] for c in cur.description]
+            return [dict(zip(cols, r, strict=True)) for r in cur.fetchall()]
+
+    # ---- changing ------------------------------------------------------------------------
+
+    def _audit(self, who: str, action: str, calibration_id: int | None, detail: str) -> None:
+        self._db.execute("INSERT INTO audit (time, who, action, calibration_id, detail) "
+                         "VALUES (?, ?, ?, ?, ?)",
+                         (time.time(), who, action, calibration_id, detail))
+
+    def add(self, calibration: Calibration, by: str, note: str = "",
+            quality: dict[str, Any] | None = None, activate: bool = False) -> int:
+        """Store a new version (and activate it when asked), in one transaction."""
+        document = json.dumps(calibration.to_document())
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                cur = self._db.execute(
+                    "INSERT INTO calibrations (created, created_by, note, document, quality) "
+                    "VALUES (?, ?, ?, ?, ?)",
+                    (time.time(), by, note, document,
+                     None if quality is None else json.dumps(quality)))
+                cid = int(cur.lastrowid)
+                self._audit(by, "import", cid, note)
+                if activate:
+                    self._activate(cid, by)
+                self._db.execute("COMMIT")
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+        return cid
+
+    def _activate(self, cid: int, by: str) -> None:
+        previous = self._active_id()
+        self._db.execute("INSERT OR REPLACE INTO active_calibration (id, calibration_id) "
+                         "VALUES (1, ?)", (cid,))
+        self._audit(by, "activate", cid, f"previously {previous}")
+
+    def activate(self, calibration_id: int, by: str) -> None:
+        """Make a version the active one (atomic; audited).
+
+        Raises
+        ------
+        KeyError
+            No such version.
+        StoreError
+            Its document no longer validates (it is not activated).
+        """
+        self.get(calibration_id)  # exists and validates
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                self._activate(calibration_id, by)
+                self._db.execute("COMMIT")
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise

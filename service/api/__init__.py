@@ -1,0 +1,1 @@
+"""The HTTP API (FastAPI): ``create_app(gauge)`` builds it around a running ``Gauge``."""

@@ -1,0 +1,74 @@
+"""Calibrations: list, get, import, export, activate."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, HTTPException
+from fastapi.responses import JSONResponse
+
+from calib_store.model import CalibrationError, parse_calibration
+from calib_store.store import StoreError
+from service.api.auth import requires
+from service.api.models import CalibrationImportIn
+from service.runtime import Gauge
+
+
+def router(gauge: Gauge) -> APIRouter:
+    r = APIRouter(tags=["calibrations"])
+    technician = Depends(requires(gauge.settings.api, "technician"))
+
+    def store():
+        if gauge.store is None:
+            raise HTTPException(503, f"the calibration store cannot be used: {gauge.store_error}")
+        return gauge.store
+
+    def find(cid: int):
+        try:
+            return store().get(cid)
+        except KeyError:
+            raise HTTPException(404, f"no calibration {cid}") from None
+        except StoreError as err:
+            raise HTTPException(409, str(err)) from None
+
+    @r.get("/calibrations", summary="Every calibration version, newest first")
+    def list_all() -> dict:
+        return {"items": [i.as_dict() for i in store().list()]}
+
+    @r.get("/calibrations/audit", summary="Audit log of calibration changes")
+    def audit(limit: int = 100) -> dict:
+        return {"items": store().audit(min(max(limit, 1), 1000))}
+
+    @r.get("/calibrations/{cid}", summary="One calibration with its document")
+    def get(cid: int) -> dict:
+        info, cal = find(cid)
+        return {**info.as_dict(), "document": cal.to_document()}
+
+    @r.get("/calibrations/{cid}/export", summary="The interchange document, as a file")
+    def export(cid: int) -> JSONResponse:
+        _, cal = find(cid)
+        return JSONResponse(cal.to_document(), headers={
+            "Content-Disposition": f'attachment; filename="calibration-{cid}.json"'})
+
+    @r.post("/calibrations", status_code=201, summary="Import a calibration document")
+    def import_(body: CalibrationImportIn, role: str = technician) -> dict:
+        try:
+            cal = parse_calibration(body.document)
+        except CalibrationError as err:
+            raise HTTPException(422, f"document: {err}") from None
+        cid = store().add(cal, by=role, note=body.note, activate=body.activate)
+        if body.activate:
+            gauge.set_calibration(*store().get(cid))
+        info, _ = store().get(cid)
+        return info.as_dict()
+
+    @r.post("/calibrations/{cid}/activate", summary="Measure with this calibration")
+    def activate(cid: int, role: str = technician) -> dict:
+        find(cid)
+        try:
+            store().activate(cid, by=role)
+        except StoreError as err:
+            raise HTTPException(409, str(err)) from None
+        info, cal = store().get(cid)
+        gauge.set_calibration(info, cal)
+        return info.as_dict()
+
+    return r

@@ -1,0 +1,87 @@
+"""The feature (nominal, tolerance), compensation settings, shadow mode, commands, offset log,
+and the part temperature."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+
+from fastapi import APIRouter, Depends, HTTPException, Query
+
+from drivers.plc.registers import Command
+from service.api.auth import requires
+from service.api.models import CommandIn, CompensationIn, FeatureIn, ShadowIn, TemperatureIn
+from service.runtime import Gauge
+
+
+def router(gauge: Gauge) -> APIRouter:
+    r = APIRouter(tags=["compensation"])
+    technician = Depends(requires(gauge.settings.api, "technician"))
+    admin = Depends(requires(gauge.settings.api, "admin"))
+
+    def apply(settings) -> dict:
+        try:
+            d = gauge.update_compensation(settings)
+        except ValueError as err:
+            raise HTTPException(422, str(err)) from None
+        return {"settings": asdict(gauge.channel.controller.settings), "decision": d.as_dict()}
+
+    @r.get("/feature", summary="Nominal diameter and tolerance of the current feature")
+    def feature() -> dict:
+        s = gauge.channel.controller.settings
+        return {"nominal_mm": s.nominal_mm, "tol_upper_mm": s.tol_upper_mm,
+                "tol_lower_mm": s.tol_lower_mm}
+
+    @r.put("/feature", summary="Set the feature (technician)")
+    def set_feature(body: FeatureIn, _: str = technician) -> dict:
+        return apply(replace(gauge.channel.controller.settings, **body.model_dump()))
+
+    @r.get("/compensation", summary="Compensation settings and state")
+    def compensation() -> dict:
+        c = gauge.channel.controller
+        return {"settings": asdict(c.settings), "state": c.state.value,
+                "cumulative_offset_mm": c.cumulative_mm,
+                "offset_seq": c.persisted.offset_seq, "pending_seq": c.persisted.pending_seq}
+
+    @r.put("/compensation", summary="Tune compensation (admin)")
+    def tune(body: CompensationIn, _: str = admin) -> dict:
+        changes = {k: v for k, v in body.model_dump().items() if v is not None}
+        return apply(replace(gauge.channel.controller.settings, **changes))
+
+    @r.put("/compensation/shadow", summary="Shadow mode on or off (technician)")
+    def shadow(body: ShadowIn, _: str = technician) -> dict:
+        return apply(replace(gauge.channel.controller.settings, shadow=body.shadow))
+
+    @r.post("/compensation/command", summary="Reset compensation or acknowledge an alarm")
+    async def command(body: CommandIn, _: str = technician) -> dict:
+        code = Command.RESET_COMPENSATION if body.command == "reset" \
+            else Command.ACKNOWLEDGE_ALARM
+        d = await gauge.run_command(code, source="api")
+        return {"decision": None if d is None else d.as_dict(),
+                "state": gauge.channel.controller.state.value}
+
+    @r.get("/compensation/log", summary="Compensation decisions, newest first")
+    def offset_log(limit: int = Query(100, ge=1, le=5000),
+                   before_id: int | None = Query(None, ge=1),
+                   kinds: str | None = Query(None, description="comma-separated kinds")
+                   ) -> dict:
+        if gauge.comp_log is None:
+            raise HTTPException(503, "the compensation log cannot be used: "
+                                f"{gauge.store_error}")
+        items = gauge.comp_log.decisions(limit, before_id,
+                                         tuple(kinds.split(",")) if kinds else None)
+        return {"items": items, "next_before_id": items[-1]["id"] if len(items) == limit
+                else None}
+
+    @r.get("/temperature", summary="Part temperature for the diameter at 20 C")
+    def temperature() -> dict:
+        return {"part_temp_c": gauge.part_temp_c,
+                "alpha_per_k": gauge.settings.temperature.alpha_per_k}
+
+    @r.put("/temperature", summary="Set the part temperature (technician)")
+    def set_temperature(body: TemperatureIn, _: str = technician) -> dict:
+        gauge.part_temp_c = body.part_temp_c
+        if body.alpha_per_k is not None:
+            gauge.settings.temperature.alpha_per_k = body.alpha_per_k
+        return temperature()
+
+    return r

@@ -1,0 +1,83 @@
+"""Latest measurement, history, and the live stream (Server-Sent Events)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator
+
+from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.responses import StreamingResponse
+
+from service.runtime import Gauge
+
+SSE_KEEPALIVE_S = 10.0
+
+
+def router(gauge: Gauge) -> APIRouter:
+    r = APIRouter(tags=["measurements"])
+
+    @r.get("/measurements/latest", summary="The latest measurement")
+    def latest() -> dict:
+        if gauge.latest is None:
+            raise HTTPException(404, "no measurement yet: " + "; ".join(gauge.problems()))
+        return {**gauge.latest.as_dict(), "age_s": gauge.measurement_age_s()}
+
+    @r.get("/measurements", summary="History, newest first")
+    def history(
+        since: float | None = Query(None, description="from this Unix time (s)"),
+        until: float | None = Query(None, description="up to this Unix time (s)"),
+        before_seq: int | None = Query(None, ge=0, description="page: older than this seq"),
+        limit: int = Query(100, ge=1, le=5000),
+        ok_only: bool = Query(False, description="only measurements with status ok"),
+    ) -> dict:
+        if since is not None and until is not None and since > until:
+            raise HTTPException(422, "since must not be after until")
+        out = []
+        for rec in reversed(gauge.history):
+            if before_seq is not None and rec.seq >= before_seq:
+                continue
+            if until is not None and rec.time > until:
+                continue
+            if since is not None and rec.time < since:
+                break
+            if ok_only and rec.status != "ok":
+                continue
+            out.append(rec.as_dict())
+            if len(out) >= limit:
+                break
+        return {"items": out, "next_before_seq": out[-1]["seq"] if len(out) == limit
+                else None}
+
+    @r.get("/stream", summary="Live measurements and compensation decisions (SSE)")
+    async def stream(request: Request) -> StreamingResponse:
+        async def events() -> AsyncIterator[str]:
+            q = gauge.subscribers.add()
+            dq = gauge.decisions.add()
+            try:
+                yield "retry: 2000\n\n"
+                if gauge.latest is not None:
+                    yield f"event: measurement\ndata: {json.dumps(gauge.latest.as_dict())}\n\n"
+                while not await request.is_disconnected():
+                    get_m = asyncio.ensure_future(q.get())
+                    get_d = asyncio.ensure_future(dq.get())
+                    done, pending = await asyncio.wait({get_m, get_d},
+                                                       timeout=SSE_KEEPALIVE_S,
+                                                       return_when=asyncio.FIRST_COMPLETED)
+                    for p in pending:
+                        p.cancel()
+                    if not done:
+                        yield ": keep-alive\n\n"
+                    if get_m in done:
+                        yield f"event: measurement\ndata: {json.dumps(get_m.result().as_dict())}\n\n"
+                    if get_d in done:
+                        yield f"event: decision\ndata: {json.dumps(get_d.result().as_dict())}\n\n"
+            finally:
+                gauge.subscribers.remove(q)
+                gauge.decisions.remove(dq)
+
+        return StreamingResponse(events(), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-cache",
+                                          "X-Accel-Buffering": "no"})
+
+    return r

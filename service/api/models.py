@@ -1,0 +1,64 @@
+"""Request bodies: strict (a bool is not a number, a string is not a float), no extra fields."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid")
+
+
+class FeatureIn(_Strict):
+    """Nominal diameter and tolerance of the feature being turned, mm."""
+
+    nominal_mm: float = Field(gt=0, le=1000)
+    tol_upper_mm: float = Field(ge=0, le=100)
+    tol_lower_mm: float = Field(le=0, ge=-100)
+
+
+class CompensationIn(_Strict):
+    """Compensation tuning (see service/compensation.py); omitted fields keep their value."""
+
+    window: int | None = Field(None, ge=1, le=1000)
+    filter: Literal["median", "mean"] | None = None
+    deadband_mm: float | None = Field(None, ge=0)
+    gain: float | None = Field(None, gt=0, le=1)
+    max_step_mm: float | None = Field(None, gt=0)
+    max_total_mm: float | None = Field(None, gt=0)
+    dead_time_measurements: int | None = Field(None, ge=0)
+    dead_time_s: float | None = Field(None, ge=0)
+    safe_area_mm: float | None = Field(None, gt=0)
+    max_uncertainty_fraction: float | None = Field(None, gt=0, le=1)
+    max_age_s: float | None = Field(None, gt=0)
+    programming: Literal["diameter", "radius"] | None = None
+    offset_sign: Literal[1, -1] | None = None
+
+
+class ShadowIn(_Strict):
+    """Shadow mode on (compute, never write) or off."""
+
+    shadow: bool
+
+
+class CommandIn(_Strict):
+    """A command to the compensation."""
+
+    command: Literal["reset", "acknowledge"]
+
+
+class TemperatureIn(_Strict):
+    """Part temperature (None: unknown, no 20 C correction)."""
+
+    part_temp_c: float | None = Field(ge=-50, le=300)
+    alpha_per_k: float | None = Field(None, ge=0, lt=1e-3)
+
+
+class CalibrationImportIn(_Strict):
+    """A calibration document in the interchange format, and why it is being imported."""
+
+    document: dict[str, Any]
+    note: str = Field("", max_length=2000)
+    activate: bool = False

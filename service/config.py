@@ -1,0 +1,208 @@
+"""Settings of ``shaftgauge serve``: a TOML file plus environment variables (pydantic-settings).
+
+Environment variables override the file: ``SHAFTGAUGE_<SECTION>__<NAME>``, e.g.
+``SHAFTGAUGE_MODBUS__PORT=502`` or ``SHAFTGAUGE_API__KEYS='{"<key>": "admin"}'``. Every value
+is validated at start; an error names the setting (``modbus.port: ...``). With no file the
+embedded default runs the whole system on loopback with a simulated camera and PLC.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+
+from calib_store.model import format_validation_error
+from service.measure.result import Method
+
+
+class ConfigError(ValueError):
+    """Settings that cannot be used; the message names each bad setting."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CameraSettings(_Section):
+    """Where frames come from."""
+
+    source: Literal["sim", "gige", "rig"] = "sim"
+    """``sim``: start a simulated GigE camera as a child process and stream from it over
+    GigE Vision; ``gige``: a real camera by ``device_id``; ``rig``: the simulated rig in this
+    process (no network; for tests)."""
+    device_id: str | None = None
+    pixel_format: Literal["Mono8", "Mono12", "Mono16"] = "Mono8"
+    exposure_us: float | None = Field(None, gt=0)
+    gain_db: float | None = None
+    frame_rate_hz: float | None = Field(10.0, gt=0, le=1000)
+    packet_size: int | None = Field(8192, ge=576, le=65000)
+    packet_socket: bool = True
+    socket_buffer_bytes: int | None = Field(None, gt=0)
+    queue_size: int = Field(4, ge=1, le=1000)
+    sim_serial: str = "SIM001"
+    sim_diameter_mm: float = Field(30.0, gt=1, lt=500)
+    sim_drift_um_per_min: float = 0.0
+    sim_seed: int = 0
+
+
+class PlcSettings(_Section):
+    """The CNC/PLC the offsets are written to."""
+
+    source: Literal["sim", "modbus", "none"] = "sim"
+    host: str = "127.0.0.1"
+    port: int = Field(5021, ge=1, le=65535)
+    unit_id: int = Field(1, ge=0, le=255)
+    offset_address: int = Field(100, ge=0, le=65533)
+    ack_address: int = Field(104, ge=0, le=65534)
+    total_address: int = Field(106, ge=0, le=65534)
+    word_order: Literal["big", "little"] = "big"
+    ack_timeout_s: float = Field(3.0, gt=0, le=60)
+    sim_ack_delay_s: float = Field(0.05, ge=0)
+
+
+class ModbusSettings(_Section):
+    """The Modbus TCP server the CNC polls."""
+
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = Field(5020, ge=0, le=65535)
+    unit_id: int = Field(1, ge=0, le=255)
+    word_order: Literal["big", "little"] = "big"
+
+
+class ApiSettings(_Section):
+    """The HTTP API and dashboard, and who may do what."""
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    open_read: bool = True
+    """Reading without a key is allowed from ``read_networks``; elsewhere a key is needed."""
+    read_networks: list[str] = ["127.0.0.0/8", "::1/128", "10.0.0.0/8", "172.16.0.0/12",
+                                "192.168.0.0/16"]
+    keys: dict[str, Literal["operator", "technician", "admin"]] = {}
+    """API key -> role (operator: read where reading is not open; technician: calibrations,
+    feature, shadow mode, commands, temperature; admin: also compensation tuning). Put keys in
+    the environment or in a root-only config file, never in the repository."""
+
+    @field_validator("read_networks")
+    @classmethod
+    def _networks(cls, v: list[str]) -> list[str]:
+        for net in v:
+            try:
+                ipaddress.ip_network(net, strict=False)
+            except ValueError as err:
+                raise ValueError(f"{net!r} is not a network: {err}") from None
+        return v
+
+    @field_validator("keys")
+    @classmethod
+    def _key_length(cls, v: dict[str, str]) -> dict[str, str]:
+        short = [k[:4] + "..." for k in v if len(k) < 16]
+        if short:
+            raise ValueError(f"API keys must be at least 16 characters ({short})")
+        return v
+
+
+class StoreSettings(_Section):
+    """Where calibrations and the compensation log live."""
+
+    path: Path = Path("shaftgauge-data/shaftgauge.db")
+    create_if_missing: bool = True
+
+
+class MeasurementSettings(_Section):
+    """How frames become diameters."""
+
+    method: Method = Method.AXIS
+    workers: int = Field(2, ge=1, le=32)
+    history: int = Field(20000, ge=10, le=10_000_000)
+    fuse_frames: int = Field(10, ge=1, le=1000)
+    axis_sigma_mm: float = Field(0.001, gt=0, le=1.0)
+    optics_blur_px: float = Field(0.7, ge=0, le=10)
+    track_axis: bool = True
+    max_age_s: float = Field(5.0, gt=0)
+    """A measurement older than this no longer counts as current (status, Modbus)."""
+
+
+class TemperatureSettings(_Section):
+    """Part temperature, for the diameter at 20 C."""
+
+    part_temp_c: float | None = Field(None, ge=-50, le=300)
+    alpha_per_k: float = Field(11.5e-6, ge=0, lt=1e-3)
+
+
+class CompensationConfig(_Section):
+    """Tool-wear compensation (see ``service.compensation.CompensationSettings``)."""
+
+    nominal_mm: float | None = Field(None, gt=0)
+    tol_upper_mm: float = 0.02
+    tol_lower_mm: float = -0.02
+    window: int = 5
+    filter: Literal["median", "mean"] = "median"
+    deadband_mm: float = 0.003
+    gain: float = 0.7
+    max_step_mm: float = 0.010
+    max_total_mm: float = 0.200
+    dead_time_measurements: int = 5
+    dead_time_s: float = 2.0
+    safe_area_mm: float = 0.5
+    max_uncertainty_fraction: float = 0.25
+    max_age_s: float = 10.0
+    programming: Literal["diameter", "radius"] = "diameter"
+    offset_sign: Literal[1, -1] = 1
+    shadow: bool = True
+
+
+class Settings(BaseSettings):
+    """Everything ``shaftgauge serve`` needs."""
+
+    model_config = SettingsConfigDict(env_prefix="SHAFTGAUGE_", env_nested_delimiter="__",
+                                      extra="forbid")
+
+    camera: CameraSettings = CameraSettings()
+    plc: PlcSettings = PlcSettings()
+    modbus: ModbusSettings = ModbusSettings()
+    api: ApiSettings = ApiSettings()
+    store: StoreSettings = StoreSettings()
+    measurement: MeasurementSettings = MeasurementSettings()
+    temperature: TemperatureSettings = TemperatureSettings()
+    compensation: CompensationConfig = CompensationConfig()
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    @classmethod
+    def settings_customise_sources(
+        cls, settings_cls: type[BaseSettings], init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource, dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        return (env_settings, init_settings)  # the environment overrides the file
+
+
+def load_settings(path: str | Path | None = None) -> Settings:
+    """Read the TOML file (if any) and the environment; validate.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and every bad setting.
+    """
+    data: dict[str, Any] = {}
+    where = "environment"
+    if path is not None:
+        p = Path(path)
+        where = str(p)
+        try:
+            data = tomllib.loads(p.read_text())
+        except OSError as err:
+            raise ConfigError(f"{p}: cannot read ({err.strerror})") from None
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError(f"{p}: not valid TOML ({err})") from None
+    try:
+        return Settings(**data)
+    except ValidationError as err:
+        raise ConfigError(f"{where}: {format_validation_error(err)}") from None

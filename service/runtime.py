@@ -1,0 +1,576 @@
+"""The running gauge: camera -> bounded queue -> worker pool -> subscribers.
+
+The camera's own thread fills a bounded drop-oldest queue; an intake task takes frames from it
+and hands each to a thread pool for measurement (numpy and OpenCV release the GIL), at most
+``workers`` in flight, publishing results in frame order. Publishing updates the latest value,
+the history ring buffer, the Modbus registers, the axis tracker, the fusion window and every
+live subscriber, and queues the measurement for the compensation task. Nothing downstream can
+stall acquisition: the camera queue and every subscriber queue drop their oldest item when full,
+and count it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+import math
+import statistics
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from calib_store.compensation_log import CompensationLog
+from calib_store.model import Calibration
+from calib_store.store import CalibrationInfo, CalibrationStore
+from drivers.camera.base import Camera, CameraState, Frame
+from drivers.plc.client import OffsetWriter
+from drivers.plc.registers import (
+    Command,
+    FaultBit,
+    RegisterBank,
+    StatusBit,
+    mm_to_units,
+    units_to_mm,
+)
+from drivers.plc.server import GaugeModbusServer, run_heartbeat
+from service.compensation import (
+    CompensationController,
+    CompensationSettings,
+    Decision,
+    MeasurementIn,
+    State,
+)
+from service.config import Settings
+from service.measure.axis_track import AxisTracker
+from service.measure.diameter import MeasureParams, axis_center, measure_frame
+from service.measure.fuse import fuse
+from service.measure.geometry import RigGeometry
+from service.measure.result import Measurement, Method
+from service.measure.stripe import StripeParams
+from service.measure.thermal import diameter_at_reference
+from service.offsets import OffsetChannel
+
+log = logging.getLogger("shaftgauge.service")
+
+
+@dataclass(frozen=True)
+class MeasurementRecord:
+    """One published measurement, as the API shows it (lengths in mm)."""
+
+    seq: int
+    time: float                 # wall clock, Unix seconds
+    frame_id: int
+    method: str
+    status: str
+    diameter_mm: float | None
+    uncertainty_mm: float | None
+    diameter_20c_mm: float | None
+    fused_diameter_mm: float | None
+    fused_uncertainty_mm: float | None
+    deviation_mm: float | None  # from the nominal, when one is set
+    in_tolerance: bool | None
+    arc_deg: float
+    n_points: int
+    rms_residual_mm: float | None
+    latency_ms: float           # frame received -> published
+    reason: str
+    note: str
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return asdict(self)
+
+
+class Subscribers:
+    """Live subscribers (SSE clients): one bounded queue each, oldest dropped when full."""
+
+    def __init__(self, maxsize: int = 64) -> None:
+        self._queues: set[asyncio.Queue] = set()
+        self.maxsize = maxsize
+        self.dropped = 0
+
+    def add(self) -> asyncio.Queue:
+        """A new subscriber's queue."""
+        q: asyncio.Queue = asyncio.Queue(self.maxsize)
+        self._queues.add(q)
+        return q
+
+    def remove(self, q: asyncio.Queue) -> None:
+        """Forget a subscriber."""
+        self._queues.discard(q)
+
+    def publish(self, item: Any) -> None:
+        """Give every subscriber the item; a full queue loses its oldest item."""
+        for q in self._queues:
+            if q.full():
+                q.get_nowait()
+                self.dropped += 1
+            q.put_nowait(item)
+
+    def __len__(self) -> int:
+        return len(self._queues)
+
+
+def _controller_settings(cfg: Settings) -> CompensationSettings:
+    return CompensationSettings(**cfg.compensation.model_dump())
+
+
+class Gauge:
+    """The whole measuring system in one process.
+
+    Parameters
+    ----------
+    settings : Settings
+        Validated settings.
+    camera : Camera
+        The frame source (Aravis or simulated).
+    store : CalibrationStore or None
+        The calibration store; None with ``store_error`` when it cannot be used.
+    comp_log : CompensationLog or None
+        Where decisions and controller state persist.
+    writer : OffsetWriter or None
+        The CNC's offset registers; None writes nothing.
+    store_error : str
+        Why there is no store.
+    """
+
+    def __init__(self, settings: Settings, camera: Camera, store: CalibrationStore | None,
+                 comp_log: CompensationLog | None, writer: OffsetWriter | None,
+                 store_error: str = "") -> None:
+        self.settings = settings
+        self.camera = camera
+        self.store = store
+        self.store_error = store_error
+        self.comp_log = comp_log
+        self.writer = writer
+        self.bank = RegisterBank(settings.modbus.word_order)
+        self.modbus = GaugeModbusServer(self.bank, settings.modbus.host, settings.modbus.port,
+                                        settings.modbus.unit_id, on_write=self._on_register_write)
+        state = comp_log.load_state() if comp_log else None
+        controller = CompensationController(_controller_settings(settings), state or
+                                            CompensationController().persisted)
+        self.channel = OffsetChannel(controller, writer, comp_log, on_decision=self._on_decision)
+        self.params = MeasureParams(stripe=StripeParams(
+            optics_blur_px=settings.measurement.optics_blur_px),
+            axis_sigma_mm=settings.measurement.axis_sigma_mm)
+        self.method = Method(settings.measurement.method)
+        self.part_temp_c = settings.temperature.part_temp_c
+        self.latest: MeasurementRecord | None = None
+        self.latest_measurement: Measurement | None = None
+        self.latest_frame: Frame | None = None
+        self.history: collections.deque[MeasurementRecord] = collections.deque(
+            maxlen=settings.measurement.history)
+        self.subscribers = Subscribers()
+        self.decisions = Subscribers()
+        self.calibration: tuple[CalibrationInfo, Calibration] | None = None
+        self.geometry: RigGeometry | None = None
+        self.tracker: AxisTracker | None = None
+        self._window: collections.deque[Measurement] = collections.deque(
+            maxlen=settings.measurement.fuse_frames)
+        self._seq = 0
+        self.counters = collections.Counter()
+        self._times: collections.deque[float] = collections.deque(maxlen=2000)
+        self.latency_ms: collections.deque[float] = collections.deque(maxlen=2000)
+        self._comp_queue: asyncio.Queue[MeasurementIn] | None = None
+        self._slots: asyncio.Semaphore | None = None
+        self._in_flight: asyncio.Queue | None = None
+        self._tasks: list[asyncio.Task] = []
+        self._pool = ThreadPoolExecutor(settings.measurement.workers,
+                                        thread_name_prefix="measure")
+        self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
+        self._running = False
+        self.started = time.time()
+        if store is not None:
+            try:
+                active = store.active()
+            except Exception as err:  # a damaged stored document: report, keep running
+                self.store_error = str(err)
+                active = None
+            if active is not None:
+                self.set_calibration(*active)
+        self.bank.set_many({"nominal": mm_to_units(settings.compensation.nominal_mm),
+                            "tol_upper": mm_to_units(settings.compensation.tol_upper_mm),
+                            "tol_lower": mm_to_units(settings.compensation.tol_lower_mm)})
+
+    # ---- calibration -------------------------------------------------------------------
+
+    def set_calibration(self, info: CalibrationInfo, calibration: Calibration) -> None:
+        """Measure with this calibration from the next frame on."""
+        geometry = calibration.to_geometry()
+        self.calibration = (info, calibration)
+        self.geometry = geometry
+        c0 = axis_center(geometry)
+        self.tracker = (AxisTracker(c0, self.settings.measurement.axis_sigma_mm)
+                        if c0 is not None and self.settings.measurement.track_axis else None)
+        self._window.clear()
+        log.info("calibration %d in use (%s)", info.id, info.note or "no note")
+
+    # ---- life cycle --------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Start the camera, the Modbus server and the background tasks."""
+        self._running = True
+        self._comp_queue = asyncio.Queue(256)
+        self._slots = asyncio.Semaphore(self.settings.measurement.workers)
+        self._in_flight = asyncio.Queue()
+        self.camera.start()
+        if self.settings.modbus.enabled:
+            await self.modbus.start()
+        loop = asyncio.get_running_loop()
+        self._tasks = [
+            loop.create_task(self._intake(), name="intake"),
+            loop.create_task(self._publisher(), name="publisher"),
+            loop.create_task(self._compensate(), name="compensation"),
+            loop.create_task(run_heartbeat(self.bank, self.healthy), name="heartbeat"),
+            loop.create_task(self._refresh_registers(), name="registers"),
+            loop.create_task(self.channel.run_settler(), name="settler"),
+        ]
+
+    async def stop(self) -> None:
+        """Stop everything started by ``start``."""
+        self._running = False
+        for t in self._tasks:
+            t.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        await asyncio.get_running_loop().run_in_executor(None, self.camera.stop)
+        await self.modbus.stop()
+        if self.writer is not None:
+            await self.writer.close()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._intake_pool.shutdown(wait=True, cancel_futures=True)
+
+    # ---- the pipeline ------------------------------------------------------------------
+
+    def _measure(self, frame: Frame, geometry: RigGeometry,
+                 prior: tuple[np.ndarray, float] | None) -> Measurement:
+        return measure_frame(frame.image, geometry, self.method, self.params, prior)
+
+    async def _intake(self) -> None:
+        """Frames from the camera to the worker pool, at most ``workers`` in flight."""
+        loop = asyncio.get_running_loop()
+        assert self._slots is not None and self._in_flight is not None
+        while self._running:
+            await self._slots.acquire()
+            submitted = False
+            try:
+                frame = await loop.run_in_executor(self._intake_pool, self.camera.get_frame,
+                                                   0.25)
+                if frame is None:
+                    continue
+                self.counters["frames_in"] += 1
+                self.latest_frame = frame
+                geometry = self.geometry
+                if geometry is None:
+                    self.counters["frames_without_calibration"] += 1
+                    continue
+                prior = self.tracker.center() if self.tracker is not None else None
+                fut = loop.run_in_executor(self._pool, self._measure, frame, geometry, prior)
+                await self._in_flight.put((frame, fut))
+                submitted = True
+            except asyncio.CancelledError:
+                raise
+            except Exception:  # never let the pipeline die silently
+                self.counters["pipeline_errors"] += 1
+                log.exception("pipeline intake error")
+                await asyncio.sleep(0.1)
+            finally:
+                if not submitted:
+                    self._slots.release()
+
+    async def _publisher(self) -> None:
+        """Results in frame order, each as soon as it and those before it are done."""
+        assert self._slots is not None and self._in_flight is not None
+        while True:
+            frame, fut = await self._in_flight.get()
+            try:
+                m = await fut
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                self.counters["pipeline_errors"] += 1
+                log.exception("measurement error")
+                continue
+            finally:
+                self._slots.release()
+            try:
+                self._publish(frame, m)
+            except Exception:
+                self.counters["pipeline_errors"] += 1
+                log.exception("publishing error")
+
+    def _publish(self, frame: Frame, m: Measurement) -> None:
+        self._seq += 1
+        now_ns = time.monotonic_ns()
+        self.counters["measured"] += 1
+        self.counters["ok" if m else f"status_{m.status.value}"] += 1
+        if m and self.tracker is not None and m.free_center_mm and m.free_center_cov:
+            xx, xy, yy = m.free_center_cov
+            self.tracker.update(np.array(m.free_center_mm), np.array([[xx, xy], [xy, yy]]),
+                                m.diameter_mm)
+        self._window.append(m)
+        fused = fuse(list(self._window)) if len(self._window) >= 3 else None
+        d20 = None
+        if m and self.part_temp_c is not None:
+            d20 = diameter_at_reference(m.diameter_mm, self.part_temp_c,
+                                        self.settings.temperature.alpha_per_k)
+        nominal = self.channel.controller.settings.nominal_mm
+        dev = ((d20 if d20 is not None else m.diameter_mm) - nominal
+               if m and nominal is not None else None)
+        s = self.channel.controller.settings
+        record = MeasurementRecord(
+            seq=self._seq, time=time.time(), frame_id=frame.frame_id, method=m.method.value,
+            status=m.status.value, diameter_mm=m.diameter_mm if m else None,
+            uncertainty_mm=m.uncertainty_mm if m else None, diameter_20c_mm=d20,
+            fused_diameter_mm=fused.diameter_mm if fused else None,
+            fused_uncertainty_mm=fused.uncertainty_mm if fused else None,
+            deviation_mm=dev,
+            in_tolerance=None if dev is None else bool(s.tol_lower_mm <= dev <= s.tol_upper_mm),
+            arc_deg=float(m.arc_deg or 0.0), n_points=m.n_points,
+            rms_residual_mm=m.rms_residual_mm, latency_ms=(now_ns - frame.received_ns) / 1e6,
+            reason=m.reason, note=m.note)
+        self.latest, self.latest_measurement = record, m
+        self.history.append(record)
+        self._times.append(time.monotonic())
+        self.bank.set_many({
+            "diameter": mm_to_units(record.diameter_mm),
+            "uncertainty": mm_to_units(record.uncertainty_mm),
+            "measurement_seq": self._seq & 0xFFFFFFFF,
+            "measurement_age": 0,
+        })
+        self.latency_ms.append((time.monotonic_ns() - frame.received_ns) / 1e6)
+        self.subscribers.publish(record)
+        if self._comp_queue is not None:
+            if self._comp_queue.full():
+                self._comp_queue.get_nowait()
+                self.counters["compensation_dropped"] += 1
+            self._comp_queue.put_nowait(MeasurementIn(
+                self._seq, frame.received_ns / 1e9, m.status.value,
+                d20 if d20 is not None else m.diameter_mm, m.uncertainty_mm))
+
+    async def _compensate(self) -> None:
+        assert self._comp_queue is not None
+        while True:
+            m = await self._comp_queue.get()
+            try:
+                await self.channel.on_measurement(m)
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                self.counters["compensation_errors"] += 1
+                log.exception("compensation error")
+
+    def _on_decision(self, d: Decision) -> None:
+        c = self.channel.controller
+        update = {"cumulative_offset": mm_to_units(c.cumulative_mm),
+                  "offset_seq": c.persisted.offset_seq & 0xFFFFFFFF}
+        if d.offset_mm is not None:
+            update["proposed_offset"] = mm_to_units(d.offset_mm)
+        self.bank.set_many(update)
+        self.decisions.publish(d)
+
+    # ---- commands and settings ---------------------------------------------------------
+
+    def _on_register_write(self, name: str, value: int) -> None:
+        """A CNC wrote a register (called inside the Modbus server, on the event loop)."""
+        loop = asyncio.get_running_loop()
+        if name == "command":
+            loop.create_task(self.run_command(Command(value), source="modbus"))
+        elif name in ("nominal", "tol_upper", "tol_lower"):
+            s = self.channel.controller.settings
+            changes = {"nominal": {"nominal_mm": units_to_mm(value)},
+                       "tol_upper": {"tol_upper_mm": units_to_mm(value)},
+                       "tol_lower": {"tol_lower_mm": units_to_mm(value)}}[name]
+            try:
+                self.update_compensation(replace(s, **changes))
+            except ValueError as err:  # consistent only once all three are written
+                log.info("feature from the CNC not taken yet: %s", err)
+
+    async def run_command(self, command: Command, source: str) -> Decision | None:
+        """Carry out a command (from the CNC or the API) and acknowledge it in the registers."""
+        decision = None
+        if command is Command.RESET_COMPENSATION:
+            decision = await self.channel.command("reset")
+        elif command is Command.ACKNOWLEDGE_ALARM:
+            decision = await self.channel.command("acknowledge")
+        elif command is Command.MEASURE_NOW and self.camera.status().state is \
+                CameraState.STREAMING:
+            try:
+                self.camera.software_trigger()
+            except Exception:  # a free-running camera measures anyway
+                pass
+        seq = (self.bank.get("command_seq") + 1) & 0xFFFF
+        self.bank.set_many({"command": 0, "last_command": int(command), "command_seq": seq})
+        log.info("command %s from %s", command.name.lower(), source)
+        return decision
+
+    def update_compensation(self, settings: CompensationSettings) -> Decision:
+        """New compensation settings (raises ValueError naming the bad setting)."""
+        d = self.channel.controller.update_settings(settings, self.channel.clock())
+        self.channel._record(d)
+        self.bank.set_many({"nominal": mm_to_units(settings.nominal_mm),
+                            "tol_upper": mm_to_units(settings.tol_upper_mm),
+                            "tol_lower": mm_to_units(settings.tol_lower_mm)})
+        return d
+
+    # ---- health and status -------------------------------------------------------------
+
+    def measurement_age_s(self) -> float | None:
+        """Seconds since the latest measurement was published."""
+        return None if not self._times else time.monotonic() - self._times[-1]
+
+    def healthy(self) -> bool:
+        """Camera streaming, calibrated, and a fresh good measurement."""
+        age = self.measurement_age_s()
+        return bool(self._running and self.camera.status().state is CameraState.STREAMING
+                    and self.geometry is not None and self.latest is not None
+                    and self.latest.status == "ok" and age is not None
+                    and age <= self.settings.measurement.max_age_s)
+
+    def problems(self) -> list[str]:
+        """What is wrong now, in words (empty when all is well)."""
+        out = []
+        cam = self.camera.status()
+        if cam.state is not CameraState.STREAMING:
+            out.append(f"camera {cam.state.value}: {cam.message}")
+        if self.store_error:
+            out.append(self.store_error)
+        if self.geometry is None:
+            out.append("no calibration is active: import and activate one")
+        age = self.measurement_age_s()
+        if self.geometry is not None and cam.state is CameraState.STREAMING:
+            if age is None or age > self.settings.measurement.max_age_s:
+                out.append("no recent measurement")
+            elif self.latest is not None and self.latest.status != "ok":
+                out.append(f"latest frame did not measure: {self.latest.reason}")
+        if self.writer is not None and not self.writer.connected and \
+                self.writer.outage_since is not None:
+            out.append(f"CNC/PLC unreachable: {self.writer.last_error}")
+        state = self.channel.controller.state
+        if state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
+            out.append(f"compensation {state.value}")
+        return out
+
+    def rate_hz(self, window_s: float = 10.0) -> float:
+        """Measurements per second over the last ``window_s``."""
+        now = time.monotonic()
+        recent = [t for t in self._times if now - t <= window_s]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9)
+
+    def latency_summary(self) -> dict[str, float | None]:
+        """Median and 99th percentile of frame-to-registers latency, ms."""
+        lat = list(self.latency_ms)
+        if not lat:
+            return {"median_ms": None, "p99_ms": None}
+        return {"median_ms": statistics.median(lat),
+                "p99_ms": float(np.percentile(lat, 99))}
+
+    async def _refresh_registers(self) -> None:
+        while True:
+            await asyncio.sleep(0.2)
+            self._set_status_registers()
+
+    def _set_status_registers(self) -> None:
+        status, faults = StatusBit(0), FaultBit(0)
+        cam = self.camera.status()
+        if self.healthy():
+            status |= StatusBit.HEALTHY
+        if cam.state is CameraState.STREAMING:
+            status |= StatusBit.CAMERA_STREAMING
+        else:
+            faults |= FaultBit.CAMERA_LOST
+        age = self.measurement_age_s()
+        fresh = age is not None and age <= self.settings.measurement.max_age_s
+        latest = self.latest
+        if latest is not None and latest.status == "ok" and fresh:
+            status |= StatusBit.MEASUREMENT_VALID
+            if latest.in_tolerance:
+                status |= StatusBit.IN_TOLERANCE
+        elif latest is not None and latest.status != "ok":
+            faults |= FaultBit.NO_MEASUREMENT
+        if latest is not None and not fresh:
+            faults |= FaultBit.STALE_MEASUREMENT
+            self.bank.set("diameter", mm_to_units(None))
+        c = self.channel.controller
+        if c.settings.shadow:
+            status |= StatusBit.SHADOW_MODE
+        elif c.state in (State.ACTIVE, State.PENDING):
+            status |= StatusBit.COMPENSATION_ACTIVE
+        if c.state is State.ALARM:
+            faults |= FaultBit.OUT_OF_TOLERANCE
+        if c.state is State.STOPPED:
+            faults |= FaultBit.SAFE_AREA_STOP
+        if self.writer is not None:
+            if self.writer.connected:
+                status |= StatusBit.PLC_CONNECTED
+            elif self.writer.outage_since is not None or c.state is State.UNCERTAIN:
+                faults |= FaultBit.OFFSET_WRITE_FAILED
+        if self.geometry is not None:
+            status |= StatusBit.CALIBRATED
+        else:
+            faults |= FaultBit.NO_CALIBRATION
+        age_ms = 65535 if age is None else min(65535, int(age * 1000))
+        self.bank.set_many({"status": int(status), "faults": int(faults),
+                            "measurement_age": age_ms})
+
+    def status(self) -> dict[str, Any]:
+        """Everything an operator or a monitoring system wants to know, JSON-ready."""
+        cam = self.camera.status()
+        c = self.channel.controller
+        info = self.calibration[0].as_dict() if self.calibration else None
+        writer = None
+        if self.writer is not None:
+            writer = {"host": self.writer.host, "port": self.writer.port,
+                      "connected": self.writer.connected, "last_error": self.writer.last_error,
+                      "outage_s": None if self.writer.outage_since is None else
+                      time.monotonic() - self.writer.outage_since,
+                      "last_write": None if self.channel.last_write is None else {
+                          "outcome": self.channel.last_write.outcome.value,
+                          "seq": self.channel.last_write.seq,
+                          "message": self.channel.last_write.message}}
+        age = self.measurement_age_s()
+        tracker = None
+        if self.tracker is not None:
+            centre, sigma = self.tracker.center()
+            tracker = {"drift_um": [float(x * 1000) for x in self.tracker.drift_mm],
+                       "sigma_um": sigma * 1000, "accepted": self.tracker.accepted,
+                       "rejected": self.tracker.rejected}
+        return {
+            "healthy": self.healthy(), "problems": self.problems(),
+            "uptime_s": time.time() - self.started,
+            "camera": {"device_id": cam.device_id, "state": cam.state.value,
+                       "message": cam.message, "counters": asdict(cam.counters)},
+            "pipeline": {"method": self.method.value, "rate_hz": self.rate_hz(),
+                         "frames_in": self.counters["frames_in"],
+                         "measured": self.counters["measured"], "ok": self.counters["ok"],
+                         "failed": self.counters["measured"] - self.counters["ok"],
+                         "camera_dropped": cam.counters.dropped,
+                         "subscriber_dropped": self.subscribers.dropped,
+                         "compensation_dropped": self.counters["compensation_dropped"],
+                         "errors": self.counters["pipeline_errors"],
+                         "latest_age_s": age, "latency": self.latency_summary(),
+                         "axis_tracking": tracker},
+            "calibration": info, "store_error": self.store_error or None,
+            "plc": writer,
+            "modbus": {"enabled": self.settings.modbus.enabled,
+                       "host": self.settings.modbus.host, "port": self.modbus.port,
+                       "unit_id": self.settings.modbus.unit_id,
+                       "requests": self.modbus.requests, "exceptions": self.modbus.exceptions},
+            "compensation": {"state": c.state.value, "shadow": c.settings.shadow,
+                             "cumulative_offset_mm": c.cumulative_mm,
+                             "offset_seq": c.persisted.offset_seq,
+                             "pending_seq": c.persisted.pending_seq},
+            "temperature": {"part_temp_c": self.part_temp_c,
+                            "alpha_per_k": self.settings.temperature.alpha_per_k},
+        }
+
+
+def finite_or_none(x: float | None) -> float | None:
+    """None for None, NaN and infinity."""
+    return None if x is None or not math.isfinite(x) else x

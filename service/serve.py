@@ -1,0 +1,188 @@
+"""``shaftgauge serve``: build the gauge from its settings and run it behind uvicorn.
+
+With ``camera.source = "sim"`` and ``plc.source = "sim"`` (the embedded default) the simulated
+GigE camera and the simulated PLC run as child processes on loopback; they are stopped on exit
+and die with the service if it is killed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ctypes
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import uvicorn
+
+from calib_store.compensation_log import CompensationLog
+from calib_store.model import load_calibration
+from calib_store.store import CalibrationStore, StoreError
+from drivers.camera.base import Camera, CameraConfig
+from drivers.plc.client import OffsetWriter
+from drivers.plc.offsets import PlcOffsetMap
+from drivers.plc.registers import WordOrder
+from service.api.app import create_app
+from service.config import Settings
+from service.runtime import Gauge
+
+log = logging.getLogger("shaftgauge.serve")
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    try:
+        ctypes.CDLL("libc.so.6").prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+@dataclass
+class Children:
+    """Simulators started for the embedded default."""
+
+    procs: list[subprocess.Popen] = field(default_factory=list)
+
+    def spawn(self, args: list[str], what: str, timeout_s: float = 60.0) -> dict:
+        """Start one and wait for its ``ready`` line."""
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=None, text=True,
+                                preexec_fn=_die_with_parent)
+        self.procs.append(proc)
+        line = proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the simulated {what} did not start (exit code "
+                               f"{proc.poll()}); see its message above")
+        return json.loads(line)
+
+    def stop(self) -> None:
+        """Stop every child (SIGTERM, then SIGKILL after 10 s)."""
+        for proc in self.procs:
+            if proc.poll() is None:
+                proc.terminate()
+        for proc in self.procs:
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        self.procs.clear()
+
+
+def _shaftgauge() -> str:
+    return str(Path(sys.executable).with_name("shaftgauge"))
+
+
+def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
+    """The gauge the settings describe, simulators started as needed, and what the simulators
+    reported (their control port)."""
+    extras: dict = {}
+    data_dir = settings.store.path.parent
+    data_dir.mkdir(parents=True, exist_ok=True)
+    store, comp_log, store_error = None, None, ""
+    try:
+        store = CalibrationStore(settings.store.path, settings.store.create_if_missing)
+        comp_log = CompensationLog(settings.store.path)
+    except StoreError as err:
+        store_error = str(err)
+        log.error("%s", err)
+
+    cam_cfg = settings.camera
+    config = CameraConfig(
+        exposure_us=cam_cfg.exposure_us, gain_db=cam_cfg.gain_db,
+        pixel_format=cam_cfg.pixel_format, frame_rate_hz=cam_cfg.frame_rate_hz,
+        packet_size=cam_cfg.packet_size, packet_socket=cam_cfg.packet_socket,
+        socket_buffer_bytes=cam_cfg.socket_buffer_bytes, queue_size=cam_cfg.queue_size)
+    camera: Camera
+    if cam_cfg.source == "rig":
+        from drivers.camera.rig import RigCamera
+
+        camera = RigCamera(cam_cfg.sim_diameter_mm, config, seed=cam_cfg.sim_seed)
+        sim_cal = camera.renderer.calibration
+    else:
+        from drivers.camera.aravis import AravisCamera
+
+        sim_cal = None
+        device_id = cam_cfg.device_id
+        if cam_cfg.source == "sim":
+            cal_path = data_dir / "sim-calibration.json"
+            ready = children.spawn(
+                [_shaftgauge(), "sim-camera", "--serial", cam_cfg.sim_serial, "--diameter",
+                 str(cam_cfg.sim_diameter_mm), "--fps", str(cam_cfg.frame_rate_hz or 10.0),
+                 "--drift-um-per-min", str(cam_cfg.sim_drift_um_per_min), "--seed",
+                 str(cam_cfg.sim_seed), "--calibration-out", str(cal_path)], "camera")
+            device_id = ready["device_id"]
+            settings.camera.device_id = device_id
+            extras["sim_camera_control_port"] = ready["control_port"]
+            sim_cal = load_calibration(cal_path)
+        if not device_id:
+            raise ValueError("camera.device_id: needed with camera.source = 'gige' "
+                             "(see `shaftgauge camera list`)")
+        camera = AravisCamera(device_id, config)
+
+    writer = None
+    plc = settings.plc
+    if plc.source == "sim":
+        state = data_dir / "sim-plc.state"
+        children.spawn([_shaftgauge(), "sim-plc", "--host", plc.host, "--port", str(plc.port),
+                        "--unit-id", str(plc.unit_id), "--offset-address",
+                        str(plc.offset_address), "--ack-address", str(plc.ack_address),
+                        "--total-address", str(plc.total_address), "--word-order",
+                        plc.word_order, "--ack-delay", str(plc.sim_ack_delay_s), "--log",
+                        str(data_dir / "sim-plc.log"), "--state", str(state)], "PLC")
+    if plc.source in ("sim", "modbus"):
+        writer = OffsetWriter(plc.host, plc.port, PlcOffsetMap(
+            plc.offset_address, plc.ack_address, plc.total_address, plc.unit_id,
+            WordOrder(plc.word_order)), ack_timeout_s=plc.ack_timeout_s)
+
+    if store is not None and sim_cal is not None and not store.list():
+        store.add(sim_cal, by="shaftgauge", note="simulated rig (embedded default)",
+                  activate=True)
+    return Gauge(settings, camera, store, comp_log, writer, store_error), extras
+
+
+async def serve(settings: Settings) -> int:
+    """Run until SIGINT or SIGTERM."""
+    children = Children()
+    try:
+        gauge, extras = build(settings, children)
+    except BaseException:
+        children.stop()
+        raise
+    app = create_app(gauge)
+    server = uvicorn.Server(uvicorn.Config(app, host=settings.api.host, port=settings.api.port,
+                                           log_level=settings.log_level, access_log=False))
+
+    async def announce() -> None:
+        while not server.started:
+            await asyncio.sleep(0.05)
+        port = server.servers[0].sockets[0].getsockname()[1] if server.servers else \
+            settings.api.port
+        host = settings.api.host if settings.api.host not in ("0.0.0.0", "::") else "127.0.0.1"
+        base = f"http://{host}:{port}"
+        print(json.dumps({"event": "ready", "url": base, "api_port": port,
+                          "modbus_port": gauge.modbus.port if settings.modbus.enabled
+                          else None, "camera": settings.camera.device_id, **extras}),
+              flush=True)
+        print(f"shaftgauge is up. Dashboard: {base}/ui/  API docs: {base}/docs  "
+              f"Modbus TCP: {settings.modbus.host}:{gauge.modbus.port}", file=sys.stderr,
+              flush=True)
+
+    try:
+        task = asyncio.get_running_loop().create_task(announce())
+        await server.serve()
+        task.cancel()
+    finally:
+        children.stop()
+    return 0
+
+
+def main(settings: Settings) -> int:
+    """Configure logging and run."""
+    logging.basicConfig(level=settings.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    return asyncio.run(serve(settings))

@@ -1,0 +1,147 @@
+"""The REST API on a live (simulated) gauge: reading, writing, access, bad bodies."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from drivers.sim.rig import RigConfig, rig_calibration
+from tests.unit.service.conftest import ADMIN, OPERATOR, TECHNICIAN
+
+H = "X-API-Key"
+DOC = rig_calibration(RigConfig(triangulation_deg=40.0)).to_document()
+
+# (method, path, a good body, a bad body, the role it needs)
+WRITES = [
+    ("put", "/api/v1/feature", {"nominal_mm": 30.0, "tol_upper_mm": 0.02,
+                                "tol_lower_mm": -0.02},
+     {"nominal_mm": "30.0", "tol_upper_mm": 0.02, "tol_lower_mm": -0.02}, "technician"),
+    ("put", "/api/v1/compensation", {"gain": 0.5}, {"gain": True}, "admin"),
+    ("put", "/api/v1/compensation/shadow", {"shadow": True}, {"shadow": 1}, "technician"),
+    ("post", "/api/v1/compensation/command", {"command": "acknowledge"},
+     {"command": "explode"}, "technician"),
+    ("put", "/api/v1/temperature", {"part_temp_c": 25.0}, {"part_temp_c": "warm"},
+     "technician"),
+    ("post", "/api/v1/calibrations", {"document": DOC, "note": "test"},
+     {"document": DOC, "note": "x", "surprise": 1}, "technician"),
+    ("post", "/api/v1/calibrations/1/activate", None, None, "technician"),
+]
+LOWER = {"technician": OPERATOR, "admin": TECHNICIAN}
+KEY_OF = {"technician": TECHNICIAN, "admin": ADMIN}
+
+
+@pytest.mark.parametrize(("method", "path", "good", "bad", "role"), WRITES,
+                         ids=[f"{w[0]} {w[1]}" for w in WRITES])
+def test_every_write_needs_the_right_key_and_a_good_body(client, method, path, good, bad,
+                                                         role) -> None:
+    call = getattr(client, method)
+    kw = {} if good is None else {"json": good}
+    assert call(path, **kw).status_code == 401
+    assert call(path, headers={H: "not-a-key-at-all-0000"}, **kw).status_code == 401
+    r = call(path, headers={H: LOWER[role]}, **kw)
+    assert r.status_code == 403 and role in r.json()["detail"]
+    if bad is not None:
+        r = call(path, headers={H: KEY_OF[role]}, json=bad)
+        assert r.status_code == 422, r.text
+    r = call(path, headers={H: KEY_OF[role]}, **kw)
+    assert r.status_code in (200, 201), r.text
+
+
+def test_reading_is_open_and_shows_a_live_measurement(client) -> None:
+    r = client.get("/api/v1/measurements/latest")
+    assert r.status_code == 200
+    m = r.json()
+    assert m["status"] == "ok" and abs(m["diameter_mm"] - 30.0) < 0.02
+    assert m["uncertainty_mm"] > 0 and m["deviation_mm"] is not None
+    st = client.get("/api/v1/status").json()
+    assert st["camera"]["state"] == "streaming" and st["calibration"]["active"]
+    assert st["pipeline"]["measured"] >= 1 and "latency" in st["pipeline"]
+    assert client.get("/healthz").json() == {"alive": True}
+    assert client.get("/readyz").status_code == 200
+    text = client.get("/metrics").text
+    assert "shaftgauge_diameter_mm 30." in text and "# TYPE shaftgauge_healthy gauge" in text
+
+
+def test_history_pages_newest_first(client) -> None:
+    import time
+
+    time.sleep(0.6)
+    first = client.get("/api/v1/measurements", params={"limit": 3}).json()
+    seqs = [i["seq"] for i in first["items"]]
+    assert len(seqs) == 3 and seqs == sorted(seqs, reverse=True)
+    nxt = client.get("/api/v1/measurements",
+                     params={"limit": 3, "before_seq": first["next_before_seq"]}).json()
+    assert all(i["seq"] < seqs[-1] for i in nxt["items"])
+    assert client.get("/api/v1/measurements", params={"since": 2, "until": 1}).status_code \
+        == 422
+    assert client.get("/api/v1/measurements", params={"limit": 0}).status_code == 422
+
+
+def test_calibration_import_export_activate_round_trip(client) -> None:
+    r = client.post("/api/v1/calibrations", headers={H: TECHNICIAN},
+                    json={"document": DOC, "note": "40 degree rig"})
+    assert r.status_code == 201
+    cid = r.json()["id"]
+    assert client.get(f"/api/v1/calibrations/{cid}/export").json() == DOC
+    items = client.get("/api/v1/calibrations").json()["items"]
+    assert [i["id"] for i in items][0] == cid and not items[0]["active"]
+    r = client.post(f"/api/v1/calibrations/{cid}/activate", headers={H: TECHNICIAN})
+    assert r.status_code == 200 and r.json()["active"]
+    assert client.get("/api/v1/status").json()["calibration"]["id"] == cid
+    audit = client.get("/api/v1/calibrations/audit").json()["items"]
+    assert [a["action"] for a in audit[:2]] == ["activate", "import"]
+    assert audit[0]["who"] == "technician"
+
+
+def test_bad_calibration_document_is_422_naming_the_field(client) -> None:
+    doc = json.loads(json.dumps(DOC))
+    doc["light_plane"]["normal"] = [1.0, 1.0, 0.0]
+    r = client.post("/api/v1/calibrations", headers={H: TECHNICIAN}, json={"document": doc})
+    assert r.status_code == 422 and "light_plane.normal" in r.json()["detail"]
+    assert client.get("/api/v1/calibrations/999").status_code == 404
+
+
+def test_feature_reaches_the_controller_and_registers(client) -> None:
+    r = client.put("/api/v1/feature", headers={H: TECHNICIAN},
+                   json={"nominal_mm": 31.5, "tol_upper_mm": 0.03, "tol_lower_mm": -0.01})
+    assert r.status_code == 200
+    assert client.get("/api/v1/feature").json()["nominal_mm"] == 31.5
+    assert client.gauge.bank.get("nominal") == 315_000
+    bad = client.put("/api/v1/feature", headers={H: TECHNICIAN},
+                     json={"nominal_mm": 31.5, "tol_upper_mm": 0.03, "tol_lower_mm": 0.01})
+    assert bad.status_code == 422
+
+
+def test_inconsistent_tuning_is_refused_naming_the_setting(client) -> None:
+    r = client.put("/api/v1/compensation", headers={H: ADMIN},
+                   json={"max_step_mm": 0.5, "max_total_mm": 0.1})
+    assert r.status_code == 422 and "max_step_mm" in r.json()["detail"]
+
+
+def test_compensation_log_and_shadow(client) -> None:
+    r = client.put("/api/v1/compensation/shadow", headers={H: TECHNICIAN},
+                   json={"shadow": False})
+    assert r.status_code == 200 and r.json()["settings"]["shadow"] is False
+    log = client.get("/api/v1/compensation/log", params={"limit": 5}).json()["items"]
+    assert log and log[0]["kind"] in ("settings", "held", "refused", "proposed")
+
+
+def test_openapi_is_served(client) -> None:
+    spec = client.get("/openapi.json").json()
+    assert "/api/v1/measurements/latest" in spec["paths"]
+    assert client.get("/docs").status_code == 200
+
+
+def test_reading_needs_a_key_when_reading_is_not_open(tmp_path) -> None:
+    from fastapi.testclient import TestClient
+
+    from service.api.app import create_app
+    from service.serve import Children, build
+    from tests.unit.service.conftest import make_settings
+
+    gauge, _ = build(make_settings(tmp_path, api={"open_read": False}), Children())
+    with TestClient(create_app(gauge)) as c:
+        assert c.get("/api/v1/status").status_code == 401
+        assert c.get("/api/v1/status", headers={H: OPERATOR}).status_code == 200
+        assert c.get("/healthz").status_code == 200
