@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import logging
 import math
 import statistics
@@ -179,6 +180,7 @@ class Gauge:
         self._slots: asyncio.Semaphore | None = None
         self._in_flight: asyncio.Queue | None = None
         self._tasks: list[asyncio.Task] = []
+        self._command_tasks: set[asyncio.Task] = set()
         self._pool = ThreadPoolExecutor(settings.measurement.workers,
                                         thread_name_prefix="measure")
         self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
@@ -379,7 +381,9 @@ class Gauge:
         """A CNC wrote a register (called inside the Modbus server, on the event loop)."""
         loop = asyncio.get_running_loop()
         if name == "command":
-            loop.create_task(self.run_command(Command(value), source="modbus"))
+            task = loop.create_task(self.run_command(Command(value), source="modbus"))
+            self._command_tasks.add(task)
+            task.add_done_callback(self._command_tasks.discard)
         elif name in ("nominal", "tol_upper", "tol_lower"):
             s = self.channel.controller.settings
             changes = {"nominal": {"nominal_mm": units_to_mm(value)},
@@ -399,10 +403,8 @@ class Gauge:
             decision = await self.channel.command("acknowledge")
         elif command is Command.MEASURE_NOW and self.camera.status().state is \
                 CameraState.STREAMING:
-            try:
+            with contextlib.suppress(Exception):  # a free-running camera measures anyway
                 self.camera.software_trigger()
-            except Exception:  # a free-running camera measures anyway
-                pass
         seq = (self.bank.get("command_seq") + 1) & 0xFFFF
         self.bank.set_many({"command": 0, "last_command": int(command), "command_seq": seq})
         log.info("command %s from %s", command.name.lower(), source)
@@ -537,7 +539,7 @@ class Gauge:
         age = self.measurement_age_s()
         tracker = None
         if self.tracker is not None:
-            centre, sigma = self.tracker.center()
+            _, sigma = self.tracker.center()
             tracker = {"drift_um": [float(x * 1000) for x in self.tracker.drift_mm],
                        "sigma_um": sigma * 1000, "accepted": self.tracker.accepted,
                        "rejected": self.tracker.rejected}

@@ -14,6 +14,10 @@ from service.runtime import Gauge
 SSE_KEEPALIVE_S = 10.0
 
 
+def _event(kind: str, data: dict) -> str:
+    return f"event: {kind}\ndata: {json.dumps(data)}\n\n"
+
+
 def router(gauge: Gauge) -> APIRouter:
     r = APIRouter(tags=["measurements"])
 
@@ -57,7 +61,7 @@ def router(gauge: Gauge) -> APIRouter:
             try:
                 yield "retry: 2000\n\n"
                 if gauge.latest is not None:
-                    yield f"event: measurement\ndata: {json.dumps(gauge.latest.as_dict())}\n\n"
+                    yield _event("measurement", gauge.latest.as_dict())
                 while not await request.is_disconnected():
                     get_m = asyncio.ensure_future(q.get())
                     get_d = asyncio.ensure_future(dq.get())
@@ -69,9 +73,9 @@ def router(gauge: Gauge) -> APIRouter:
                     if not done:
                         yield ": keep-alive\n\n"
                     if get_m in done:
-                        yield f"event: measurement\ndata: {json.dumps(get_m.result().as_dict())}\n\n"
+                        yield _event("measurement", get_m.result().as_dict())
                     if get_d in done:
-                        yield f"event: decision\ndata: {json.dumps(get_d.result().as_dict())}\n\n"
+                        yield _event("decision", get_d.result().as_dict())
             finally:
                 gauge.subscribers.remove(q)
                 gauge.decisions.remove(dq)

@@ -85,7 +85,7 @@ def test_calibration_import_export_activate_round_trip(client) -> None:
     cid = r.json()["id"]
     assert client.get(f"/api/v1/calibrations/{cid}/export").json() == DOC
     items = client.get("/api/v1/calibrations").json()["items"]
-    assert [i["id"] for i in items][0] == cid and not items[0]["active"]
+    assert items[0]["id"] == cid and not items[0]["active"]
     r = client.post(f"/api/v1/calibrations/{cid}/activate", headers={H: TECHNICIAN})
     assert r.status_code == 200 and r.json()["active"]
     assert client.get("/api/v1/status").json()["calibration"]["id"] == cid
