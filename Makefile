@@ -11,9 +11,9 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml deploy/bootstrap.sh
 	bash deploy/bootstrap.sh
 
-## make run: until the service lands, the offline demo on the simulated rig.
+## make run: the service on its embedded default (simulated GigE camera and PLC on loopback).
 run: setup
-	$(VENV)/bin/shaftgauge demo
+	$(VENV)/bin/shaftgauge serve
 
 ## make test: lint, then the whole suite (short fault runs included, long soak runs left out).
 test: setup
@@ -25,6 +25,7 @@ bench: setup
 	$(PY) -m tests.bench.paper_comparison
 	$(PY) -m tests.bench.beyond_paper
 	$(PY) -m tests.bench.camera_throughput
+	$(PY) -m tests.bench.service_throughput
 
 ## make soak: the long soak and fault runs.
 soak: setup

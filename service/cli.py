@@ -173,6 +173,17 @@ def cmd_sim_plc(args: argparse.Namespace) -> int:
     return asyncio.run(serve())
 
 
+def cmd_check_host(args: argparse.Namespace) -> int:
+    """Check the host settings a GigE camera needs; exit 1 when something needs changing."""
+    from service.hostcheck import check_host
+
+    checks = check_host(args.interface, args.rmem, args.mtu)
+    for c in checks:
+        print(f"{'ok  ' if c.ok else 'FIX '} {c.name} = {c.value}"
+              + ("" if c.ok else f"\n      {c.fix}"))
+    return 0 if all(c.ok for c in checks) else 1
+
+
 def cmd_camera_list(args: argparse.Namespace) -> int:
     """One JSON line per camera Aravis sees."""
     from drivers.camera.aravis import enable_fake_interface, list_devices
@@ -292,6 +303,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log", metavar="FILE", help="JSON-lines log of writes and applications")
     p.add_argument("--state", metavar="FILE", help="keep the applied total across restarts")
     p.set_defaults(func=cmd_sim_plc)
+
+    p = sub.add_parser("check-host", help="check the host settings a GigE camera needs")
+    p.add_argument("--interface", help="the network interface the camera is on")
+    p.add_argument("--rmem", type=int, default=8 * 1024 * 1024,
+                   help="socket receive buffer wanted, bytes")
+    p.add_argument("--mtu", type=int, default=9000, help="MTU wanted (jumbo frames)")
+    p.set_defaults(func=cmd_check_host)
 
     cam = sub.add_parser("camera", help="GigE Vision cameras (any that Aravis sees)")
     cam_sub = cam.add_subparsers(dest="camera_command", required=True, metavar="ACTION")

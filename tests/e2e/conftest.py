@@ -1,0 +1,105 @@
+"""`shaftgauge serve` as a user starts it: a subprocess with simulated camera and PLC."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.integration.conftest import SHAFTGAUGE, free_port
+
+TECH_KEY = "e2e-technician-key-0123456789"
+ADMIN_KEY = "e2e-admin-key-0123456789abcdef"
+
+
+@dataclass
+class Service:
+    """A running service and what it announced."""
+
+    proc: subprocess.Popen
+    url: str
+    modbus_port: int
+    plc_port: int
+    control_port: int
+    data: Path
+
+    def get(self, path: str, **kw) -> httpx.Response:
+        return httpx.get(self.url + path, timeout=10, **kw)
+
+
+def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
+                  fps: float = 10.0) -> Service:
+    api, modbus, plc = free_port(), free_port(), free_port()
+    data = tmp_path / "data"
+    cfg = tmp_path / "gauge.toml"
+    cfg.write_text(f"""
+[camera]
+source = "sim"
+sim_serial = "E2E001"
+sim_diameter_mm = {diameter}
+frame_rate_hz = {fps}
+[plc]
+source = "sim"
+port = {plc}
+sim_ack_delay_s = 0.05
+[modbus]
+port = {modbus}
+[api]
+port = {api}
+keys = {{ "{TECH_KEY}" = "technician", "{ADMIN_KEY}" = "admin" }}
+[store]
+path = "{data / 'gauge.db'}"
+[compensation]
+nominal_mm = 30.0
+tol_upper_mm = 0.05
+tol_lower_mm = -0.05
+window = 5
+deadband_mm = 0.004
+dead_time_measurements = 3
+dead_time_s = 0.5
+max_step_mm = 0.01
+shadow = false
+{extra_toml}
+""")
+    proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    line = proc.stdout.readline()
+    if not line:
+        raise RuntimeError(f"serve did not start: {proc.stderr.read()[-3000:]}")
+    ready = json.loads(line)
+    return Service(proc, ready["url"], ready["modbus_port"], plc,
+                   ready["sim_camera_control_port"], data)
+
+
+def stop_service(svc: Service) -> None:
+    if svc.proc.poll() is None:
+        os.killpg(svc.proc.pid, signal.SIGTERM)
+        try:
+            svc.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            os.killpg(svc.proc.pid, signal.SIGKILL)
+
+
+@pytest.fixture
+def service(tmp_path) -> Iterator[Service]:
+    svc = start_service(tmp_path)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                if svc.get("/readyz").status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.3)
+        yield svc
+    finally:
+        stop_service(svc)

@@ -1,0 +1,97 @@
+"""The whole system, started as a user starts it."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+
+import httpx
+from pymodbus.client import AsyncModbusTcpClient
+
+from drivers.plc.registers import Kind, WordOrder, from_words, units_to_mm
+from drivers.sim.control import control
+from tests.e2e.conftest import TECH_KEY
+
+
+def wait_for(predicate, timeout_s: float, step_s: float = 0.2):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(step_s)
+    return None
+
+
+def test_rest_measures_the_simulated_shaft(service) -> None:
+    assert service.get("/readyz").status_code == 200, service.get("/readyz").text
+    time.sleep(2.0)  # let the fusion window fill
+    m = service.get("/api/v1/measurements/latest").json()
+    assert m["status"] == "ok"
+    assert abs(m["diameter_mm"] - 30.0) < 0.010, m
+    assert abs(m["fused_diameter_mm"] - 30.0) < 0.005, m
+    st = service.get("/api/v1/status").json()
+    assert st["healthy"] and st["camera"]["state"] == "streaming"
+    assert st["pipeline"]["rate_hz"] > 5
+
+
+def test_sse_delivers_updates(service) -> None:
+    seqs = []
+    with httpx.stream("GET", service.url + "/api/v1/stream", timeout=15) as r:
+        assert r.headers["content-type"].startswith("text/event-stream")
+        event = None
+        for line in r.iter_lines():
+            if line.startswith("event:"):
+                event = line.split(":", 1)[1].strip()
+            elif line.startswith("data:") and event == "measurement":
+                seqs.append(json.loads(line[5:])["seq"])
+                if len(seqs) >= 4:
+                    break
+    assert seqs == sorted(seqs) and len(set(seqs)) == 4
+
+
+def test_modbus_registers_agree_with_rest(service) -> None:
+    async def read() -> tuple[int, int]:
+        c = AsyncModbusTcpClient("127.0.0.1", port=service.modbus_port)
+        await c.connect()
+        rr = await c.read_holding_registers(0, count=30, device_id=1)
+        c.close()
+        regs = rr.registers
+        return (from_words(regs[6:8], Kind.I32, WordOrder.BIG),
+                from_words(regs[10:12], Kind.U32, WordOrder.BIG))
+
+    for _ in range(20):
+        diameter_units, seq = asyncio.run(read())
+        rest = service.get("/api/v1/measurements", params={"limit": 50}).json()["items"]
+        same = [r for r in rest if r["seq"] == seq]
+        if same:
+            assert units_to_mm(diameter_units) == round(same[0]["diameter_mm"], 4) or \
+                abs(units_to_mm(diameter_units) - same[0]["diameter_mm"]) < 1e-7
+            return
+    raise AssertionError("never saw the same measurement over Modbus and REST")
+
+
+def test_drift_beyond_the_deadband_sends_an_offset_to_the_plc(service) -> None:
+    log = service.data / "sim-plc.log"
+    reply = control(service.control_port, {"set": {"diameter_mm": 30.012}})
+    assert reply["ok"]
+
+    def applied():
+        if not log.exists():
+            return None
+        events = [json.loads(x) for x in log.read_text().splitlines()]
+        return [e for e in events if e["event"] == "applied"] or None
+
+    events = wait_for(applied, timeout_s=40)
+    assert events, "no offset reached the simulated PLC"
+    first = events[0]
+    # oversize by 12 um, gain 0.7 -> about -8.4 um, never beyond the 10 um step limit
+    assert -100 <= first["value_units"] < -40, first
+    decisions = service.get("/api/v1/compensation/log", params={"kinds": "applied"}).json()
+    assert decisions["items"] and decisions["items"][0]["offset_seq"] == first["seq"]
+    st = service.get("/api/v1/status").json()
+    assert st["compensation"]["cumulative_offset_mm"] < 0
+    r = httpx.put(service.url + "/api/v1/compensation/shadow", json={"shadow": True},
+                  headers={"X-API-Key": TECH_KEY}, timeout=10)
+    assert r.status_code == 200
