@@ -109,6 +109,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def cmd_sim_camera(args: argparse.Namespace) -> int:
     """Serve a simulated GigE Vision camera until interrupted."""
+    import os
     import signal
     import threading
 
@@ -135,6 +136,10 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
                       "address": args.address, "control_port": server.server_address[1],
                       "calibration": args.calibration_out}), flush=True)
     done.wait()
+    # A simulator must never outlive its welcome: if releasing Aravis hangs, leave anyway.
+    watchdog = threading.Timer(5.0, lambda: os._exit(0))
+    watchdog.daemon = True
+    watchdog.start()
     server.shutdown()
     camera.stop()
     return EXIT_OK

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -80,12 +81,15 @@ shadow = false
 
 
 def stop_service(svc: Service) -> None:
+    """SIGTERM the service (it stops its simulators), then make sure nothing of its process
+    group is left: a leftover simulated camera would hold the GigE Vision port."""
     if svc.proc.poll() is None:
         os.killpg(svc.proc.pid, signal.SIGTERM)
-        try:
+        with contextlib.suppress(subprocess.TimeoutExpired):
             svc.proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(svc.proc.pid, signal.SIGKILL)
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(svc.proc.pid, signal.SIGKILL)
+    svc.proc.wait(10)
 
 
 @pytest.fixture
