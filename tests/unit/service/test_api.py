@@ -60,7 +60,9 @@ def test_reading_is_open_and_shows_a_live_measurement(client) -> None:
     assert client.get("/healthz").json() == {"alive": True}
     assert client.get("/readyz").status_code == 200
     text = client.get("/metrics").text
-    assert "shaftgauge_diameter_mm 30." in text and "# TYPE shaftgauge_healthy gauge" in text
+    values = dict(line.rsplit(" ", 1) for line in text.splitlines() if not line.startswith("#"))
+    assert abs(float(values["shaftgauge_diameter_mm"]) - 30.0) < 0.02
+    assert "# TYPE shaftgauge_healthy gauge" in text
 
 
 def test_history_pages_newest_first(client) -> None:
