@@ -77,7 +77,7 @@ class CompensationSettings:
     window : int
         Good measurements in the filter.
     filter : {'median', 'mean'}
-        How the window is combined.
+        How the window is combined: the median, or the mean weighted by 1 / uncertainty^2.
     deadband_mm : float
         No correction while the filtered deviation is within +-deadband.
     gain : float
@@ -224,7 +224,9 @@ class CompensationController:
         problems = self.settings.problems()
         if problems:
             raise ValueError("; ".join(problems))
-        self._window: collections.deque[float] = collections.deque(maxlen=self.settings.window)
+        # (deviation, uncertainty) of the good measurements since the last correction
+        self._window: collections.deque[tuple[float, float]] = collections.deque(
+            maxlen=self.settings.window)
         self._since_correction = self.settings.dead_time_measurements  # no dead time at start
         self._correction_time = -math.inf
         # A write handed out but never reported (the service died) is uncertain on restart.
@@ -295,12 +297,17 @@ class CompensationController:
         if (self._since_correction <= s.dead_time_measurements
                 or now - self._correction_time < s.dead_time_s):
             return self._decision(Kind.HELD, "dead time after a correction", now, **kw)
-        self._window.append(deviation)
+        self._window.append((deviation, max(float(m.uncertainty_mm), 1e-6)))
         if len(self._window) < s.window:
             return self._decision(Kind.HELD, f"filling the window ({len(self._window)} of "
                                   f"{s.window})", now, **kw)
-        combine = statistics.median if s.filter == "median" else statistics.fmean
-        filtered = float(combine(self._window))
+        devs = [d for d, _ in self._window]
+        if s.filter == "median":
+            filtered = float(statistics.median(devs))
+        else:
+            weights = [1.0 / u**2 for _, u in self._window]
+            filtered = float(sum(w * d for w, d in zip(weights, devs, strict=True))
+                             / sum(weights))
         kw["filtered_mm"] = filtered
         if not s.tol_lower_mm <= filtered <= s.tol_upper_mm:
             self.persisted.state = State.ALARM.value

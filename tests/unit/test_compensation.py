@@ -52,6 +52,15 @@ def test_programming_and_sign_convention(programming, sign, expected) -> None:
     assert feed(c, [30.008] * 3)[-1].offset_mm == pytest.approx(expected)
 
 
+def test_mean_filter_weights_by_uncertainty() -> None:
+    c = CompensationController(replace(LIVE, filter="mean"))
+    t = 100.0
+    for i, (d, u) in enumerate([(30.010, 0.001), (30.010, 0.001), (30.040, 0.010)]):
+        dec = c.on_measurement(MeasurementIn(i, t + i, "ok", d, u), t + i)
+    # weights 1e6, 1e6, 1e4: filtered = (0.010 * 2e6 + 0.040 * 1e4) / 2.01e6 = 0.01015
+    assert dec.filtered_mm == pytest.approx(0.0101493, rel=1e-4)
+
+
 def test_deadband_holds() -> None:
     c = CompensationController(LIVE)
     d = feed(c, [30.002] * 3)
