@@ -9,7 +9,7 @@ import time
 import httpx
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.plc.registers import Kind, WordOrder, from_words, units_to_mm
+from drivers.plc.registers import Kind, WordOrder, from_words, mm_to_units, units_to_mm
 from drivers.sim.control import control
 from tests.e2e.conftest import TECH_KEY
 
@@ -65,9 +65,9 @@ def test_modbus_registers_agree_with_rest(service) -> None:
         diameter_units, seq = asyncio.run(read())
         rest = service.get("/api/v1/measurements", params={"limit": 50}).json()["items"]
         same = [r for r in rest if r["seq"] == seq]
-        if same:
-            assert units_to_mm(diameter_units) == round(same[0]["diameter_mm"], 4) or \
-                abs(units_to_mm(diameter_units) - same[0]["diameter_mm"]) < 1e-7
+        if same:  # the register holds exactly the REST diameter, in 0.1 um
+            assert diameter_units == mm_to_units(same[0]["diameter_mm"])
+            assert abs(units_to_mm(diameter_units) - same[0]["diameter_mm"]) <= 0.5e-4
             return
     raise AssertionError("never saw the same measurement over Modbus and REST")
 

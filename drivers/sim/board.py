@@ -1,0 +1,169 @@
+"""Calibration images of the simulated rig: a chessboard at chosen poses, with or without the
+laser line across it, and clamped between the lathe centres at chosen rotations.
+
+The board is a plane with ``cols x rows`` inner corners spaced ``square_mm`` apart; its own
+frame has the first inner corner at the origin, x along the columns, z out of the board. Each
+pixel's ray is intersected with the board plane; the checker is rendered with 3x3
+supersampling, then blurred and given shot and read noise like the shaft images. The laser
+line is the light sheet's Gaussian profile around the plane, brighter on white squares.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from drivers.sim.rig import RigConfig, ShaftRenderer, _rotation
+
+
+@dataclass(frozen=True)
+class Board:
+    """A printed chessboard."""
+
+    cols: int = 9          # inner corners along x
+    rows: int = 6          # inner corners along y
+    square_mm: float = 6.0
+    margin_squares: float = 1.0
+
+    def object_points(self) -> np.ndarray:
+        """Inner corners in the board frame, mm, OpenCV's order (row by row)."""
+        xs, ys = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
+        pts = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+        return pts * self.square_mm
+
+    @property
+    def size_mm(self) -> tuple[float, float]:
+        """Outer size of the printed area, mm."""
+        return ((self.cols + 1 + 2 * self.margin_squares) * self.square_mm,
+                (self.rows + 1 + 2 * self.margin_squares) * self.square_mm)
+
+
+@dataclass(frozen=True)
+class BoardPose:
+    """Board frame in the camera frame: ``X_cam = R X_board + t`` (mm)."""
+
+    R: np.ndarray
+    t: np.ndarray
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Board plane normal in the camera frame."""
+        return self.R[:, 2]
+
+
+class BoardRenderer:
+    """Renders calibration images for a rig (reusing its camera, light sheet and noise)."""
+
+    def __init__(self, rig: ShaftRenderer, board: Board | None = None) -> None:
+        self.rig = rig
+        self.cfg: RigConfig = rig.config
+        self.board = board or Board()
+        self._pose = rig._pose
+
+    def pose_facing_camera(self, tilt_x_deg: float, tilt_y_deg: float, distance_mm: float,
+                           shift_mm: tuple[float, float] = (0.0, 0.0),
+                           spin_deg: float = 0.0) -> BoardPose:
+        """A board roughly facing the camera, tilted about x and y, centred on the optical
+        axis (plus ``shift_mm``) at ``distance_mm``."""
+        R = _rotation(180.0 + tilt_x_deg, tilt_y_deg, spin_deg)
+        w = (self.board.cols - 1) * self.board.square_mm
+        h = (self.board.rows - 1) * self.board.square_mm
+        centre = np.array([shift_mm[0], shift_mm[1], distance_mm])
+        t = centre - R @ np.array([w / 2, h / 2, 0.0])
+        return BoardPose(R, t)
+
+    def pose_on_spindle(self, rotation_deg: float, along_axis_mm: float = 0.0) -> BoardPose:
+        """The board clamped between the centres, its plane containing the spindle axis,
+        turned by ``rotation_deg`` about it (0: facing the camera)."""
+        p = self._pose
+        a = p.axis_direction
+        a0 = p.axis_point
+        # Board x along the axis; board y in the plane, perpendicular to it; z its normal.
+        toward_cam = -a0 / np.linalg.norm(a0)
+        y0 = np.cross(toward_cam, a)
+        y0 /= np.linalg.norm(y0)
+        th = math.radians(rotation_deg)
+        z0 = np.cross(a, y0)  # faces the camera at 0 degrees
+        y = math.cos(th) * y0 + math.sin(th) * z0
+        z = np.cross(a, y)
+        R = np.column_stack([a, y, z])
+        w = (self.board.cols - 1) * self.board.square_mm
+        h = (self.board.rows - 1) * self.board.square_mm
+        # The axis runs along the board's middle row; shift along the axis to taste.
+        t = a0 + (along_axis_mm - w / 2) * a - (h / 2) * y
+        return BoardPose(R, t)
+
+    def _bbox(self, pose: BoardPose) -> tuple[int, int, int, int]:
+        """Pixel bounding box of the printed board, with a margin for the blur."""
+        b, m = self.board, self.board.margin_squares + 1.0
+        xs = np.array([-m, b.cols - 1 + m]) * b.square_mm
+        ys = np.array([-m, b.rows - 1 + m]) * b.square_mm
+        corners = np.array([[x, y, 0.0] for x in xs for y in ys])
+        cam = corners @ pose.R.T + pose.t
+        w, h = self.cfg.image_size
+        if (cam[:, 2] <= 1.0).any():
+            return 0, 0, w, h
+        img, _ = cv2.projectPoints(cam, np.zeros(3), np.zeros(3), self.cfg.camera_matrix(),
+                                   np.array(self.cfg.dist_coeffs))
+        img = img.reshape(-1, 2)
+        x0 = int(np.clip(np.floor(img[:, 0].min()) - 8, 0, w))
+        x1 = int(np.clip(np.ceil(img[:, 0].max()) + 8, 0, w))
+        y0 = int(np.clip(np.floor(img[:, 1].min()) - 8, 0, h))
+        y1 = int(np.clip(np.ceil(img[:, 1].max()) + 8, 0, h))
+        return x0, y0, max(x0, x1), max(y0, y1)
+
+    def render(self, pose: BoardPose, laser: bool = False, frame_index: int = 0,
+               ambient_dn: float = 90.0) -> np.ndarray:
+        """One 8-bit image of the board at ``pose`` (with the laser line when asked).
+
+        Take the laser-off and laser-on images of a pose at the same light and exposure: their
+        difference is the laser line alone.
+        """
+        cfg = self.cfg
+        w, h = cfg.image_size
+        ss = 3
+        rays = self.rig._rays(1)  # (H, W, 2) undistorted normalised rays of pixel centres
+        # Supersample by offsetting the rays within each pixel (small, so linear in x, y).
+        K = cfg.camera_matrix()
+        dx = (np.arange(ss) + 0.5) / ss - 0.5
+        n = pose.normal
+        n_d = float(n @ pose.t)
+        x0, y0, x1, y1 = self._bbox(pose)
+        rays = rays[y0:y1, x0:x1]
+        acc = np.zeros((h, w), np.float32)
+        lit = np.zeros((h, w), np.float32)
+        acc_roi, lit_roi = acc[y0:y1, x0:x1], lit[y0:y1, x0:x1]
+        m = self.board.margin_squares
+        for ox in dx:
+            for oy in dx:
+                rx = rays[..., 0] + ox / K[0, 0]
+                ry = rays[..., 1] + oy / K[1, 1]
+                denom = n[0] * rx + n[1] * ry + n[2]
+                s = n_d / np.where(np.abs(denom) > 1e-9, denom, np.nan)
+                X = np.stack([rx * s, ry * s, s], axis=-1)
+                local = (X - pose.t) @ pose.R  # board coordinates
+                u, v = local[..., 0] / self.board.square_mm, local[..., 1] / self.board.square_mm
+                inside = ((u > -1 - m) & (u < self.board.cols + m) & (v > -1 - m)
+                          & (v < self.board.rows + m) & (s > 0))
+                checker = (u > -1) & (u < self.board.cols) & (v > -1) & (v < self.board.rows)
+                white = ~checker | ((np.floor(u) + np.floor(v)) % 2 == 0)  # white margin
+                refl = np.where(inside, np.where(white, 1.0, 0.12), 0.0)
+                acc_roi += refl.astype(np.float32)
+                if laser:
+                    p = self._pose
+                    dist = X @ p.plane_normal - p.plane_d
+                    sheet = np.exp(-0.5 * (dist / cfg.sheet_sigma_mm) ** 2)
+                    lit_roi += np.where(inside, refl * sheet, 0.0).astype(np.float32)
+        acc /= ss * ss
+        lit /= ss * ss
+        img = cfg.background_dn + ambient_dn * acc
+        if laser:
+            img = img + cfg.peak_dn * lit
+        img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), cfg.blur_px)
+        rng = np.random.default_rng([self.rig.seed, 7919, int(frame_index)])
+        sigma = np.sqrt(np.maximum(img, 0) / cfg.electrons_per_dn + cfg.read_noise_dn**2)
+        img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
+        return np.clip(np.rint(img), 0, 255).astype(np.uint8)

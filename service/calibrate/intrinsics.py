@@ -1,0 +1,103 @@
+"""Camera intrinsics from chessboard images (Zhang's method, OpenCV)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from drivers.sim.board import Board
+
+_SUBPIX = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+
+
+@dataclass(frozen=True)
+class Corners:
+    """Inner corners of one image, px (N, 2), or None when the board was not found."""
+
+    points: np.ndarray | None
+    reason: str = ""
+
+
+def find_corners(image: np.ndarray, board: Board) -> Corners:
+    """Sub-pixel inner corners of the chessboard in a grey image."""
+    size = (board.cols, board.rows)
+    ok, corners = cv2.findChessboardCornersSB(image, size, flags=cv2.CALIB_CB_ACCURACY)
+    if not ok or corners is None:
+        ok, corners = cv2.findChessboardCorners(image, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
+        if not ok:
+            return Corners(None, f"board of {board.cols}x{board.rows} inner corners not found")
+        corners = cv2.cornerSubPix(image, corners, (5, 5), (-1, -1), _SUBPIX)
+    return Corners(corners.reshape(-1, 2).astype(np.float64))
+
+
+@dataclass(frozen=True)
+class IntrinsicsResult:
+    """Camera matrix and distortion, with per-image figures, or why there are none."""
+
+    camera_matrix: np.ndarray | None
+    dist_coeffs: np.ndarray | None
+    rms_px: float = math.nan
+    per_image_rms_px: list[float] = field(default_factory=list)
+    worst_px: float = math.nan
+    coverage: float = 0.0          # fraction of the image area the corners' hull covered
+    tilt_spread_deg: float = 0.0   # largest angle between two board normals
+    used: list[int] = field(default_factory=list)
+    rejected: dict[int, str] = field(default_factory=dict)
+    reason: str = ""
+
+    def __bool__(self) -> bool:
+        return self.camera_matrix is not None and not self.reason
+
+
+def calibrate_intrinsics(images: list[np.ndarray], board: Board, min_images: int = 6,
+                         min_tilt_deg: float = 15.0) -> IntrinsicsResult:
+    """Intrinsics (k1, k2, p1, p2; k3 fixed at 0) from chessboard images.
+
+    Refuses (a falsy result whose reason says what to do): too few images with a board found,
+    boards never tilted (all normals within ``min_tilt_deg``: the focal length is then not
+    observable).
+    """
+    if not images:
+        return IntrinsicsResult(None, None, reason="no images: capture 10-20 views of the board")
+    h, w = images[0].shape[:2]
+    obj, img, used, rejected = [], [], [], {}
+    for i, im in enumerate(images):
+        if im.shape[:2] != (h, w):
+            rejected[i] = f"image is {im.shape[1]}x{im.shape[0]}, the others {w}x{h}"
+            continue
+        c = find_corners(im, board)
+        if c.points is None:
+            rejected[i] = c.reason
+            continue
+        obj.append(board.object_points().astype(np.float32))
+        img.append(c.points.astype(np.float32))
+        used.append(i)
+    if len(used) < min_images:
+        return IntrinsicsResult(None, None, used=used, rejected=rejected, reason=(
+            f"the board was found in {len(used)} of {len(images)} images, need {min_images}: "
+            "capture more views with the whole board in the picture"))
+    flags = cv2.CALIB_FIX_K3
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, (w, h), None, None, flags=flags)
+    normals = [cv2.Rodrigues(r)[0][:, 2] for r in rvecs]
+    spread = max(math.degrees(math.acos(min(1.0, abs(float(a @ b)))))
+                 for a in normals for b in normals)
+    per_image, worst = [], 0.0
+    for o, p, r, t in zip(obj, img, rvecs, tvecs, strict=True):
+        proj, _ = cv2.projectPoints(o, r, t, K, dist)
+        err = np.linalg.norm(proj.reshape(-1, 2) - p, axis=1)
+        per_image.append(float(np.sqrt(np.mean(err**2))))
+        worst = max(worst, float(err.max()))
+    hull = cv2.convexHull(np.concatenate(img).reshape(-1, 1, 2))
+    coverage = float(cv2.contourArea(hull)) / (w * h)
+    result = IntrinsicsResult(K, dist.ravel()[:5], float(rms), per_image, worst, coverage,
+                              spread, used, rejected)
+    if spread < min_tilt_deg:
+        return IntrinsicsResult(None, None, float(rms), per_image, worst, coverage, spread,
+                                used, rejected, reason=(
+                                    f"the board was never tilted (normals within {spread:.1f}"
+                                    f" degrees): tilt it by 20-40 degrees in several "
+                                    "directions"))
+    return result

@@ -1,0 +1,130 @@
+"""Calibrating from rendered images recovers the simulated rig (issue 6's tolerances)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from calib_store.model import SCHEMA, parse_calibration
+from drivers.sim.board import Board, BoardRenderer
+from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.calibrate.axis import calibrate_axis
+from service.calibrate.intrinsics import calibrate_intrinsics
+from service.calibrate.plane import calibrate_plane
+from service.measure.diameter import measure_frame
+from service.measure.result import Method
+
+BOARD = Board(cols=11, rows=8, square_mm=8.0)
+
+
+def deg(a: np.ndarray, b: np.ndarray) -> float:
+    return math.degrees(math.acos(min(1.0, abs(float(a @ b)))))
+
+
+@pytest.fixture(scope="module")
+def session():
+    rig = ShaftRenderer(RigConfig(), seed=3)
+    br = BoardRenderer(rig, BOARD)
+    specs = [(tx, ty, d, sh) for (tx, ty), d in zip(itertools.product((-25, 0, 25), repeat=2),
+                                                    itertools.cycle((380, 420, 400)))
+             for sh in ((0, 0), (-20, -15), (20, 15))][::2]
+    views = [br.render(br.pose_facing_camera(*s), frame_index=i) for i, s in enumerate(specs)]
+    pairs = []
+    for i, (tx, ty, d) in enumerate([(20, 0, 290), (-20, 0, 310), (0, 20, 300), (0, -20, 295)]):
+        p = br.pose_facing_camera(tx, ty, d)
+        pairs.append((br.render(p, frame_index=100 + i),
+                      br.render(p, laser=True, frame_index=200 + i)))
+    spindle = [br.render(br.pose_on_spindle(a), frame_index=300 + i)
+               for i, a in enumerate((-45, -30, -15, 0, 15, 30, 45))]
+    return rig, br, views, pairs, spindle
+
+
+@pytest.fixture(scope="module")
+def recovered(session):
+    _, _, views, pairs, spindle = session
+    intr = calibrate_intrinsics(views, BOARD)
+    assert intr, intr.reason
+    plane = calibrate_plane(pairs, BOARD, intr.camera_matrix, intr.dist_coeffs)
+    assert plane, plane.reason
+    axis = calibrate_axis(spindle, BOARD, intr.camera_matrix, intr.dist_coeffs,
+                          (plane.normal, plane.d))
+    assert axis, axis.reason
+    return intr, plane, axis
+
+
+def test_intrinsics(session, recovered) -> None:
+    rig, *_ = session
+    intr, _, _ = recovered
+    K, Kt = intr.camera_matrix, rig.config.camera_matrix()
+    assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.002 and abs(K[1, 1] / Kt[1, 1] - 1) < 0.002
+    assert abs(K[0, 2] - Kt[0, 2]) < 2.0 and abs(K[1, 2] - Kt[1, 2]) < 2.0
+    assert intr.rms_px < 0.2 and intr.coverage > 0.5 and intr.tilt_spread_deg > 30
+
+
+def test_light_plane(session, recovered) -> None:
+    rig, *_ = session
+    _, plane, _ = recovered
+    geo = rig.calibration.to_geometry()
+    assert deg(plane.normal, geo.plane_normal) < 0.05
+    assert abs(plane.d - geo.plane_d) < 0.1 and plane.rms_mm < 0.05
+
+
+def test_spindle_axis_direction(session, recovered) -> None:
+    rig, *_ = session
+    _, _, axis = recovered
+    geo = rig.calibration.to_geometry()
+    assert deg(axis.direction, geo.axis_direction) < 0.05
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 6 open: the axis point comes out 0.065 mm from truth (target 0.05). With the true "
+    "intrinsics it is within 0.005 mm; the estimated principal point (0.8 px off) shifts the "
+    "camera frame by 0.8 px * 300 mm / 3876 px = 0.06 mm. Diameters are unaffected."))
+def test_spindle_axis_point(session, recovered) -> None:
+    rig, *_ = session
+    _, _, axis = recovered
+    geo = rig.calibration.to_geometry()
+    assert np.linalg.norm(axis.point - geo.axis_point) < 0.05
+
+
+def test_diameters_with_the_recovered_calibration(session, recovered) -> None:
+    rig, *_ = session
+    intr, plane, axis = recovered
+    a = axis.direction / np.linalg.norm(axis.direction)
+    cal = parse_calibration({
+        "schema": SCHEMA, "units": "mm", "image_size": list(rig.config.image_size),
+        "camera_matrix": intr.camera_matrix.tolist(),
+        "dist_coeffs": [float(x) for x in intr.dist_coeffs],
+        "light_plane": {"normal": [float(x) for x in plane.normal], "d": float(plane.d)},
+        "axis": {"direction": [float(x) for x in a], "point": [float(x) for x in axis.point]},
+    }).to_geometry()
+    errors = []
+    for i, d in enumerate((20.113, 29.8, 39.76, 47.062)):
+        m = measure_frame(rig.render(d, i), cal, Method.GEOMETRIC)
+        assert m, m.reason
+        errors.append(abs(m.diameter_mm - d))
+    assert np.mean(errors) < 0.015, errors
+
+
+def test_bad_sessions_are_refused_saying_what_to_do(session) -> None:
+    rig, br, views, pairs, spindle = session
+    few = calibrate_intrinsics(views[:3], BOARD)
+    assert not few and "need 6" in few.reason and "more views" in few.reason
+    blank = [np.full((1024, 1376), 40, np.uint8)] * 8
+    none_found = calibrate_intrinsics(blank, BOARD)
+    assert not none_found and "found in 0 of 8" in none_found.reason
+    assert all("not found" in why for why in none_found.rejected.values())
+    flat = [br.render(br.pose_facing_camera(0, 0, d, (dx, dy)), frame_index=500 + i)
+            for i, (d, dx, dy) in enumerate([(380, 0, 0), (400, -15, 10), (420, 15, -10),
+                                             (390, -10, -10), (410, 10, 10), (400, 0, 12)])]
+    untilted = calibrate_intrinsics(flat, BOARD)
+    assert not untilted and "never tilted" in untilted.reason and "tilt it" in untilted.reason
+    K, dist = rig.config.camera_matrix(), np.array(rig.config.dist_coeffs)
+    dark = calibrate_plane([(b, b) for b, _ in pairs], BOARD, K, dist)
+    assert not dark and "turn the laser on" in dark.reason
+    assert all("laser line missing" in why for why in dark.rejected.values())
+    narrow = calibrate_axis(spindle[2:4], BOARD, K, dist)
+    assert not narrow and "need 3" in narrow.reason
