@@ -178,6 +178,46 @@ def cmd_sim_plc(args: argparse.Namespace) -> int:
     return asyncio.run(serve())
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """One calibration step on image files; writes JSON, prints a one-line summary."""
+    from calib_store.model import save_calibration
+    from service.calibrate import commands as c
+
+    try:
+        if args.step == "render":
+            print(json.dumps(c.render_set(args.output, args.seed)))
+            return EXIT_OK
+        if args.step == "master":
+            cal = load_calibration(args.calibration)
+            masters = [(float(m[0]), m[1:]) for m in args.master]
+            result = c.master_step(cal, masters)
+            if args.output:
+                c._write(args.output, result)
+            print(json.dumps(result))
+            return EXIT_OK
+        if args.step == "build":
+            cal, report = c.build_step(args.intrinsics, args.plane, args.axis)
+            if args.report:
+                c._write(args.report, report.as_dict())
+            print(json.dumps({"verdict": report.verdict, "reasons": report.reasons}))
+            if cal is None:
+                return _fail("calibration refused: " + "; ".join(report.reasons))
+            save_calibration(cal, args.output)
+            return EXIT_OK
+        if args.step == "intrinsics":
+            result, _ = c.intrinsics_step(args.images, c.parse_board(args.board))
+        elif args.step == "plane":
+            result, _ = c.plane_step(args.intrinsics, args.pairs)
+        else:
+            result, _ = c.axis_step(args.intrinsics, args.plane, args.images)
+        c._write(args.output, result)
+        summary = {k: result[k] for k in ("step", "ok", "reason") if k in result}
+        print(json.dumps(summary))
+        return EXIT_OK if result["ok"] else _fail(f"{args.step}: {result['reason']}")
+    except (c.StepError, CalibrationError, ValueError) as err:
+        return _fail(str(err))
+
+
 def cmd_check_host(args: argparse.Namespace) -> int:
     """Check the host settings a GigE camera needs; exit 1 when something needs changing."""
     from service.hostcheck import check_host
@@ -308,6 +348,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log", metavar="FILE", help="JSON-lines log of writes and applications")
     p.add_argument("--state", metavar="FILE", help="keep the applied total across restarts")
     p.set_defaults(func=cmd_sim_plc)
+
+    cal = sub.add_parser("calibrate", help="calibrate from image files, step by step")
+    steps = cal.add_subparsers(dest="step", required=True, metavar="STEP")
+    p = steps.add_parser("render", help="write a simulated calibration image set")
+    p.add_argument("--output", required=True, metavar="DIR")
+    p.add_argument("--seed", type=int, default=0)
+    p = steps.add_parser("intrinsics", help="camera matrix and distortion from board views")
+    p.add_argument("--board", default="11x8x8", help="COLSxROWSxMM: inner corners, square")
+    p.add_argument("--output", required=True, metavar="FILE")
+    p.add_argument("images", nargs="+", metavar="IMAGE")
+    p = steps.add_parser("plane", help="light plane from laser-off / laser-on pairs")
+    p.add_argument("--intrinsics", required=True, metavar="FILE")
+    p.add_argument("--output", required=True, metavar="FILE")
+    p.add_argument("pairs", nargs="+", metavar="IMAGE", help="OFF ON OFF ON ...")
+    p = steps.add_parser("axis", help="spindle axis from the board turned between centres")
+    p.add_argument("--intrinsics", required=True, metavar="FILE")
+    p.add_argument("--plane", metavar="FILE", help="to place the axis point on the plane")
+    p.add_argument("--output", required=True, metavar="FILE")
+    p.add_argument("images", nargs="+", metavar="IMAGE")
+    p = steps.add_parser("build", help="assemble and grade the calibration document")
+    p.add_argument("--intrinsics", required=True, metavar="FILE")
+    p.add_argument("--plane", required=True, metavar="FILE")
+    p.add_argument("--axis", required=True, metavar="FILE")
+    p.add_argument("--output", required=True, metavar="CAL.json")
+    p.add_argument("--report", metavar="FILE", help="write the quality report here")
+    p = steps.add_parser("master", help="diameter correction from one or two masters")
+    p.add_argument("--calibration", required=True, metavar="CAL.json")
+    p.add_argument("--master", nargs="+", action="append", required=True,
+                   metavar="MM_THEN_IMAGES", help="certified diameter, then its images")
+    p.add_argument("--output", metavar="FILE")
+    cal.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("check-host", help="check the host settings a GigE camera needs")
     p.add_argument("--interface", help="the network interface the camera is on")

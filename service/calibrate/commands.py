@@ -1,0 +1,204 @@
+"""The ``shaftgauge calibrate ...`` steps on image files: each step writes a JSON file with its
+result and figures; ``build`` assembles a calibration document and its quality report."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from calib_store.model import SCHEMA, Calibration, parse_calibration
+from drivers.sim.board import Board, BoardRenderer
+from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.calibrate.axis import AxisResult, calibrate_axis
+from service.calibrate.intrinsics import IntrinsicsResult, calibrate_intrinsics
+from service.calibrate.master import correction_from_masters
+from service.calibrate.plane import PlaneResult, calibrate_plane
+from service.calibrate.report import QualityReport, assess
+from service.measure.diameter import measure_frame
+from service.measure.fuse import fuse
+from service.measure.result import Method
+from service.offline import read_grey_image
+
+DEFAULT_BOARD = "11x8x8"
+
+
+class StepError(ValueError):
+    """A step that cannot run (bad input files); the message says what to do."""
+
+
+def parse_board(text: str) -> Board:
+    """``COLSxROWSxSQUARE_MM`` (inner corners, square size), e.g. ``11x8x8``."""
+    m = re.fullmatch(r"(\d+)x(\d+)x(\d+(?:\.\d+)?)", text.strip())
+    if not m:
+        raise StepError(f"--board {text!r}: write COLSxROWSxMM, e.g. 11x8x8 (inner corners)")
+    cols, rows, sq = int(m[1]), int(m[2]), float(m[3])
+    if cols < 3 or rows < 3 or sq <= 0:
+        raise StepError(f"--board {text!r}: at least 3x3 inner corners and a positive size")
+    return Board(cols=cols, rows=rows, square_mm=sq)
+
+
+def _read_all(paths: list[str]) -> list[np.ndarray]:
+    try:
+        return [read_grey_image(p) for p in paths]
+    except ValueError as err:
+        raise StepError(str(err)) from None
+
+
+def _load(path: str, what: str) -> dict[str, Any]:
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise StepError(f"{path}: cannot read the {what} step's result ({err})") from None
+
+
+def _write(path: str, data: dict[str, Any]) -> None:
+    Path(path).write_text(json.dumps(data, indent=2) + "\n")
+
+
+def intrinsics_step(images: list[str], board: Board) -> tuple[dict[str, Any], IntrinsicsResult]:
+    """Camera matrix and distortion from chessboard images."""
+    imgs = _read_all(images)
+    res = calibrate_intrinsics(imgs, board)
+    report = assess(res)
+    out: dict[str, Any] = {"step": "intrinsics", "ok": bool(res), "reason": res.reason,
+                           "board": [board.cols, board.rows, board.square_mm],
+                           "image_size": [int(imgs[0].shape[1]), int(imgs[0].shape[0])]
+                           if imgs else None, "report": report.as_dict()}
+    if res:
+        out["camera_matrix"] = res.camera_matrix.tolist()
+        out["dist_coeffs"] = [float(x) for x in res.dist_coeffs]
+    return out, res
+
+
+def _intrinsics(path: str) -> tuple[np.ndarray, np.ndarray, Board, dict[str, Any]]:
+    d = _load(path, "intrinsics")
+    if not d.get("ok"):
+        raise StepError(f"{path}: the intrinsics step failed ({d.get('reason')}): redo it")
+    cols, rows, sq = d["board"]
+    return (np.array(d["camera_matrix"]), np.array(d["dist_coeffs"]),
+            Board(cols=int(cols), rows=int(rows), square_mm=float(sq)), d)
+
+
+def plane_step(intrinsics: str, pairs: list[str]) -> tuple[dict[str, Any], PlaneResult]:
+    """The light plane from laser-off / laser-on image pairs."""
+    if len(pairs) % 2:
+        raise StepError("--pairs takes images two by two: laser off, then laser on")
+    K, dist, board, _ = _intrinsics(intrinsics)
+    imgs = _read_all(pairs)
+    res = calibrate_plane(list(zip(imgs[::2], imgs[1::2], strict=True)), board, K, dist)
+    out: dict[str, Any] = {"step": "plane", "ok": bool(res), "reason": res.reason,
+                           "rms_mm": res.rms_mm, "per_pose_points": res.per_pose_points,
+                           "rejected": {str(k): v for k, v in res.rejected.items()}}
+    if res:
+        out["normal"] = [float(x) for x in res.normal]
+        out["d"] = float(res.d)
+    return out, res
+
+
+def axis_step(intrinsics: str, plane: str | None, images: list[str]
+              ) -> tuple[dict[str, Any], AxisResult]:
+    """The spindle axis from the board clamped between the centres at several rotations."""
+    K, dist, board, _ = _intrinsics(intrinsics)
+    light = None
+    if plane:
+        p = _load(plane, "plane")
+        if not p.get("ok"):
+            raise StepError(f"{plane}: the plane step failed ({p.get('reason')}): redo it")
+        light = (np.array(p["normal"]), float(p["d"]))
+    res = calibrate_axis(_read_all(images), board, K, dist, light)
+    out: dict[str, Any] = {"step": "axis", "ok": bool(res), "reason": res.reason,
+                           "rotation_span_deg": res.rotation_span_deg,
+                           "plane_residual_mm": res.plane_residual_mm,
+                           "rejected": {str(k): v for k, v in res.rejected.items()}}
+    if res:
+        out["direction"] = [float(x) for x in res.direction]
+        out["point"] = [float(x) for x in res.point]
+    return out, res
+
+
+def build_step(intrinsics: str, plane: str, axis: str) -> tuple[Calibration | None,
+                                                                 QualityReport]:
+    """Assemble the calibration document and grade it; no document when refused."""
+    K, dist, _, intr = _intrinsics(intrinsics)
+    p, a = _load(plane, "plane"), _load(axis, "axis")
+    fig = intr.get("report", {}).get("figures", {}).get("intrinsics", {})
+    ires = IntrinsicsResult(K, dist, fig.get("rms_px", float("nan")),
+                            fig.get("per_image_rms_px", []), fig.get("worst_px", float("nan")),
+                            fig.get("coverage", 0.0), fig.get("tilt_spread_deg", 0.0),
+                            list(range(fig.get("images_used", 0))))
+    pres = PlaneResult(np.array(p["normal"]) if p.get("ok") else None, p.get("d", float("nan")),
+                       p.get("rms_mm", float("nan")), float("nan"), 0,
+                       p.get("per_pose_points", []), reason=p.get("reason", ""))
+    ares = AxisResult(np.array(a["direction"]) if a.get("ok") else None,
+                      np.array(a["point"]) if a.get("ok") else None,
+                      a.get("rotation_span_deg", 0.0), a.get("plane_residual_mm", float("nan")),
+                      reason=a.get("reason", ""))
+    report = assess(ires, pres, ares)
+    if report.verdict == "refused":
+        return None, report
+    n = np.array(p["normal"]) / np.linalg.norm(p["normal"])
+    direction = np.array(a["direction"]) / np.linalg.norm(a["direction"])
+    doc = {"schema": SCHEMA, "units": "mm", "image_size": intr["image_size"],
+           "camera_matrix": K.tolist(), "dist_coeffs": [float(x) for x in dist],
+           "light_plane": {"normal": [float(x) for x in n], "d": float(p["d"])},
+           "axis": {"direction": [float(x) for x in direction],
+                    "point": [float(x) for x in a["point"]]}}
+    return parse_calibration(doc), report
+
+
+def master_step(calibration: Calibration, masters: list[tuple[float, list[str]]],
+                method: Method = Method.AXIS) -> dict[str, Any]:
+    """Measure each master's images (fused) and derive the diameter correction."""
+    geometry = calibration.to_geometry()
+    pairs, measured = [], []
+    for certified, paths in masters:
+        f = fuse([measure_frame(im, geometry, method) for im in _read_all(paths)])
+        if not f:
+            raise StepError(f"master {certified} mm: {f.reason}")
+        pairs.append((certified, f.diameter_mm))
+        measured.append({"certified_mm": certified, "measured_mm": f.diameter_mm,
+                         "uncertainty_mm": f.uncertainty_mm, "frames": f.n_used})
+    try:
+        corr = correction_from_masters(pairs)
+    except ValueError as err:
+        raise StepError(str(err)) from None
+    return {"step": "master", "offset_mm": corr.offset_mm, "scale": corr.scale,
+            "created": corr.created, "masters": measured}
+
+
+def render_set(output: str, seed: int = 0, board: Board | None = None) -> dict[str, Any]:
+    """A simulated calibration session: board views, laser pairs, spindle rotations, masters
+    (30 and 40 mm), and the rig's true calibration to compare with."""
+    out = Path(output)
+    for sub in ("views", "plane", "axis", "master30", "master40"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    rig = ShaftRenderer(RigConfig(), seed=seed)
+    br = BoardRenderer(rig, board or parse_board(DEFAULT_BOARD))
+    k = 0
+    for tx in (-25, 0, 25):
+        for ty in (-25, 0, 25):
+            for shift in ((0, 0), (-20, -15), (20, 15)):
+                if k % 2 == 0:
+                    img = br.render(br.pose_facing_camera(tx, ty, (380, 420, 400)[k % 3],
+                                                          shift), frame_index=k)
+                    cv2.imwrite(str(out / "views" / f"view_{k:02d}.png"), img)
+                k += 1
+    for i, (tx, ty, d) in enumerate([(20, 0, 290), (-20, 0, 310), (0, 20, 300), (0, -20, 295)]):
+        pose = br.pose_facing_camera(tx, ty, d)
+        cv2.imwrite(str(out / "plane" / f"pose{i}_off.png"), br.render(pose, frame_index=100 + i))
+        cv2.imwrite(str(out / "plane" / f"pose{i}_on.png"),
+                    br.render(pose, laser=True, frame_index=200 + i))
+    for i, a in enumerate((-45, -30, -15, 0, 15, 30, 45)):
+        cv2.imwrite(str(out / "axis" / f"rot_{a:+03d}.png"),
+                    br.render(br.pose_on_spindle(a), frame_index=300 + i))
+    for d, sub in ((30.0, "master30"), (40.0, "master40")):
+        for i in range(10):
+            cv2.imwrite(str(out / sub / f"frame_{i:02d}.png"), rig.render(d, 1000 + i))
+    (out / "truth.json").write_text(rig.calibration.to_json() + "\n")
+    return {"output": str(out), "board": f"{br.board.cols}x{br.board.rows}x"
+            f"{br.board.square_mm:g}"}
