@@ -31,6 +31,26 @@ CREATE TABLE IF NOT EXISTS active_calibration (
     id INTEGER PRIMARY KEY CHECK (id = 1),
     calibration_id INTEGER NOT NULL REFERENCES calibrations(id)
 );
+CREATE TABLE IF NOT EXISTS master_corrections (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time REAL NOT NULL,
+    calibration_id INTEGER NOT NULL REFERENCES calibrations(id),
+    offset_mm REAL NOT NULL,
+    scale REAL NOT NULL,
+    masters TEXT NOT NULL,
+    created_by TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS master_checks (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time REAL NOT NULL,
+    calibration_id INTEGER,
+    certified_mm REAL NOT NULL,
+    measured_mm REAL NOT NULL,
+    error_mm REAL NOT NULL,
+    limit_mm REAL NOT NULL,
+    passed INTEGER NOT NULL,
+    created_by TEXT NOT NULL
+);
 CREATE TABLE IF NOT EXISTS audit (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     time REAL NOT NULL,
@@ -196,6 +216,63 @@ class CalibrationStore:
         self._db.execute("INSERT OR REPLACE INTO active_calibration (id, calibration_id) "
                          "VALUES (1, ?)", (cid,))
         self._audit(by, "activate", cid, f"previously {previous}")
+
+    # ---- mastering -----------------------------------------------------------------------
+
+    def add_correction(self, calibration_id: int, offset_mm: float, scale: float,
+                       masters: list[dict[str, Any]], by: str) -> int:
+        """Store a diameter correction for a calibration (the newest one is in force)."""
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                cur = self._db.execute(
+                    "INSERT INTO master_corrections (time, calibration_id, offset_mm, scale, "
+                    "masters, created_by) VALUES (?, ?, ?, ?, ?, ?)",
+                    (time.time(), calibration_id, offset_mm, scale, json.dumps(masters), by))
+                self._audit(by, "master correction", calibration_id,
+                            f"offset {offset_mm * 1000:+.2f} um, scale {scale:.6f}")
+                self._db.execute("COMMIT")
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+        return int(cur.lastrowid)
+
+    def correction(self, calibration_id: int) -> dict[str, Any] | None:
+        """The correction in force for a calibration, or None."""
+        with self._lock:
+            cur = self._db.execute(
+                "SELECT id, time, offset_mm, scale, masters, created_by FROM master_corrections"
+                " WHERE calibration_id = ? ORDER BY id DESC LIMIT 1", (calibration_id,))
+            row = cur.fetchone()
+        if row is None:
+            return None
+        return {"id": row[0], "time": row[1], "offset_mm": row[2], "scale": row[3],
+                "masters": json.loads(row[4]), "created_by": row[5]}
+
+    def add_master_check(self, calibration_id: int | None, certified_mm: float,
+                         measured_mm: float, error_mm: float, limit_mm: float, passed: bool,
+                         by: str) -> None:
+        """Record a master check."""
+        with self._lock:
+            self._db.execute(
+                "INSERT INTO master_checks (time, calibration_id, certified_mm, measured_mm, "
+                "error_mm, limit_mm, passed, created_by) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (time.time(), calibration_id, certified_mm, measured_mm, error_mm, limit_mm,
+                 int(passed), by))
+
+    def last_master_check(self) -> dict[str, Any] | None:
+        """The newest master check, or None."""
+        with self._lock:
+            cur = self._db.execute("SELECT time, calibration_id, certified_mm, measured_mm, "
+                                   "error_mm, limit_mm, passed, created_by FROM master_checks "
+                                   "ORDER BY id DESC LIMIT 1")
+            cols = [c[0] for c in cur.description]
+            row = cur.fetchone()
+        if row is None:
+            return None
+        d = dict(zip(cols, row, strict=True))
+        d["passed"] = bool(d["passed"])
+        return d
 
     def activate(self, calibration_id: int, by: str) -> None:
         """Make a version the active one (atomic; audited).

@@ -220,6 +220,10 @@ class CompensationController:
     settings: CompensationSettings = field(default_factory=CompensationSettings)
     persisted: ControllerState = field(default_factory=ControllerState)
 
+    writes_blocked: str = ""
+    """Set by the service when offsets must not be written (a failed or overdue master check):
+    offsets are then only proposed, with this reason."""
+
     def __post_init__(self) -> None:
         problems = self.settings.problems()
         if problems:
@@ -361,8 +365,9 @@ class CompensationController:
                 now, **kw)
         note = "" if abs(step - wanted) < 1e-12 else \
             f" (clipped from {wanted * 1000:+.2f} um)"
-        if s.shadow:
-            return self._decision(Kind.PROPOSED, f"shadow mode: offset {step * 1000:+.2f} um "
+        if s.shadow or self.writes_blocked:
+            why = "shadow mode" if s.shadow else f"writes blocked ({self.writes_blocked})"
+            return self._decision(Kind.PROPOSED, f"{why}: offset {step * 1000:+.2f} um "
                                   f"proposed, not written{note}", now, offset_mm=step,
                                   after_mm=cum + step, **kw)
         self.persisted.offset_seq += 1

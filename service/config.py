@@ -127,6 +127,10 @@ class MeasurementSettings(_Section):
     track_axis: bool = True
     max_age_s: float = Field(5.0, gt=0)
     """A measurement older than this no longer counts as current (status, Modbus)."""
+    master_interval_h: float | None = Field(None, gt=0)
+    """A master check is due this often; when overdue (or failed) no offset is written."""
+    master_limit_mm: float = Field(0.003, gt=0)
+    """A master check passes when the corrected master reads within this of its certificate."""
 
 
 class TemperatureSettings(_Section):

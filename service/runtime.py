@@ -38,6 +38,7 @@ from drivers.plc.registers import (
     units_to_mm,
 )
 from drivers.plc.server import GaugeModbusServer, run_heartbeat
+from service.calibrate.master import DiameterCorrection
 from service.compensation import (
     CompensationController,
     CompensationSettings,
@@ -67,7 +68,8 @@ class MeasurementRecord:
     frame_id: int
     method: str
     status: str
-    diameter_mm: float | None
+    diameter_mm: float | None   # after the master correction
+    raw_diameter_mm: float | None
     uncertainty_mm: float | None
     diameter_20c_mm: float | None
     fused_diameter_mm: float | None
@@ -168,6 +170,7 @@ class Gauge:
         self.subscribers = Subscribers()
         self.decisions = Subscribers()
         self.calibration: tuple[CalibrationInfo, Calibration] | None = None
+        self.correction: DiameterCorrection | None = None
         self.geometry: RigGeometry | None = None
         self.tracker: AxisTracker | None = None
         self._window: collections.deque[Measurement] = collections.deque(
@@ -205,6 +208,9 @@ class Gauge:
         geometry = calibration.to_geometry()
         self.calibration = (info, calibration)
         self.geometry = geometry
+        corr = self.store.correction(info.id) if self.store is not None else None
+        self.correction = None if corr is None else DiameterCorrection(
+            corr["offset_mm"], corr["scale"], corr["time"])
         c0 = axis_center(geometry)
         self.tracker = (AxisTracker(c0, self.settings.measurement.axis_sigma_mm)
                         if c0 is not None and self.settings.measurement.track_axis else None)
@@ -306,6 +312,11 @@ class Gauge:
                 log.exception("publishing error")
 
     def _publish(self, frame: Frame, m: Measurement) -> None:
+        raw_diameter = m.diameter_mm
+        if m and self.correction is not None:
+            m = replace(m, diameter_mm=self.correction.apply(m.diameter_mm),
+                        uncertainty_mm=None if m.uncertainty_mm is None
+                        else m.uncertainty_mm * abs(self.correction.scale))
         self._seq += 1
         now_ns = time.monotonic_ns()
         self.counters["measured"] += 1
@@ -327,6 +338,7 @@ class Gauge:
         record = MeasurementRecord(
             seq=self._seq, time=time.time(), frame_id=frame.frame_id, method=m.method.value,
             status=m.status.value, diameter_mm=m.diameter_mm if m else None,
+            raw_diameter_mm=raw_diameter if m else None,
             uncertainty_mm=m.uncertainty_mm if m else None, diameter_20c_mm=d20,
             fused_diameter_mm=fused.diameter_mm if fused else None,
             fused_uncertainty_mm=fused.uncertainty_mm if fused else None,
@@ -455,6 +467,8 @@ class Gauge:
         state = self.channel.controller.state
         if state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
             out.append(f"compensation {state.value}")
+        if self.channel.controller.writes_blocked:
+            out.append(f"offsets blocked: {self.channel.controller.writes_blocked}")
         return out
 
     def rate_hz(self, window_s: float = 10.0) -> float:
@@ -473,9 +487,27 @@ class Gauge:
         return {"median_ms": statistics.median(lat),
                 "p99_ms": float(np.percentile(lat, 99))}
 
+    def master_status(self) -> dict[str, Any]:
+        """Correction in force, last master check, whether one is due, and whether offsets
+        are blocked because of it."""
+        last = self.store.last_master_check() if self.store is not None else None
+        interval = self.settings.measurement.master_interval_h
+        overdue = bool(interval is not None and (
+            last is None or time.time() - last["time"] > interval * 3600.0))
+        blocking = ""
+        if last is not None and not last["passed"]:
+            blocking = (f"the last master check failed ({last['error_mm'] * 1000:+.1f} um, "
+                        f"limit {last['limit_mm'] * 1000:.1f} um)")
+        elif overdue:
+            blocking = f"a master check is overdue (every {interval:g} h)"
+        corr = None if self.correction is None else asdict(self.correction)
+        return {"correction": corr, "last_check": last, "overdue": overdue,
+                "blocking": blocking or None}
+
     async def _refresh_registers(self) -> None:
         while True:
             await asyncio.sleep(0.2)
+            self.channel.controller.writes_blocked = self.master_status()["blocking"] or ""
             self._set_status_registers()
 
     def _set_status_registers(self) -> None:
@@ -517,6 +549,8 @@ class Gauge:
             status |= StatusBit.CALIBRATED
         else:
             faults |= FaultBit.NO_CALIBRATION
+        if c.writes_blocked:
+            faults |= FaultBit.MASTER_CHECK_DUE
         age_ms = 65535 if age is None else min(65535, int(age * 1000))
         self.bank.set_many({"status": int(status), "faults": int(faults),
                             "measurement_age": age_ms})
@@ -568,6 +602,7 @@ class Gauge:
                              "cumulative_offset_mm": c.cumulative_mm,
                              "offset_seq": c.persisted.offset_seq,
                              "pending_seq": c.persisted.pending_seq},
+            "master": self.master_status(),
             "temperature": {"part_temp_c": self.part_temp_c,
                             "alpha_per_k": self.settings.temperature.alpha_per_k},
         }

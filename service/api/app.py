@@ -13,7 +13,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
-from service.api import calibrations, compensation, measurements
+from service.api import calibrations, compensation, master, measurements
 from service.api.auth import reader
 from service.runtime import Gauge
 
@@ -89,6 +89,7 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     api.include_router(measurements.router(gauge))
     api.include_router(calibrations.router(gauge))
     api.include_router(compensation.router(gauge))
+    api.include_router(master.router(gauge))
 
     @api.get("/status", tags=["system"], summary="Camera, PLC, pipeline, calibration, "
              "compensation")

@@ -126,6 +126,15 @@ def test_shadow_mode_proposes_and_never_writes() -> None:
     assert c.state is State.ACTIVE and c.cumulative_mm == 0
 
 
+def test_blocked_writes_are_only_proposed() -> None:
+    c = CompensationController(LIVE)
+    c.writes_blocked = "master check failed"
+    d = feed(c, [30.008] * 3)[-1]
+    assert d.kind is Kind.PROPOSED and "master check failed" in d.reason
+    c.writes_blocked = ""
+    assert feed(c, [30.008] * 3, start_seq=5, t0=200)[-1].kind is Kind.WRITE
+
+
 def test_unknown_outcome_blocks_until_reconciled_and_is_never_resent() -> None:
     c = CompensationController(LIVE)
     w = feed(c, [30.008] * 3)[-1]

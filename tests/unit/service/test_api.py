@@ -26,6 +26,11 @@ WRITES = [
     ("post", "/api/v1/calibrations", {"document": DOC, "note": "test"},
      {"document": DOC, "note": "x", "surprise": 1}, "technician"),
     ("post", "/api/v1/calibrations/1/activate", None, None, "technician"),
+    ("post", "/api/v1/master/measure", {"certified_mm": 30.0, "frames": 3},
+     {"certified_mm": "30", "frames": 3}, "technician"),
+    ("post", "/api/v1/master/correction", {"masters": [{"certified_mm": 30.0,
+                                                        "measured_mm": 29.999}]},
+     {"masters": []}, "technician"),
 ]
 LOWER = {"technician": OPERATOR, "admin": TECHNICIAN}
 KEY_OF = {"technician": TECHNICIAN, "admin": ADMIN}
@@ -147,3 +152,30 @@ def test_reading_needs_a_key_when_reading_is_not_open(tmp_path) -> None:
         assert c.get("/api/v1/status").status_code == 401
         assert c.get("/api/v1/status", headers={H: OPERATOR}).status_code == 200
         assert c.get("/healthz").status_code == 200
+
+
+def test_master_correction_and_a_failed_check_block_offsets(client) -> None:
+    before = client.get("/api/v1/measurements/latest").json()
+    r = client.post("/api/v1/master/correction", headers={H: TECHNICIAN},
+                    json={"masters": [{"certified_mm": 30.0, "measured_mm": 29.9}]})
+    assert r.status_code == 200 and abs(r.json()["correction"]["offset_mm"] - 0.1) < 1e-9
+    import time
+
+    time.sleep(0.5)
+    after = client.get("/api/v1/measurements/latest").json()
+    assert after["seq"] > before["seq"]
+    assert abs(after["diameter_mm"] - after["raw_diameter_mm"] - 0.1) < 1e-9
+    # the correction is now wrong by 0.1 mm: a master check fails, and offsets are blocked
+    r = client.post("/api/v1/master/measure", headers={H: TECHNICIAN},
+                    json={"certified_mm": 30.0, "frames": 5})
+    assert r.status_code == 200 and r.json()["check"]["passed"] is False
+    status = client.get("/api/v1/master").json()
+    assert status["blocking"] and "failed" in status["blocking"]
+    time.sleep(0.5)
+    assert any("offsets blocked" in p for p in client.get("/api/v1/status").json()["problems"])
+    assert client.gauge.channel.controller.writes_blocked
+    # two masters of equal size cannot give a scale
+    bad = client.post("/api/v1/master/correction", headers={H: TECHNICIAN},
+                      json={"masters": [{"certified_mm": 30.0, "measured_mm": 30.0},
+                                        {"certified_mm": 30.5, "measured_mm": 30.5}]})
+    assert bad.status_code == 422 and "differ" in bad.json()["detail"]

@@ -1,0 +1,92 @@
+"""Mastering: measure a master cylinder from the live camera, check it, set the correction."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import asdict
+
+from fastapi import APIRouter, Depends, HTTPException
+from pydantic import Field
+
+from service.api.auth import requires
+from service.api.models import _Strict
+from service.calibrate.master import DiameterCorrection, check_master, correction_from_masters
+from service.measure.fuse import fuse
+from service.measure.result import Measurement, Method, Status
+from service.runtime import Gauge
+
+
+class MasterMeasureIn(_Strict):
+    """Measure the master now in the lathe."""
+
+    certified_mm: float = Field(gt=0, le=1000)
+    frames: int = Field(10, ge=3, le=500)
+    timeout_s: float = Field(30.0, gt=0, le=600)
+
+
+class MasterPoint(_Strict):
+    """A master's certificate and its raw (uncorrected) measurement."""
+
+    certified_mm: float = Field(gt=0, le=1000)
+    measured_mm: float = Field(gt=0, le=1000)
+
+
+class CorrectionIn(_Strict):
+    """One master (offset) or two (offset and scale)."""
+
+    masters: list[MasterPoint] = Field(min_length=1, max_length=2)
+
+
+def router(gauge: Gauge) -> APIRouter:
+    r = APIRouter(tags=["master"])
+    technician = Depends(requires(gauge.settings.api, "technician"))
+
+    @r.get("/master", summary="Correction in force, last master check, due or not")
+    def master() -> dict:
+        return gauge.master_status()
+
+    @r.post("/master/measure", summary="Measure the master in the lathe and record a check")
+    async def measure(body: MasterMeasureIn, role: str = technician) -> dict:
+        if gauge.calibration is None or gauge.store is None:
+            raise HTTPException(409, "no active calibration: activate one first")
+        q = gauge.subscribers.add()
+        raw, corrected = [], []
+        try:
+            async with asyncio.timeout(body.timeout_s):
+                while len(raw) < body.frames:
+                    rec = await q.get()
+                    if rec.status == "ok":
+                        raw.append(Measurement(Status.OK, Method(rec.method),
+                                               rec.raw_diameter_mm, uncertainty_mm=None))
+                        corrected.append(Measurement(Status.OK, Method(rec.method),
+                                                     rec.diameter_mm, uncertainty_mm=None))
+        except TimeoutError:
+            raise HTTPException(504, f"only {len(raw)} good frames in {body.timeout_s:g} s: "
+                                "is the master in view and the camera streaming?") from None
+        finally:
+            gauge.subscribers.remove(q)
+        f_raw, f_cor = fuse(raw), fuse(corrected)
+        check = check_master(body.certified_mm, f_cor.diameter_mm,
+                             gauge.settings.measurement.master_limit_mm)
+        gauge.store.add_master_check(gauge.calibration[0].id, check.certified_mm,
+                                     check.measured_mm, check.error_mm, check.limit_mm,
+                                     check.passed, by=role)
+        return {"certified_mm": body.certified_mm, "raw_mm": f_raw.diameter_mm,
+                "corrected_mm": f_cor.diameter_mm, "uncertainty_mm": f_cor.uncertainty_mm,
+                "frames": f_cor.n_used, "check": asdict(check)}
+
+    @r.post("/master/correction", summary="Set the diameter correction from masters")
+    def correction(body: CorrectionIn, role: str = technician) -> dict:
+        if gauge.calibration is None or gauge.store is None:
+            raise HTTPException(409, "no active calibration: activate one first")
+        try:
+            corr = correction_from_masters([(m.certified_mm, m.measured_mm)
+                                            for m in body.masters])
+        except ValueError as err:
+            raise HTTPException(422, str(err)) from None
+        gauge.store.add_correction(gauge.calibration[0].id, corr.offset_mm, corr.scale,
+                                   [m.model_dump() for m in body.masters], by=role)
+        gauge.correction = DiameterCorrection(corr.offset_mm, corr.scale, corr.created)
+        return gauge.master_status()
+
+    return r
