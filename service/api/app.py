@@ -13,7 +13,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
-from service.api import calibrations, compensation, master, measurements
+from service.api import calibrations, compensation, master, measurements, sessions
 from service.api.auth import reader
 from service.runtime import Gauge
 
@@ -90,6 +90,7 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     api.include_router(calibrations.router(gauge))
     api.include_router(compensation.router(gauge))
     api.include_router(master.router(gauge))
+    api.include_router(sessions.router(gauge))
 
     @api.get("/status", tags=["system"], summary="Camera, PLC, pipeline, calibration, "
              "compensation")

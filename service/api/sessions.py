@@ -1,0 +1,199 @@
+"""Calibration sessions at the machine: collect images (upload or capture from the live
+camera), run each step in the background with its progress, review the report, activate."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from fastapi import APIRouter, Depends, HTTPException, Request
+from pydantic import Field
+
+from calib_store.model import Calibration
+from service.api.auth import requires
+from service.api.models import _Strict
+from service.calibrate import commands
+from service.runtime import Gauge
+
+Kind = Literal["view", "plane_off", "plane_on", "axis"]
+Step = Literal["intrinsics", "plane", "axis", "build"]
+MAX_IMAGE_BYTES = 32 * 1024 * 1024
+
+
+class SessionIn(_Strict):
+    """A new session."""
+
+    board: str = Field("11x8x8", description="COLSxROWSxMM: inner corners and square size")
+    note: str = Field("", max_length=2000)
+
+
+class ActivateIn(_Strict):
+    """Import the built calibration and measure with it."""
+
+    note: str = Field("", max_length=2000)
+
+
+@dataclass
+class Session:
+    """One calibration session's images and results."""
+
+    id: str
+    board: str
+    note: str
+    by: str
+    dir: Path
+    created: float = field(default_factory=time.time)
+    images: dict[str, list[str]] = field(default_factory=lambda: {
+        "view": [], "plane_off": [], "plane_on": [], "axis": []})
+    results: dict[str, Any] = field(default_factory=dict)
+    progress: dict[str, Any] = field(default_factory=lambda: {"step": None, "state": "idle",
+                                                              "message": ""})
+    calibration: Calibration | None = None
+    report: dict[str, Any] | None = None
+    activated_id: int | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready view."""
+        return {"id": self.id, "board": self.board, "note": self.note, "by": self.by,
+                "created": self.created,
+                "images": {k: len(v) for k, v in self.images.items()},
+                "results": self.results, "progress": self.progress, "report": self.report,
+                "built": self.calibration is not None, "activated_id": self.activated_id}
+
+
+def router(gauge: Gauge) -> APIRouter:
+    r = APIRouter(tags=["calibration sessions"])
+    technician = Depends(requires(gauge.settings.api, "technician"))
+    sessions: dict[str, Session] = {}
+    root = gauge.settings.store.path.parent / "calibration-sessions"
+    tasks: set[asyncio.Task] = set()
+
+    def find(sid: str) -> Session:
+        if sid not in sessions:
+            raise HTTPException(404, f"no calibration session {sid}")
+        return sessions[sid]
+
+    def save(s: Session, kind: Kind, image: np.ndarray) -> dict[str, Any]:
+        h, w = image.shape[:2]
+        path = s.dir / f"{kind}_{len(s.images[kind]):03d}.png"
+        if not cv2.imwrite(str(path), image):
+            raise HTTPException(500, "could not store the image")
+        s.images[kind].append(str(path))
+        return {"kind": kind, "index": len(s.images[kind]) - 1, "size": [w, h],
+                **s.as_dict()}
+
+    @r.post("/calibration-sessions", status_code=201, summary="Start a calibration session")
+    def start(body: SessionIn, role: str = technician) -> dict:
+        try:
+            commands.parse_board(body.board)
+        except commands.StepError as err:
+            raise HTTPException(422, str(err)) from None
+        sid = uuid.uuid4().hex[:12]
+        d = root / sid
+        d.mkdir(parents=True, exist_ok=True)
+        sessions[sid] = Session(sid, body.board, body.note, role, d)
+        return sessions[sid].as_dict()
+
+    @r.get("/calibration-sessions/{sid}", summary="A session: images, progress, results")
+    def get(sid: str) -> dict:
+        return find(sid).as_dict()
+
+    @r.post("/calibration-sessions/{sid}/images/{kind}", status_code=201,
+            summary="Upload one image (PNG body)")
+    async def upload(sid: str, kind: Kind, request: Request, _: str = technician) -> dict:
+        s = find(sid)
+        data = await request.body()
+        if not data or len(data) > MAX_IMAGE_BYTES:
+            raise HTTPException(422, "send one PNG image (at most 32 MiB) as the request body")
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise HTTPException(422, "the body is not an image this service can read")
+        if image.ndim == 3:
+            image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        return save(s, kind, image)
+
+    @r.post("/calibration-sessions/{sid}/capture/{kind}", status_code=201,
+            summary="Capture the camera's latest frame")
+    def capture(sid: str, kind: Kind, _: str = technician) -> dict:
+        s = find(sid)
+        frame = gauge.latest_frame
+        if frame is None:
+            raise HTTPException(409, "no frame from the camera yet: " +
+                                "; ".join(gauge.problems()))
+        return save(s, kind, frame.image)
+
+    def run_step(s: Session, step: Step) -> dict[str, Any]:
+        d, board = s.dir, commands.parse_board(s.board)
+        if step == "intrinsics":
+            result, _ = commands.intrinsics_step(s.images["view"], board)
+        elif step == "plane":
+            pairs = [p for pair in zip(s.images["plane_off"], s.images["plane_on"],
+                                       strict=False) for p in pair]
+            if len(s.images["plane_off"]) != len(s.images["plane_on"]):
+                raise commands.StepError("plane images come in pairs: as many laser-on as "
+                                         "laser-off images")
+            result, _ = commands.plane_step(str(d / "intrinsics.json"), pairs)
+        elif step == "axis":
+            plane = d / "plane.json"
+            result, _ = commands.axis_step(str(d / "intrinsics.json"),
+                                           str(plane) if plane.exists() else None,
+                                           s.images["axis"])
+        else:
+            cal, report = commands.build_step(str(d / "intrinsics.json"), str(d / "plane.json"),
+                                              str(d / "axis.json"))
+            s.calibration, s.report = cal, report.as_dict()
+            return {"step": "build", "ok": cal is not None, "verdict": report.verdict,
+                    "reason": "; ".join(report.reasons)}
+        commands._write(str(d / f"{step}.json"), result)
+        return result
+
+    async def background(s: Session, step: Step) -> None:
+        s.progress = {"step": step, "state": "running", "message": f"{step}: working",
+                      "started": time.time()}
+        try:
+            result = await asyncio.to_thread(run_step, s, step)
+            s.results[step] = {k: v for k, v in result.items() if k != "report"}
+            ok = result.get("ok", False)
+            s.progress = {"step": step, "state": "done" if ok else "failed",
+                          "message": result.get("reason") or f"{step}: done",
+                          "finished": time.time()}
+        except commands.StepError as err:
+            s.progress = {"step": step, "state": "failed", "message": str(err)}
+        except Exception as err:  # a bug must show in the session, not kill the service
+            s.progress = {"step": step, "state": "failed", "message": f"internal error: {err}"}
+
+    @r.post("/calibration-sessions/{sid}/run/{step}", status_code=202,
+            summary="Run one step in the background (poll the session for progress)")
+    async def run(sid: str, step: Step, _: str = technician) -> dict:
+        s = find(sid)
+        if s.progress["state"] == "running":
+            raise HTTPException(409, f"{s.progress['step']} is still running")
+        task = asyncio.get_running_loop().create_task(background(s, step))
+        tasks.add(task)
+        task.add_done_callback(tasks.discard)
+        await asyncio.sleep(0)
+        return s.as_dict()
+
+    @r.post("/calibration-sessions/{sid}/activate", summary="Import and activate the result")
+    def activate(sid: str, body: ActivateIn, role: str = technician) -> dict:
+        s = find(sid)
+        if s.calibration is None:
+            verdict = (s.report or {}).get("verdict")
+            raise HTTPException(409, "nothing to activate: " + (
+                "the calibration was refused" if verdict == "refused" else "run build first"))
+        if gauge.store is None:
+            raise HTTPException(503, f"the calibration store cannot be used: "
+                                f"{gauge.store_error}")
+        cid = gauge.store.add(s.calibration, by=role, note=body.note or s.note,
+                              quality=s.report, activate=True)
+        gauge.set_calibration(*gauge.store.get(cid))
+        s.activated_id = cid
+        return s.as_dict()
+
+    return r

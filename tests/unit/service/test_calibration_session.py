@@ -1,0 +1,86 @@
+"""A calibration session through the API, from uploaded images to an active calibration."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+
+import pytest
+
+from tests.integration.conftest import SHAFTGAUGE
+from tests.unit.service.conftest import OPERATOR, TECHNICIAN
+
+H = {"X-API-Key": TECHNICIAN}
+
+
+@pytest.fixture(scope="module")
+def images(tmp_path_factory):
+    out = tmp_path_factory.mktemp("set")
+    r = subprocess.run([SHAFTGAUGE, "calibrate", "render", "--output", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def wait_done(client, sid, step, timeout_s=120):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        s = client.get(f"/api/v1/calibration-sessions/{sid}").json()
+        if s["progress"]["step"] == step and s["progress"]["state"] in ("done", "failed"):
+            return s
+        time.sleep(0.2)
+    raise AssertionError(f"{step} did not finish")
+
+
+def upload(client, sid, kind, path):
+    r = client.post(f"/api/v1/calibration-sessions/{sid}/images/{kind}", headers=H,
+                    content=path.read_bytes())
+    assert r.status_code == 201, r.text
+
+
+def test_session_from_upload_to_activation(client, images) -> None:
+    r = client.post("/api/v1/calibration-sessions", headers=H, json={"note": "monday"})
+    assert r.status_code == 201
+    sid = r.json()["id"]
+    for p in sorted((images / "views").glob("*.png")):
+        upload(client, sid, "view", p)
+    for i in range(4):
+        upload(client, sid, "plane_off", images / "plane" / f"pose{i}_off.png")
+        upload(client, sid, "plane_on", images / "plane" / f"pose{i}_on.png")
+    for p in sorted((images / "axis").glob("*.png")):
+        upload(client, sid, "axis", p)
+    for step in ("intrinsics", "plane", "axis", "build"):
+        assert client.post(f"/api/v1/calibration-sessions/{sid}/run/{step}",
+                           headers=H).status_code == 202
+        s = wait_done(client, sid, step)
+        assert s["progress"]["state"] == "done", s["progress"]
+    assert s["report"]["verdict"] in ("good", "marginal")
+    r = client.post(f"/api/v1/calibration-sessions/{sid}/activate", headers=H,
+                    json={"note": "from the session"})
+    assert r.status_code == 200
+    cid = r.json()["activated_id"]
+    cal = client.get(f"/api/v1/calibrations/{cid}").json()
+    assert cal["active"] and cal["quality"]["verdict"] == s["report"]["verdict"]
+
+
+def test_bad_sessions_are_refused(client, images) -> None:
+    sid = client.post("/api/v1/calibration-sessions", headers=H, json={}).json()["id"]
+    assert client.post("/api/v1/calibration-sessions", headers=H,
+                       json={"board": "banana"}).status_code == 422
+    r = client.post(f"/api/v1/calibration-sessions/{sid}/images/view", headers=H,
+                    content=b"not a picture")
+    assert r.status_code == 422 and "image" in r.json()["detail"]
+    assert client.post(f"/api/v1/calibration-sessions/{sid}/images/colour", headers=H,
+                       content=b"x").status_code == 422
+    for p in sorted((images / "views").glob("*.png"))[:2]:
+        upload(client, sid, "view", p)
+    client.post(f"/api/v1/calibration-sessions/{sid}/run/intrinsics", headers=H)
+    s = wait_done(client, sid, "intrinsics")
+    assert s["progress"]["state"] == "failed" and "need 6" in s["progress"]["message"]
+    r = client.post(f"/api/v1/calibration-sessions/{sid}/activate", headers=H, json={})
+    assert r.status_code == 409 and "build" in r.json()["detail"]
+    assert client.post(f"/api/v1/calibration-sessions/{sid}/capture/view",
+                       headers={"X-API-Key": OPERATOR}).status_code == 403
+    r = client.post(f"/api/v1/calibration-sessions/{sid}/capture/view", headers=H)
+    assert r.status_code == 201 and r.json()["images"]["view"] == 3  # the live frame
+    assert client.get("/api/v1/calibration-sessions/nope").status_code == 404
