@@ -13,10 +13,18 @@ import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from calib_store.model import format_validation_error
+from service.compensation import CompensationSettings
 from service.measure.result import Method
 
 
@@ -140,26 +148,9 @@ class TemperatureSettings(_Section):
     alpha_per_k: float = Field(11.5e-6, ge=0, lt=1e-3)
 
 
-class CompensationConfig(_Section):
-    """Tool-wear compensation (see ``service.compensation.CompensationSettings``)."""
-
-    nominal_mm: float | None = Field(None, gt=0)
-    tol_upper_mm: float = 0.02
-    tol_lower_mm: float = -0.02
-    window: int = 5
-    filter: Literal["median", "mean"] = "median"
-    deadband_mm: float = 0.003
-    gain: float = 0.7
-    max_step_mm: float = 0.010
-    max_total_mm: float = 0.200
-    dead_time_measurements: int = 5
-    dead_time_s: float = 2.0
-    safe_area_mm: float = 0.5
-    max_uncertainty_fraction: float = 0.25
-    max_age_s: float = 10.0
-    programming: Literal["diameter", "radius"] = "diameter"
-    offset_sign: Literal[1, -1] = 1
-    shadow: bool = True
+# The compensation settings are the controller's own dataclass, validated here at the edge
+# (types, and no unknown keys); their consistency is checked by the controller when it starts.
+CompensationSettings.__pydantic_config__ = ConfigDict(extra="forbid")  # type: ignore[attr-defined]
 
 
 class Settings(BaseSettings):
@@ -175,8 +166,15 @@ class Settings(BaseSettings):
     store: StoreSettings = StoreSettings()
     measurement: MeasurementSettings = MeasurementSettings()
     temperature: TemperatureSettings = TemperatureSettings()
-    compensation: CompensationConfig = CompensationConfig()
+    compensation: CompensationSettings = CompensationSettings()
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    @model_validator(mode="after")
+    def _compensation_consistent(self) -> Settings:
+        problems = self.compensation.problems()
+        if problems:
+            raise ValueError("compensation: " + "; ".join(problems))
+        return self
 
     @classmethod
     def settings_customise_sources(

@@ -118,10 +118,6 @@ class Subscribers:
         return len(self._queues)
 
 
-def _controller_settings(cfg: Settings) -> CompensationSettings:
-    return CompensationSettings(**cfg.compensation.model_dump())
-
-
 class Gauge:
     """The whole measuring system in one process.
 
@@ -154,7 +150,7 @@ class Gauge:
         self.modbus = GaugeModbusServer(self.bank, settings.modbus.host, settings.modbus.port,
                                         settings.modbus.unit_id, on_write=self._on_register_write)
         state = comp_log.load_state() if comp_log else None
-        controller = CompensationController(_controller_settings(settings), state or
+        controller = CompensationController(settings.compensation, state or
                                             CompensationController().persisted)
         self.channel = OffsetChannel(controller, writer, comp_log, on_decision=self._on_decision)
         self.params = MeasureParams(stripe=StripeParams(

@@ -15,22 +15,19 @@ import contextlib
 import logging
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from drivers.camera.base import (
-    Camera,
     CameraConfig,
-    CameraCounters,
     CameraError,
     CameraState,
-    CameraStatus,
     DeviceInfo,
     Frame,
+    ThreadedCamera,
 )
-from drivers.camera.queue import DropOldestQueue
 
 log = logging.getLogger("shaftgauge.camera")
 
@@ -107,7 +104,7 @@ _STREAM_INFOS = {
 }
 
 
-class AravisCamera(Camera):
+class AravisCamera(ThreadedCamera):
     """A GigE Vision camera through Aravis.
 
     Parameters
@@ -120,49 +117,10 @@ class AravisCamera(Camera):
     """
 
     def __init__(self, device_id: str, config: CameraConfig | None = None) -> None:
-        self.device_id = device_id
-        self.config = config or CameraConfig()
-        self._queue: DropOldestQueue[Frame] = DropOldestQueue(self.config.queue_size)
-        self._lock = threading.Lock()          # status fields
+        super().__init__(device_id, config or CameraConfig())
         self._cam_lock = threading.Lock()      # control-channel calls from two threads
-        self._state = CameraState.STOPPED
-        self._message = "not started"
-        self._counters = CameraCounters()
         self._stream_base = dict.fromkeys(_STREAM_INFOS, 0)
-        self._last_frame_ns: int | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._session: _Session | None = None
-
-    # ---- public interface --------------------------------------------------------------
-
-    def start(self) -> None:
-        if self._thread and self._thread.is_alive():
-            return
-        self._stop.clear()
-        self._queue.reopen()
-        self._thread = threading.Thread(target=self._run, name=f"camera:{self.device_id}",
-                                        daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread:
-            self._thread.join(timeout=15.0)
-            if self._thread.is_alive():  # pragma: no cover - Aravis hung in a call
-                log.error("camera thread of %s did not end within 15 s", self.device_id)
-        self._thread = None
-        self._queue.close()
-        self._set_state(CameraState.STOPPED, "stopped")
-
-    def get_frame(self, timeout_s: float | None = None) -> Frame | None:
-        return self._queue.get(timeout_s)
-
-    def status(self) -> CameraStatus:
-        with self._lock:
-            counters = replace(self._counters, dropped=self._queue.dropped)
-            return CameraStatus(self.device_id, self._state, self._message, counters,
-                                self._last_frame_ns)
 
     def software_trigger(self) -> None:
         with self._cam_lock:
@@ -176,13 +134,6 @@ class AravisCamera(Camera):
                                   f"{err.message}") from None
 
     # ---- the acquisition thread ----------------------------------------------------------
-
-    def _set_state(self, state: CameraState, message: str) -> None:
-        with self._lock:
-            changed = state != self._state or message != self._message
-            self._state, self._message = state, message
-        if changed:
-            log.info("camera %s: %s (%s)", self.device_id, state.value, message)
 
     def _run(self) -> None:
         backoff = self.config.reconnect_initial_s
@@ -327,10 +278,7 @@ class AravisCamera(Camera):
             if frame is None:
                 continue
             last_ok = time.monotonic()
-            self._queue.put(frame)
-            with self._lock:
-                self._counters.completed += 1
-                self._last_frame_ns = frame.received_ns
+            self._deliver(frame)
         return ""
 
     def _answers(self, session: _Session) -> bool:

@@ -4,9 +4,15 @@ from __future__ import annotations
 
 import abc
 import enum
-from dataclasses import dataclass, field
+import logging
+import threading
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from drivers.camera.queue import DropOldestQueue
+
+log = logging.getLogger("shaftgauge.camera")
 
 PIXEL_FORMATS = ("Mono8", "Mono12", "Mono16")
 TRIGGER_MODES = ("free_run", "software", "hardware")
@@ -181,3 +187,70 @@ class Camera(abc.ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+class ThreadedCamera(Camera):
+    """A camera with its own acquisition thread (``_run``), a drop-oldest frame queue and a
+    status shared under a lock: the bookkeeping every implementation needs."""
+
+    def __init__(self, device_id: str, config: CameraConfig) -> None:
+        self.device_id = device_id
+        self.config = config
+        self._queue: DropOldestQueue[Frame] = DropOldestQueue(config.queue_size)
+        self._lock = threading.Lock()  # status fields
+        self._state = CameraState.STOPPED
+        self._message = "not started"
+        self._counters = CameraCounters()
+        self._last_frame_ns: int | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @abc.abstractmethod
+    def _run(self) -> None:
+        """The acquisition loop; returns when ``self._stop`` is set."""
+
+    def start(self) -> None:
+        if self._thread and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._queue.reopen()
+        self._thread = threading.Thread(target=self._run, name=f"camera:{self.device_id}",
+                                        daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake()
+        if self._thread:
+            self._thread.join(timeout=15.0)
+            if self._thread.is_alive():  # pragma: no cover - a driver hung in a call
+                log.error("camera thread of %s did not end within 15 s", self.device_id)
+        self._thread = None
+        self._queue.close()
+        self._set_state(CameraState.STOPPED, "stopped")
+
+    def _wake(self) -> None:
+        """Wake the acquisition thread if it waits on something besides ``_stop``."""
+
+    def get_frame(self, timeout_s: float | None = None) -> Frame | None:
+        return self._queue.get(timeout_s)
+
+    def status(self) -> CameraStatus:
+        with self._lock:
+            counters = replace(self._counters, dropped=self._queue.dropped)
+            return CameraStatus(self.device_id, self._state, self._message, counters,
+                                self._last_frame_ns)
+
+    def _set_state(self, state: CameraState, message: str) -> None:
+        with self._lock:
+            changed = state != self._state or message != self._message
+            self._state, self._message = state, message
+        if changed:
+            log.info("camera %s: %s (%s)", self.device_id, state.value, message)
+
+    def _deliver(self, frame: Frame) -> None:
+        """Hand a complete frame to the consumer (never blocks) and count it."""
+        self._queue.put(frame)
+        with self._lock:
+            self._counters.completed += 1
+            self._last_frame_ns = frame.received_ns

@@ -13,67 +13,31 @@ import time
 import numpy as np
 
 from drivers.camera.base import (
-    Camera,
     CameraConfig,
-    CameraCounters,
     CameraError,
     CameraState,
-    CameraStatus,
     Frame,
+    ThreadedCamera,
 )
-from drivers.camera.queue import DropOldestQueue
 from drivers.sim.rig import RigConfig, ShaftRenderer
 
 
-class RigCamera(Camera):
+class RigCamera(ThreadedCamera):
     """Renders the simulated rig's frames at ``config.frame_rate_hz`` in its own thread."""
 
     def __init__(self, diameter_mm: float = 30.0, config: CameraConfig | None = None,
                  rig: RigConfig | None = None, seed: int = 0,
                  device_id: str = "sim-rig") -> None:
-        self.device_id = device_id
-        self.config = config or CameraConfig(frame_rate_hz=10.0)
+        super().__init__(device_id, config or CameraConfig(frame_rate_hz=10.0))
         self.renderer = ShaftRenderer(rig or RigConfig(), seed=seed)
         self.diameter_mm = diameter_mm
-        self._queue: DropOldestQueue[Frame] = DropOldestQueue(self.config.queue_size)
-        self._lock = threading.Lock()
-        self._counters = CameraCounters()
-        self._state, self._message = CameraState.STOPPED, "not started"
-        self._last_ns: int | None = None
-        self._stop = threading.Event()
         self._trigger = threading.Semaphore(0)
         self._plugged = threading.Event()
         self._plugged.set()
-        self._thread: threading.Thread | None = None
         self._frame_id = 0
 
-    def start(self) -> None:
-        if self._thread and self._thread.is_alive():
-            return
-        self._stop.clear()
-        self._queue.reopen()
-        self._thread = threading.Thread(target=self._run, name=f"camera:{self.device_id}",
-                                        daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
+    def _wake(self) -> None:
         self._trigger.release()
-        if self._thread:
-            self._thread.join(timeout=10)
-        self._thread = None
-        self._queue.close()
-        self._set(CameraState.STOPPED, "stopped")
-
-    def get_frame(self, timeout_s: float | None = None) -> Frame | None:
-        return self._queue.get(timeout_s)
-
-    def status(self) -> CameraStatus:
-        with self._lock:
-            counters = CameraCounters(**{**self._counters.__dict__,
-                                         "dropped": self._queue.dropped})
-            return CameraStatus(self.device_id, self._state, self._message, counters,
-                                self._last_ns)
 
     def software_trigger(self) -> None:
         if self.config.trigger != "software":
@@ -88,23 +52,19 @@ class RigCamera(Camera):
         """Bring the camera back."""
         self._plugged.set()
 
-    def _set(self, state: CameraState, message: str) -> None:
-        with self._lock:
-            self._state, self._message = state, message
-
     def _run(self) -> None:
         period = 1.0 / (self.config.frame_rate_hz or 10.0)
         next_t = time.monotonic()
-        self._set(CameraState.STREAMING, "streaming (simulated rig)")
+        self._set_state(CameraState.STREAMING, "streaming (simulated rig)")
         while not self._stop.is_set():
             if not self._plugged.is_set():
-                self._set(CameraState.LOST, f"camera {self.device_id} lost (unplugged)")
+                self._set_state(CameraState.LOST, f"camera {self.device_id} lost (unplugged)")
                 while not self._plugged.wait(0.05):
                     if self._stop.is_set():
                         return
                 with self._lock:
                     self._counters.reconnects += 1
-                self._set(CameraState.STREAMING, "streaming (simulated rig)")
+                self._set_state(CameraState.STREAMING, "streaming (simulated rig)")
             if self.config.trigger == "software":
                 if not self._trigger.acquire(timeout=0.1) or self._stop.is_set():
                     continue
@@ -118,7 +78,4 @@ class RigCamera(Camera):
                 image = image.astype(np.uint16) * np.uint16(257)
             frame = Frame(image, self._frame_id, time.monotonic_ns(), time.monotonic_ns())
             self._frame_id += 1
-            self._queue.put(frame)
-            with self._lock:
-                self._counters.completed += 1
-                self._last_ns = frame.received_ns
+            self._deliver(frame)

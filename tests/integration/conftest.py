@@ -81,6 +81,16 @@ def sim_camera_factory(tmp_path) -> Iterator:
         cam.stop()
 
 
+def take_frames(camera, n: int, timeout_s: float = 20.0) -> list:
+    """Up to ``n`` frames from a camera within ``timeout_s``."""
+    frames, deadline = [], time.monotonic() + timeout_s
+    while len(frames) < n and time.monotonic() < deadline:
+        f = camera.get_frame(0.5)
+        if f is not None:
+            frames.append(f)
+    return frames
+
+
 def free_port() -> int:
     """A TCP port free on 127.0.0.1 right now."""
     import socket

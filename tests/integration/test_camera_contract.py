@@ -14,6 +14,7 @@ import pytest
 from drivers.camera.aravis import AravisCamera, enable_fake_interface
 from drivers.camera.base import Camera, CameraConfig, CameraState
 from drivers.camera.rig import RigCamera
+from tests.integration.conftest import take_frames
 
 IMPLEMENTATIONS = ["gige-sim", "gige-sim-udp", "aravis-fake", "rig"]
 
@@ -45,19 +46,10 @@ def make_camera(request, sim_camera_factory) -> Iterator:
         cam.stop()
 
 
-def take(cam: Camera, n: int, timeout_s: float = 20.0) -> list:
-    frames, deadline = [], time.monotonic() + timeout_s
-    while len(frames) < n and time.monotonic() < deadline:
-        f = cam.get_frame(0.5)
-        if f is not None:
-            frames.append(f)
-    return frames
-
-
 def test_frames_arrive_complete_and_in_order(make_camera) -> None:
     cam = make_camera()
     cam.start()
-    frames = take(cam, 5)
+    frames = take_frames(cam, 5)
     assert len(frames) == 5, cam.status()
     ids = [f.frame_id for f in frames]
     assert ids == sorted(ids) and len(set(ids)) == 5
@@ -72,7 +64,7 @@ def test_frames_arrive_complete_and_in_order(make_camera) -> None:
 def test_mono16_gives_uint16_frames(make_camera) -> None:
     cam = make_camera(pixel_format="Mono16")
     cam.start()
-    frames = take(cam, 2)
+    frames = take_frames(cam, 2)
     assert len(frames) == 2, cam.status()
     assert all(f.image.dtype == np.uint16 for f in frames)
     assert max(int(f.image.max()) for f in frames) > 255  # really 16-bit data
@@ -81,12 +73,12 @@ def test_mono16_gives_uint16_frames(make_camera) -> None:
 def test_slow_consumer_drops_oldest_and_counts(make_camera) -> None:
     cam = make_camera(queue_size=2)
     cam.start()
-    take(cam, 1)
+    take_frames(cam, 1)
     time.sleep(1.0)  # 20 fps: about 20 frames arrive for a queue of 2
     first = cam.get_frame(1.0)
     st = cam.status()
     assert st.counters.dropped >= 5, st
-    later = take(cam, 1)[0]
+    later = take_frames(cam, 1)[0]
     assert later.frame_id > first.frame_id
 
 
@@ -95,7 +87,7 @@ def test_stop_ends_the_thread_and_restart_works(make_camera) -> None:
     cam = make_camera()
     cam.start()
     cam.start()  # idempotent
-    assert take(cam, 2)
+    assert take_frames(cam, 2)
     cam.stop()
     cam.stop()
     assert cam.status().state is CameraState.STOPPED
@@ -105,7 +97,7 @@ def test_stop_ends_the_thread_and_restart_works(make_camera) -> None:
         pass
     assert cam.get_frame(0.2) is None
     cam.start()
-    assert take(cam, 2)
+    assert take_frames(cam, 2)
 
 
 def test_software_trigger_gives_one_frame_per_trigger(make_camera) -> None:

@@ -17,16 +17,7 @@ from drivers.camera.base import CameraConfig, CameraState
 from drivers.sim.control import control
 from drivers.sim.gige import check_stamp
 from service.measure.diameter import measure_frame
-from tests.integration.conftest import SHAFTGAUGE
-
-
-def take(cam, n, timeout_s=20.0):
-    frames, deadline = [], time.monotonic() + timeout_s
-    while len(frames) < n and time.monotonic() < deadline:
-        f = cam.get_frame(0.5)
-        if f is not None:
-            frames.append(f)
-    return frames
+from tests.integration.conftest import SHAFTGAUGE, take_frames
 
 
 def wait_for(predicate, timeout_s: float, step_s: float = 0.1) -> bool:
@@ -51,7 +42,7 @@ def test_streamed_frames_measure_to_the_simulated_diameter(sim_camera_factory,
                                                    packet_socket=packet_socket))
     cam.start()
     try:
-        frames = take(cam, 4)
+        frames = take_frames(cam, 4)
     finally:
         cam.stop()
     assert len(frames) == 4
@@ -71,13 +62,13 @@ def test_diameter_change_and_drift_reach_the_frames(sim_camera_factory) -> None:
     cam = AravisCamera(sim.device_id, CameraConfig(packet_size=8192))
     cam.start()
     try:
-        before = measure_frame(take(cam, 1)[0].image, geometry)
+        before = measure_frame(take_frames(cam, 1)[0].image, geometry)
         reply = control(sim.control_port, {"set": {"diameter_mm": 40.0}})
         assert reply["ok"] and reply["stats"]["diameter_mm"] == pytest.approx(40.0, abs=1e-6)
         first_new = reply["stats"]["rendered"] + 1  # a frame already rendered may be queued
         frame = None
         while frame is None or check_stamp(frame.image)[0] < first_new:
-            frame = take(cam, 1)[0]
+            frame = take_frames(cam, 1)[0]
         after = measure_frame(frame.image, geometry)
     finally:
         cam.stop()
@@ -98,7 +89,7 @@ def test_camera_killed_and_restarted_reconnects_by_itself(sim_camera_factory) ->
                                                    reconnect_max_s=1.0))
     try:
         cam.start()
-        assert len(take(cam, 3)) == 3
+        assert len(take_frames(cam, 3)) == 3
         sim.kill()
         assert wait_for(lambda: cam.status().state in (CameraState.LOST,
                                                        CameraState.RECONNECTING), 15), \
@@ -108,7 +99,7 @@ def test_camera_killed_and_restarted_reconnects_by_itself(sim_camera_factory) ->
             pass
         sim.start()
         assert wait_for(lambda: cam.status().state is CameraState.STREAMING, 30), cam.status()
-        frames = take(cam, 3)
+        frames = take_frames(cam, 3)
         assert len(frames) == 3
         assert cam.status().counters.reconnects == 1
     finally:
@@ -137,7 +128,7 @@ def test_packet_loss_counts_incomplete_frames_and_never_delivers_them(sim_camera
     cam = AravisCamera(sim.device_id, CameraConfig(packet_size=8192, queue_size=64))
     cam.start()
     try:
-        frames = take(cam, 25, timeout_s=30)
+        frames = take_frames(cam, 25, timeout_s=30)
         st = cam.status()
     finally:
         cam.stop()

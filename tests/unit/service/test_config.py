@@ -31,6 +31,8 @@ def test_file_and_environment(tmp_path, monkeypatch) -> None:
     ("[api]\nkeys = {short = 'admin'}\n", "api.keys"),
     ("[compensation]\nshadow = 'maybe'\n", "compensation.shadow"),
     ("[camera]\nframe_rate = 3\n", "camera.frame_rate"),
+    ("[compensation]\nsurprise = 1\n", "compensation.surprise"),
+    ("[compensation]\nmax_step_mm = 0.5\nmax_total_mm = 0.1\n", "max_step_mm"),
     ("[modbus\nport = 1\n", "not valid TOML"),
 ])
 def test_bad_settings_name_the_setting(tmp_path, toml, words) -> None:
