@@ -192,13 +192,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             masters = [(float(m[0]), m[1:]) for m in args.master]
             result = c.master_step(cal, masters)
             if args.output:
-                c._write(args.output, result)
+                c.write_json(args.output, result)
             print(json.dumps(result))
             return EXIT_OK
         if args.step == "build":
             cal, report = c.build_step(args.intrinsics, args.plane, args.axis)
             if args.report:
-                c._write(args.report, report.as_dict())
+                c.write_json(args.report, report.as_dict())
             print(json.dumps({"verdict": report.verdict, "reasons": report.reasons}))
             if cal is None:
                 return _fail("calibration refused: " + "; ".join(report.reasons))
@@ -210,7 +210,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             result, _ = c.plane_step(args.intrinsics, args.pairs)
         else:
             result, _ = c.axis_step(args.intrinsics, args.plane, args.images)
-        c._write(args.output, result)
+        c.write_json(args.output, result)
         summary = {k: result[k] for k in ("step", "ok", "reason") if k in result}
         print(json.dumps(summary))
         return EXIT_OK if result["ok"] else _fail(f"{args.step}: {result['reason']}")

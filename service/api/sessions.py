@@ -150,7 +150,7 @@ def router(gauge: Gauge) -> APIRouter:
             s.calibration, s.report = cal, report.as_dict()
             return {"step": "build", "ok": cal is not None, "verdict": report.verdict,
                     "reason": "; ".join(report.reasons)}
-        commands._write(str(d / f"{step}.json"), result)
+        commands.write_json(str(d / f"{step}.json"), result)
         return result
 
     async def background(s: Session, step: Step) -> None:

@@ -56,7 +56,8 @@ def _load(path: str, what: str) -> dict[str, Any]:
         raise StepError(f"{path}: cannot read the {what} step's result ({err})") from None
 
 
-def _write(path: str, data: dict[str, Any]) -> None:
+def write_json(path: str, data: dict[str, Any]) -> None:
+    """Write a step's result as indented JSON."""
     Path(path).write_text(json.dumps(data, indent=2) + "\n")
 
 

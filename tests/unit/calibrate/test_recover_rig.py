@@ -81,8 +81,9 @@ def test_spindle_axis_direction(session, recovered) -> None:
 
 @pytest.mark.xfail(strict=True, reason=(
     "issue 6 open: the axis point comes out 0.065 mm from truth (target 0.05). With the true "
-    "intrinsics it is within 0.005 mm; the estimated principal point (0.8 px off) shifts the "
-    "camera frame by 0.8 px * 300 mm / 3876 px = 0.06 mm. Diameters are unaffected."))
+    "intrinsics it is within 0.005 mm: the estimated ones move the camera frame (a focal "
+    "length off by 0.017 % scales depth by 0.05 mm at 300 mm; a principal point off by 0.8 px "
+    "shifts it by 0.06 mm). Diameters are unaffected."))
 def test_spindle_axis_point(session, recovered) -> None:
     rig, *_ = session
     _, _, axis = recovered
