@@ -255,6 +255,12 @@ class CompensationController:
         kw.setdefault("after_mm", cum)
         return Decision(kind, reason, now, shadow=self.settings.shadow, **kw)
 
+    def _enter(self, state: State, kind: Kind, reason: str, now: float, **kw: Any) -> Decision:
+        """Move to ``state`` (the filter window starts afresh) and record why."""
+        self.persisted.state = state.value
+        self._window.clear()
+        return self._decision(kind, reason, now, **kw)
+
     # ---- inputs --------------------------------------------------------------------------
 
     def update_settings(self, settings: CompensationSettings, now: float) -> Decision:
@@ -283,11 +289,10 @@ class CompensationController:
         deviation = float(m.diameter_mm) - s.nominal_mm
         kw: dict[str, Any] = {"measurement_seq": m.seq, "deviation_mm": deviation}
         if abs(deviation) > s.safe_area_mm:
-            self.persisted.state = State.STOPPED.value
-            self._window.clear()
-            return self._decision(
-                Kind.STOPPED, f"deviation {deviation * 1000:+.1f} um is beyond the safe area "
-                f"of {s.safe_area_mm * 1000:.0f} um (broken tool, wrong part or wrong "
+            return self._enter(
+                State.STOPPED, Kind.STOPPED,
+                f"deviation {deviation * 1000:+.1f} um is beyond the safe area of "
+                f"{s.safe_area_mm * 1000:.0f} um (broken tool, wrong part or wrong "
                 "nominal?): stopped; a person must check and reset", now, **kw)
         gate = {State.STOPPED: "stopped: waiting for a reset",
                 State.ALARM: "out-of-tolerance alarm: waiting for acknowledgement",
@@ -314,11 +319,10 @@ class CompensationController:
                              / sum(weights))
         kw["filtered_mm"] = filtered
         if not s.tol_lower_mm <= filtered <= s.tol_upper_mm:
-            self.persisted.state = State.ALARM.value
-            self._window.clear()
-            return self._decision(
-                Kind.ALARM, f"filtered deviation {filtered * 1000:+.1f} um is outside the "
-                f"tolerance {s.tol_lower_mm * 1000:+.1f}/{s.tol_upper_mm * 1000:+.1f} um: "
+            return self._enter(
+                State.ALARM, Kind.ALARM,
+                f"filtered deviation {filtered * 1000:+.1f} um is outside the tolerance "
+                f"{s.tol_lower_mm * 1000:+.1f}/{s.tol_upper_mm * 1000:+.1f} um: "
                 "out of tolerance, nothing written; acknowledge to go on", now, **kw)
         if abs(filtered) <= s.deadband_mm:
             return self._decision(Kind.HELD, f"filtered deviation {filtered * 1000:+.1f} um "

@@ -195,10 +195,7 @@ class RegisterBank:
 
     def set(self, name: str, value: int) -> None:
         """Set a register (pair) by name."""
-        reg = BY_NAME[name]
-        words = to_words(int(value), reg.kind, self.order)
-        with self._lock:
-            self._words[reg.address:reg.address + len(words)] = words
+        self.set_many({name: value})
 
     def set_many(self, values: dict[str, int]) -> None:
         """Set several registers at once (a reader never sees half of the update)."""
