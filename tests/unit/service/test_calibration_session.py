@@ -84,3 +84,28 @@ def test_bad_sessions_are_refused(client, images) -> None:
     r = client.post(f"/api/v1/calibration-sessions/{sid}/capture/view", headers=H)
     assert r.status_code == 201 and r.json()["images"]["view"] == 3  # the live frame
     assert client.get("/api/v1/calibration-sessions/nope").status_code == 404
+
+
+def test_every_session_endpoint_needs_a_technician_key_and_a_good_body(client) -> None:
+    op = {"X-API-Key": OPERATOR}
+    start = "/api/v1/calibration-sessions"
+    assert client.post(start, json={}).status_code == 401
+    assert client.post(start, headers=op, json={}).status_code == 403
+    assert client.post(start, headers=H, json={"board": 5}).status_code == 422
+    sid = client.post(start, headers=H, json={}).json()["id"]
+    png = b"\x89PNG\r\n\x1a\n"  # a body that is no image: 422 once the key is right
+    calls = [
+        ("post", f"{start}/{sid}/images/view", {"content": png}, {"content": b""}),
+        ("post", f"{start}/{sid}/capture/view", {}, None),
+        ("post", f"{start}/{sid}/run/intrinsics", {}, None),
+        ("post", f"{start}/{sid}/activate", {"json": {}}, {"json": {"note": 5}}),
+    ]
+    for method, path, good, bad in calls:
+        call = getattr(client, method)
+        assert call(path, **good).status_code == 401, path
+        r = call(path, headers=op, **good)
+        assert r.status_code == 403 and "technician" in r.json()["detail"], path
+        if bad is not None:
+            assert call(path, headers=H, **bad).status_code == 422, path
+    for wrong in (f"{start}/{sid}/images/colour", f"{start}/{sid}/run/cook"):
+        assert client.post(wrong, headers=H).status_code == 422
