@@ -9,7 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from calib_store.store import open_database
+from calib_store.store import open_database, transaction
 from service.compensation import ControllerState, Decision
 
 _SCHEMA = """
@@ -46,8 +46,7 @@ class CompensationLog:
     def record(self, decision: Decision, wall_time: float, state: ControllerState) -> None:
         """Store a decision and the state after it, in one transaction."""
         d = decision.as_dict()
-        with self._lock:
-            self._db.execute("BEGIN IMMEDIATE")
+        with self._lock, transaction(self._db):
             self._db.execute(
                 "INSERT INTO compensation_decisions (wall_time, kind, reason, measurement_seq,"
                 " deviation_mm, filtered_mm, offset_mm, offset_seq, before_mm, after_mm, shadow)"
@@ -57,7 +56,6 @@ class CompensationLog:
                  d["after_mm"], int(d["shadow"])))
             self._db.execute("INSERT OR REPLACE INTO compensation_state (id, state) "
                              "VALUES (1, ?)", (json.dumps(asdict(state)),))
-            self._db.execute("COMMIT")
 
     def load_state(self) -> ControllerState:
         """The last saved state, or a fresh one."""

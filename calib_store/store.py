@@ -8,10 +8,12 @@ is wrong and left untouched: the store never replaces or repairs a database by i
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sqlite3
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -112,6 +114,19 @@ def open_database(path: Path, create_if_missing: bool) -> sqlite3.Connection:
     return db
 
 
+@contextlib.contextmanager
+def transaction(db: sqlite3.Connection) -> Iterator[None]:
+    """One write transaction on an autocommit connection (the caller holds its lock): all of
+    it, or none of it."""
+    db.execute("BEGIN IMMEDIATE")
+    try:
+        yield
+    except BaseException:
+        db.execute("ROLLBACK")
+        raise
+    db.execute("COMMIT")
+
+
 class CalibrationStore:
     """The versioned calibration store. Thread-safe."""
 
@@ -124,6 +139,9 @@ class CalibrationStore:
         """Close the database."""
         with self._lock:
             self._db.close()
+
+    def _transaction(self) -> contextlib.AbstractContextManager[None]:
+        return transaction(self._db)
 
     # ---- reading ---------------------------------------------------------------------------
 
@@ -193,22 +211,16 @@ class CalibrationStore:
             quality: dict[str, Any] | None = None, activate: bool = False) -> int:
         """Store a new version (and activate it when asked), in one transaction."""
         document = json.dumps(calibration.to_document())
-        with self._lock:
-            self._db.execute("BEGIN IMMEDIATE")
-            try:
-                cur = self._db.execute(
-                    "INSERT INTO calibrations (created, created_by, note, document, quality) "
-                    "VALUES (?, ?, ?, ?, ?)",
-                    (time.time(), by, note, document,
-                     None if quality is None else json.dumps(quality)))
-                cid = int(cur.lastrowid)
-                self._audit(by, "import", cid, note)
-                if activate:
-                    self._activate(cid, by)
-                self._db.execute("COMMIT")
-            except BaseException:
-                self._db.execute("ROLLBACK")
-                raise
+        with self._lock, self._transaction():
+            cur = self._db.execute(
+                "INSERT INTO calibrations (created, created_by, note, document, quality) "
+                "VALUES (?, ?, ?, ?, ?)",
+                (time.time(), by, note, document,
+                 None if quality is None else json.dumps(quality)))
+            cid = int(cur.lastrowid)
+            self._audit(by, "import", cid, note)
+            if activate:
+                self._activate(cid, by)
         return cid
 
     def _activate(self, cid: int, by: str) -> None:
@@ -222,19 +234,13 @@ class CalibrationStore:
     def add_correction(self, calibration_id: int, offset_mm: float, scale: float,
                        masters: list[dict[str, Any]], by: str) -> int:
         """Store a diameter correction for a calibration (the newest one is in force)."""
-        with self._lock:
-            self._db.execute("BEGIN IMMEDIATE")
-            try:
-                cur = self._db.execute(
-                    "INSERT INTO master_corrections (time, calibration_id, offset_mm, scale, "
-                    "masters, created_by) VALUES (?, ?, ?, ?, ?, ?)",
-                    (time.time(), calibration_id, offset_mm, scale, json.dumps(masters), by))
-                self._audit(by, "master correction", calibration_id,
-                            f"offset {offset_mm * 1000:+.2f} um, scale {scale:.6f}")
-                self._db.execute("COMMIT")
-            except BaseException:
-                self._db.execute("ROLLBACK")
-                raise
+        with self._lock, self._transaction():
+            cur = self._db.execute(
+                "INSERT INTO master_corrections (time, calibration_id, offset_mm, scale, "
+                "masters, created_by) VALUES (?, ?, ?, ?, ?, ?)",
+                (time.time(), calibration_id, offset_mm, scale, json.dumps(masters), by))
+            self._audit(by, "master correction", calibration_id,
+                        f"offset {offset_mm * 1000:+.2f} um, scale {scale:.6f}")
         return int(cur.lastrowid)
 
     def correction(self, calibration_id: int) -> dict[str, Any] | None:
@@ -285,11 +291,5 @@ class CalibrationStore:
             Its document no longer validates (it is not activated).
         """
         self.get(calibration_id)  # exists and validates
-        with self._lock:
-            self._db.execute("BEGIN IMMEDIATE")
-            try:
-                self._activate(calibration_id, by)
-                self._db.execute("COMMIT")
-            except BaseException:
-                self._db.execute("ROLLBACK")
-                raise
+        with self._lock, self._transaction():
+            self._activate(calibration_id, by)

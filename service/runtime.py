@@ -155,7 +155,8 @@ class Gauge:
         self.channel = OffsetChannel(controller, writer, comp_log, on_decision=self._on_decision)
         self.params = MeasureParams(stripe=StripeParams(
             optics_blur_px=settings.measurement.optics_blur_px),
-            axis_sigma_mm=settings.measurement.axis_sigma_mm)
+            axis_sigma_mm=settings.measurement.axis_sigma_mm,
+            free_fit=settings.measurement.track_axis)
         self.method = Method(settings.measurement.method)
         self.part_temp_c = settings.temperature.part_temp_c
         self.latest: MeasurementRecord | None = None
@@ -167,6 +168,7 @@ class Gauge:
         self.decisions = Subscribers()
         self.calibration: tuple[CalibrationInfo, Calibration] | None = None
         self.correction: DiameterCorrection | None = None
+        self._last_master_check = store.last_master_check() if store is not None else None
         self.geometry: RigGeometry | None = None
         self.tracker: AxisTracker | None = None
         self._window: collections.deque[Measurement] = collections.deque(
@@ -486,7 +488,7 @@ class Gauge:
     def master_status(self) -> dict[str, Any]:
         """Correction in force, last master check, whether one is due, and whether offsets
         are blocked because of it."""
-        last = self.store.last_master_check() if self.store is not None else None
+        last = self._last_master_check
         interval = self.settings.measurement.master_interval_h
         overdue = bool(interval is not None and (
             last is None or time.time() - last["time"] > interval * 3600.0))
@@ -499,6 +501,16 @@ class Gauge:
         corr = None if self.correction is None else asdict(self.correction)
         return {"correction": corr, "last_check": last, "overdue": overdue,
                 "blocking": blocking or None}
+
+    def record_master_check(self, certified_mm: float, measured_mm: float, error_mm: float,
+                            limit_mm: float, passed: bool, by: str) -> None:
+        """Store a master check and make it the one in force."""
+        if self.store is None:
+            raise RuntimeError(f"the calibration store cannot be used: {self.store_error}")
+        cid = self.calibration[0].id if self.calibration else None
+        self.store.add_master_check(cid, certified_mm, measured_mm, error_mm, limit_mm,
+                                    passed, by)
+        self._last_master_check = self.store.last_master_check()
 
     async def _refresh_registers(self) -> None:
         while True:

@@ -68,9 +68,8 @@ def router(gauge: Gauge) -> APIRouter:
         f_raw, f_cor = fuse(raw), fuse(corrected)
         check = check_master(body.certified_mm, f_cor.diameter_mm,
                              gauge.settings.measurement.master_limit_mm)
-        gauge.store.add_master_check(gauge.calibration[0].id, check.certified_mm,
-                                     check.measured_mm, check.error_mm, check.limit_mm,
-                                     check.passed, by=role)
+        gauge.record_master_check(check.certified_mm, check.measured_mm, check.error_mm,
+                                  check.limit_mm, check.passed, by=role)
         return {"certified_mm": body.certified_mm, "raw_mm": f_raw.diameter_mm,
                 "corrected_mm": f_cor.diameter_mm, "uncertainty_mm": f_cor.uncertainty_mm,
                 "frames": f_cor.n_used, "check": asdict(check)}

@@ -43,6 +43,9 @@ class MeasureParams:
         Points the camera sees at a more grazing angle (between the surface normal and the
         line of sight) are dropped before fitting: there the stripe is squeezed into a sliver
         and its centre leaves the light plane by tens of micrometres.
+    free_fit : bool
+        With ``axis``, also fit a free circle and report its centre and covariance (for the
+        service's axis tracker); off where nothing tracks the axis.
     axis_sigma_mm : float
         Standard deviation of the spindle axis position as a prior on the section centre
         (method ``axis``), mm: 1 um is the axis as known after mastering; a bare axis
@@ -56,6 +59,7 @@ class MeasureParams:
     max_rms_mm: float = 0.05
     max_view_angle_deg: float = 75.0
     axis_sigma_mm: float = 0.001
+    free_fit: bool = False
 
 
 @dataclass(frozen=True)
@@ -175,7 +179,7 @@ def fit_section(
         weights = fits.point_weights(points.stripe.strength, len(sec))
         if method is Method.AXIS:
             circ = fits.fit_axis_prior(sec, center_prior[0], center_prior[1], weights=weights)
-            free = fits.fit_geometric(sec, weights=weights)
+            free = fits.fit_geometric(sec, weights=weights) if params.free_fit else None
             if free:
                 cov = fits.circle_covariance(sec[free.inliers], free.center, free.radius,
                                              weights=weights[free.inliers])
