@@ -131,7 +131,10 @@ def router(gauge: Gauge) -> APIRouter:
     def run_step(s: Session, step: Step) -> dict[str, Any]:
         d, board = s.dir, commands.parse_board(s.board)
         if step == "intrinsics":
-            result, _ = commands.intrinsics_step(s.images["view"], board)
+            # Every image with the board in it constrains the intrinsics (the principal point
+            # most of all: tests/bench/principal_point.py), not only the views.
+            result, _ = commands.intrinsics_step(
+                s.images["view"] + s.images["plane_off"] + s.images["axis"], board)
         elif step == "plane":
             pairs = [p for pair in zip(s.images["plane_off"], s.images["plane_on"],
                                        strict=False) for p in pair]

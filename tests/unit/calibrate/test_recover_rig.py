@@ -45,7 +45,8 @@ def session():
 @pytest.fixture(scope="module")
 def recovered(session):
     _, _, views, pairs, spindle = session
-    intr = calibrate_intrinsics(views, BOARD)
+    # Every board image of the session constrains the intrinsics, as in the service's session.
+    intr = calibrate_intrinsics(views + [off for off, _ in pairs] + spindle, BOARD)
     assert intr, intr.reason
     plane = calibrate_plane(pairs, BOARD, intr.camera_matrix, intr.dist_coeffs)
     assert plane, plane.reason
@@ -79,16 +80,46 @@ def test_spindle_axis_direction(session, recovered) -> None:
     assert deg(axis.direction, geo.axis_direction) < 0.05
 
 
+def off_axis_mm(point: np.ndarray, direction: np.ndarray, line_point: np.ndarray) -> float:
+    """Distance of ``point`` from the line through ``line_point`` along ``direction``: a point
+    given for the axis is right when it lies on the axis, wherever along it."""
+    a = direction / np.linalg.norm(direction)
+    v = point - line_point
+    return float(np.linalg.norm(v - (v @ a) * a))
+
+
+def in_rig_frame(normal: np.ndarray, direction: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """The axis line's position across itself, in a frame of the camera centre, the axis and
+    the light plane's normal: unchanged by a rotation of the whole camera frame."""
+    a = direction / np.linalg.norm(direction)
+    b = normal - (normal @ a) * a
+    b /= np.linalg.norm(b)
+    return np.array([point @ b, point @ np.cross(a, b)])
+
+
+def test_spindle_axis_position_relative_to_the_rig(session, recovered) -> None:
+    """Where the axis runs relative to the camera centre and the light plane: what the
+    measurement uses. A principal-point error rotates the whole camera frame; this does not
+    see that rotation, which moves nothing the gauge measures."""
+    rig, *_ = session
+    _, plane, axis = recovered
+    geo = rig.calibration.to_geometry()
+    truth = in_rig_frame(geo.plane_normal, geo.axis_direction, geo.axis_point)
+    got = in_rig_frame(plane.normal, axis.direction, axis.point)
+    assert np.linalg.norm(got - truth) < 0.05, got - truth
+
+
 @pytest.mark.xfail(strict=True, reason=(
-    "issue 6 open: the axis point comes out 0.065 mm from truth (target 0.05). With the true "
-    "intrinsics it is within 0.005 mm: the estimated ones move the camera frame (a focal "
-    "length off by 0.017 % scales depth by 0.05 mm at 300 mm; a principal point off by 0.8 px "
-    "shifts it by 0.06 mm). Diameters are unaffected."))
-def test_spindle_axis_point(session, recovered) -> None:
+    "issue 6's 0.05 mm in the camera frame is not reached: the principal point of a 25 mm lens "
+    "on this sensor (a 20 degree field) is fixed by board views only to about +-1 px (1.1-1.6 "
+    "px std over 14-27 views with ideal 0.05 px corners, tests/bench/principal_point.py), and "
+    "1 px turns the camera frame by 0.015 degrees: 0.077 mm at the axis. The rig-frame test "
+    "above shows the axis itself is found within 0.05 mm."))
+def test_spindle_axis_point_in_the_camera_frame(session, recovered) -> None:
     rig, *_ = session
     _, _, axis = recovered
     geo = rig.calibration.to_geometry()
-    assert np.linalg.norm(axis.point - geo.axis_point) < 0.05
+    assert off_axis_mm(axis.point, geo.axis_direction, geo.axis_point) < 0.05
 
 
 def test_diameters_with_the_recovered_calibration(session, recovered) -> None:
@@ -129,3 +160,4 @@ def test_bad_sessions_are_refused_saying_what_to_do(session) -> None:
     assert all("laser line missing" in why for why in dark.rejected.values())
     narrow = calibrate_axis(spindle[2:4], BOARD, K, dist)
     assert not narrow and "need 3" in narrow.reason
+
