@@ -186,6 +186,7 @@ class Gauge:
                                         thread_name_prefix="measure")
         self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
         self._running = False
+        self._hold: tuple[float, str] | None = None   # (monotonic end, why) of an offset hold
         self.started = time.time()
         if store is not None:
             try:
@@ -214,6 +215,18 @@ class Gauge:
                         if c0 is not None and self.settings.measurement.track_axis else None)
         self._window.clear()
         log.info("calibration %d in use (%s)", info.id, info.note or "no note")
+
+    def hold_offsets(self, seconds: float, why: str) -> None:
+        """Treat every measurement as doubtful for ``seconds`` from now (the camera is
+        looking at a calibration board): nothing is written to the CNC meanwhile."""
+        self._hold = (time.monotonic() + seconds, why)
+        log.info("offsets held for %.0f s: %s", seconds, why)
+
+    def offset_hold(self) -> str | None:
+        """Why offsets are held now, or None."""
+        if self._hold is not None and time.monotonic() < self._hold[0]:
+            return self._hold[1]
+        return None
 
     # ---- life cycle --------------------------------------------------------------------
 
@@ -361,7 +374,8 @@ class Gauge:
                 self._comp_queue.get_nowait()
                 self.counters["compensation_dropped"] += 1
             self._comp_queue.put_nowait(MeasurementIn(
-                self._seq, frame.received_ns / 1e9, m.status.value,
+                self._seq, frame.received_ns / 1e9,
+                "held_for_calibration" if self.offset_hold() else m.status.value,
                 d20 if d20 is not None else m.diameter_mm, m.uncertainty_mm))
 
     async def _compensate(self) -> None:
@@ -459,6 +473,9 @@ class Gauge:
                 out.append("no recent measurement")
             elif self.latest is not None and self.latest.status != "ok":
                 out.append(f"latest frame did not measure: {self.latest.reason}")
+        hold = self.offset_hold()
+        if hold:
+            out.append(f"offsets held: {hold}")
         if self.writer is not None and not self.writer.connected and \
                 self.writer.outage_since is not None:
             out.append(f"CNC/PLC unreachable: {self.writer.last_error}")
@@ -609,7 +626,8 @@ class Gauge:
             "compensation": {"state": c.state.value, "shadow": c.settings.shadow,
                              "cumulative_offset_mm": c.cumulative_mm,
                              "offset_seq": c.persisted.offset_seq,
-                             "pending_seq": c.persisted.pending_seq},
+                             "pending_seq": c.persisted.pending_seq,
+                             "held": self.offset_hold()},
             "master": self.master_status(),
             "temperature": {"part_temp_c": self.part_temp_c,
                             "alpha_per_k": self.settings.temperature.alpha_per_k},

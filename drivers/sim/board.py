@@ -167,3 +167,45 @@ class BoardRenderer:
         sigma = np.sqrt(np.maximum(img, 0) / cfg.electrons_per_dn + cfg.read_noise_dn**2)
         img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One image of a calibration session: what the technician sets up, and which session
+    kind it is (``view``, ``plane_off``, ``plane_on``, ``axis``)."""
+
+    kind: str
+    name: str
+    frame_index: int
+    tilt_x_deg: float = 0.0
+    tilt_y_deg: float = 0.0
+    distance_mm: float = 400.0
+    shift_mm: tuple[float, float] = (0.0, 0.0)
+    rotation_deg: float | None = None   # on the spindle, turned by this much
+    laser: bool = False
+
+    def pose(self, br: BoardRenderer) -> BoardPose:
+        """The board's pose on this rig."""
+        if self.rotation_deg is not None:
+            return br.pose_on_spindle(self.rotation_deg)
+        return br.pose_facing_camera(self.tilt_x_deg, self.tilt_y_deg, self.distance_mm,
+                                     self.shift_mm)
+
+
+def session_shots() -> list[Shot]:
+    """The simulated session: 14 tilted views, 4 laser-off / laser-on pose pairs, 7 spindle
+    rotations from -45 to 45 degrees."""
+    shots, k = [], 0
+    for tx in (-25, 0, 25):
+        for ty in (-25, 0, 25):
+            for shift in ((0, 0), (-20, -15), (20, 15)):
+                if k % 2 == 0:
+                    shots.append(Shot("view", f"view_{k:02d}", k, tx, ty, (380, 420, 400)[k % 3],
+                                      shift))
+                k += 1
+    for i, (tx, ty, d) in enumerate([(20, 0, 290), (-20, 0, 310), (0, 20, 300), (0, -20, 295)]):
+        shots.append(Shot("plane_off", f"pose{i}_off", 100 + i, tx, ty, d))
+        shots.append(Shot("plane_on", f"pose{i}_on", 200 + i, tx, ty, d, laser=True))
+    for i, a in enumerate((-45, -30, -15, 0, 15, 30, 45)):
+        shots.append(Shot("axis", f"rot_{a:+03d}", 300 + i, rotation_deg=a))
+    return shots

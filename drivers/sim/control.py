@@ -1,7 +1,11 @@
 """A JSON-lines control port for a running simulated camera (loopback only).
 
 Requests, one JSON object per line: ``{"set": {"diameter_mm": 30.0, "drift_um_per_min": 5,
-"lost_ratio": 0.001, "fps": 10}}`` or ``{"get": "stats"}``. Every reply is one line:
+"lost_ratio": 0.001, "fps": 10}}``, ``{"get": "stats"}``, or ``{"show": ...}`` for what the
+camera looks at: ``"shaft"``, a shot of the simulated calibration session by name
+(``{"show": {"shot": "view_00"}}``; ``{"get": "shots"}`` lists them), or a board set up by hand
+(``{"show": {"tilt_x_deg": 20, "distance_mm": 380, "laser": true}}``, or ``"rotation_deg"`` for
+the board between the centres), with ``"board": "11x8x8"`` optional. Every reply is one line:
 ``{"ok": true, "stats": {...}}`` or ``{"ok": false, "error": "..."}``.
 """
 
@@ -13,9 +17,44 @@ import socketserver
 import threading
 from typing import Any
 
+from drivers.sim.board import Board, Shot, session_shots
 from drivers.sim.gige import SimGigECamera
 
 _SETTERS = ("diameter_mm", "drift_um_per_min", "lost_ratio", "fps")
+_SHOT_FIELDS = ("tilt_x_deg", "tilt_y_deg", "distance_mm", "shift_mm", "rotation_deg", "laser")
+
+
+def parse_show(spec: Any) -> tuple[Shot | None, Board | None]:
+    """A ``show`` request's board shot (None for the shaft); ValueError names what is wrong."""
+    if spec == "shaft":
+        return None, None
+    if not isinstance(spec, dict):
+        raise ValueError("'show' takes \"shaft\" or an object")
+    spec = dict(spec)
+    board = None
+    if "board" in spec:
+        try:
+            cols, rows, sq = str(spec.pop("board")).split("x")
+            board = Board(int(cols), int(rows), float(sq))
+        except ValueError:
+            raise ValueError("board: write COLSxROWSxMM, e.g. 11x8x8") from None
+    if "shot" in spec:
+        named = {s.name: s for s in session_shots()}
+        name = spec.pop("shot")
+        if name not in named:
+            raise ValueError(f"no shot {name!r}; ask {{'get': 'shots'}} for the names")
+        if spec:
+            raise ValueError(f"'shot' takes no other fields, got {sorted(spec)}")
+        return named[name], board
+    unknown = set(spec) - set(_SHOT_FIELDS)
+    if unknown:
+        raise ValueError(f"unknown board fields {sorted(unknown)}; known: {_SHOT_FIELDS}")
+    fields: dict[str, Any] = {k: float(v) for k, v in spec.items()
+                              if k not in ("shift_mm", "laser")}
+    if "shift_mm" in spec:
+        fields["shift_mm"] = tuple(float(v) for v in spec["shift_mm"])[:2]
+    fields["laser"] = bool(spec.get("laser", False))
+    return Shot("custom", "custom", 900, **fields), board
 
 
 def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
@@ -38,8 +77,13 @@ def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
                 camera.set_lost_ratio(values["lost_ratio"])
             if "fps" in values:
                 camera.set_fps(values["fps"])
+        elif "show" in request:
+            camera.show_board(*parse_show(request["show"]))
+        elif request.get("get") == "shots":
+            return {"ok": True, "shots": [s.name for s in session_shots()]}
         elif request.get("get") != "stats":
-            raise ValueError("use {'set': {...}} or {'get': 'stats'}")
+            raise ValueError("use {'set': {...}}, {'show': ...}, {'get': 'stats'} or "
+                             "{'get': 'shots'}")
         return {"ok": True, "stats": camera.stats()}
     except (ValueError, TypeError) as err:
         return {"ok": False, "error": str(err)}

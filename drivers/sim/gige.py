@@ -9,7 +9,9 @@ copies it into the buffer (whose size reads 0 there: it holds width * height byt
 Each frame's first row carries a stamp: bytes 0-7 the frame counter and bytes 8-11 the CRC-32
 of rows 1 onward (little-endian), so tests can prove that no incomplete frame was delivered.
 The diameter (with a wear drift), the packet loss ratio and the frame rate can be changed while
-it runs.
+it runs, and it can show a calibration board instead of the shaft (``show_board``: a pose in
+front of the camera, with or without the laser line, or clamped between the centres), so that a
+calibration session can capture its images from the live camera.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drivers.sim.board import Board, BoardRenderer, Shot
 from drivers.sim.rig import RigConfig, ShaftRenderer
 
 log = logging.getLogger("shaftgauge.sim.gige")
@@ -100,6 +103,8 @@ class SimGigECamera:
         self._repeats = 0
         self._t0 = time.monotonic()
         self._d0 = settings.diameter_mm
+        self._scene: tuple[Shot, Board] | None = None   # None: the shaft
+        self._scene_image: tuple[tuple[Shot, Board], np.ndarray] | None = None
         self._gv: int | None = None
         self._callback = _FillPattern(self._fill)  # keep a reference: C holds the pointer
         self._thread = threading.Thread(target=self._render_loop, name="sim-render", daemon=True)
@@ -155,6 +160,17 @@ class SimGigECamera:
             minutes = (time.monotonic() - self._t0) / 60.0
             return self._d0 + self.settings.drift_um_per_min * minutes / 1000.0
 
+    def show_board(self, shot: Shot | None, board: Board | None = None) -> None:
+        """Show the calibration board as ``shot`` sets it up (None: back to the shaft). Frames
+        rendered from the next one on show it."""
+        with self._lock:
+            self._scene = None if shot is None else (shot, board or Board(11, 8, 8.0))
+
+    def scene(self) -> str:
+        """What the camera shows: ``shaft`` or the board shot's name."""
+        with self._lock:
+            return "shaft" if self._scene is None else self._scene[0].name
+
     def set_lost_ratio(self, ratio: float) -> None:
         """Fraction of GVSP packets the camera drops (0 to 1)."""
         if not 0.0 <= ratio <= 1.0:
@@ -179,12 +195,23 @@ class SimGigECamera:
         because the renderer was behind, the current diameter."""
         return {"rendered": self._counter, "sent": self._sent, "repeats": self._repeats,
                 "diameter_mm": round(self.current_diameter(), 7),
-                "lost_ratio": self.settings.lost_ratio, "fps": self.settings.fps}
+                "lost_ratio": self.settings.lost_ratio, "fps": self.settings.fps,
+                "scene": self.scene()}
 
     # ---- frames --------------------------------------------------------------------------
 
     def _render_next(self) -> np.ndarray:
-        image = self.renderer.render(self.current_diameter(), self._counter)
+        with self._lock:
+            scene = self._scene
+        if scene is None:
+            image = self.renderer.render(self.current_diameter(), self._counter)
+        else:  # a still board: render it once, send copies
+            if self._scene_image is None or self._scene_image[0] != scene:
+                shot, board = scene
+                br = BoardRenderer(self.renderer, board)
+                self._scene_image = (scene, br.render(shot.pose(br), laser=shot.laser,
+                                                      frame_index=shot.frame_index))
+            image = self._scene_image[1].copy()
         stamp_frame(image, self._counter)
         self._counter += 1
         return image

@@ -24,6 +24,8 @@ from service.runtime import Gauge
 Kind = Literal["view", "plane_off", "plane_on", "axis"]
 Step = Literal["intrinsics", "plane", "axis", "build"]
 MAX_IMAGE_BYTES = 32 * 1024 * 1024
+CAPTURE_TIMEOUT_S = 5.0
+CAPTURE_HOLD_S = 600.0   # offsets held this long after the last capture
 
 
 class SessionIn(_Strict):
@@ -119,14 +121,21 @@ def router(gauge: Gauge) -> APIRouter:
         return save(s, kind, image)
 
     @r.post("/calibration-sessions/{sid}/capture/{kind}", status_code=201,
-            summary="Capture the camera's latest frame")
-    def capture(sid: str, kind: Kind, _: str = technician) -> dict:
+            summary="Capture the next frame from the camera (offsets are held meanwhile)")
+    async def capture(sid: str, kind: Kind, _: str = technician) -> dict:
         s = find(sid)
-        frame = gauge.latest_frame
-        if frame is None:
-            raise HTTPException(409, "no frame from the camera yet: " +
-                                "; ".join(gauge.problems()))
-        return save(s, kind, frame.image)
+        # The camera now looks at a board, not a part: no offset from what it measures.
+        gauge.hold_offsets(CAPTURE_HOLD_S, f"calibration session {sid} is capturing")
+        asked = time.monotonic_ns()
+        deadline = time.monotonic() + CAPTURE_TIMEOUT_S
+        while True:  # a frame taken after the request, never one from before it
+            frame = gauge.latest_frame
+            if frame is not None and frame.received_ns > asked:
+                return save(s, kind, frame.image)
+            if time.monotonic() > deadline:
+                raise HTTPException(409, "no new frame from the camera within "
+                                    f"{CAPTURE_TIMEOUT_S:g} s: " + "; ".join(gauge.problems()))
+            await asyncio.sleep(0.02)
 
     def run_step(s: Session, step: Step) -> dict[str, Any]:
         d, board = s.dir, commands.parse_board(s.board)

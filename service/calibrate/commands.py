@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from calib_store.model import SCHEMA, Calibration, parse_calibration
-from drivers.sim.board import Board, BoardRenderer
+from drivers.sim.board import Board, BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate.axis import AxisResult, calibrate_axis
 from service.calibrate.intrinsics import IntrinsicsResult, calibrate_intrinsics
@@ -69,7 +69,9 @@ def intrinsics_step(images: list[str], board: Board) -> tuple[dict[str, Any], In
     out: dict[str, Any] = {"step": "intrinsics", "ok": bool(res), "reason": res.reason,
                            "board": [board.cols, board.rows, board.square_mm],
                            "image_size": [int(imgs[0].shape[1]), int(imgs[0].shape[0])]
-                           if imgs else None, "report": report.as_dict()}
+                           if imgs else None, "images_used": len(res.used),
+                           "rejected": {str(k): v for k, v in res.rejected.items()},
+                           "report": report.as_dict()}
     if res:
         out["camera_matrix"] = res.camera_matrix.tolist()
         out["dist_coeffs"] = [float(x) for x in res.dist_coeffs]
@@ -180,23 +182,10 @@ def render_set(output: str, seed: int = 0, board: Board | None = None) -> dict[s
         (out / sub).mkdir(parents=True, exist_ok=True)
     rig = ShaftRenderer(RigConfig(), seed=seed)
     br = BoardRenderer(rig, board or parse_board(DEFAULT_BOARD))
-    k = 0
-    for tx in (-25, 0, 25):
-        for ty in (-25, 0, 25):
-            for shift in ((0, 0), (-20, -15), (20, 15)):
-                if k % 2 == 0:
-                    img = br.render(br.pose_facing_camera(tx, ty, (380, 420, 400)[k % 3],
-                                                          shift), frame_index=k)
-                    cv2.imwrite(str(out / "views" / f"view_{k:02d}.png"), img)
-                k += 1
-    for i, (tx, ty, d) in enumerate([(20, 0, 290), (-20, 0, 310), (0, 20, 300), (0, -20, 295)]):
-        pose = br.pose_facing_camera(tx, ty, d)
-        cv2.imwrite(str(out / "plane" / f"pose{i}_off.png"), br.render(pose, frame_index=100 + i))
-        cv2.imwrite(str(out / "plane" / f"pose{i}_on.png"),
-                    br.render(pose, laser=True, frame_index=200 + i))
-    for i, a in enumerate((-45, -30, -15, 0, 15, 30, 45)):
-        cv2.imwrite(str(out / "axis" / f"rot_{a:+03d}.png"),
-                    br.render(br.pose_on_spindle(a), frame_index=300 + i))
+    folder = {"view": "views", "plane_off": "plane", "plane_on": "plane", "axis": "axis"}
+    for shot in session_shots():
+        cv2.imwrite(str(out / folder[shot.kind] / f"{shot.name}.png"),
+                    br.render(shot.pose(br), laser=shot.laser, frame_index=shot.frame_index))
     for d, sub in ((30.0, "master30"), (40.0, "master40")):
         for i in range(10):
             cv2.imwrite(str(out / sub / f"frame_{i:02d}.png"), rig.render(d, 1000 + i))

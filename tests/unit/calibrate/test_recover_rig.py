@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
 import pytest
 
 from calib_store.model import SCHEMA, parse_calibration
-from drivers.sim.board import Board, BoardRenderer
+from drivers.sim.board import Board, BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate.axis import calibrate_axis
 from service.calibrate.intrinsics import calibrate_intrinsics
@@ -28,17 +27,12 @@ def deg(a: np.ndarray, b: np.ndarray) -> float:
 def session():
     rig = ShaftRenderer(RigConfig(), seed=3)
     br = BoardRenderer(rig, BOARD)
-    specs = [(tx, ty, d, sh) for (tx, ty), d in zip(itertools.product((-25, 0, 25), repeat=2),
-                                                    itertools.cycle((380, 420, 400)))
-             for sh in ((0, 0), (-20, -15), (20, 15))][::2]
-    views = [br.render(br.pose_facing_camera(*s), frame_index=i) for i, s in enumerate(specs)]
-    pairs = []
-    for i, (tx, ty, d) in enumerate([(20, 0, 290), (-20, 0, 310), (0, 20, 300), (0, -20, 295)]):
-        p = br.pose_facing_camera(tx, ty, d)
-        pairs.append((br.render(p, frame_index=100 + i),
-                      br.render(p, laser=True, frame_index=200 + i)))
-    spindle = [br.render(br.pose_on_spindle(a), frame_index=300 + i)
-               for i, a in enumerate((-45, -30, -15, 0, 15, 30, 45))]
+    image = {s.name: br.render(s.pose(br), laser=s.laser, frame_index=s.frame_index)
+             for s in session_shots()}
+    kinds = {k: [image[s.name] for s in session_shots() if s.kind == k]
+             for k in ("view", "plane_off", "plane_on", "axis")}
+    views, spindle = kinds["view"], kinds["axis"]
+    pairs = list(zip(kinds["plane_off"], kinds["plane_on"], strict=True))
     return rig, br, views, pairs, spindle
 
 

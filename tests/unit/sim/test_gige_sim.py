@@ -39,3 +39,27 @@ def test_control_requests() -> None:
                        ({"set": {"diameter_mm": "wide"}}, "could not convert")]:
         reply = apply_request(cam, bad)
         assert not reply["ok"] and words in reply["error"], (bad, reply)
+
+
+def test_shows_a_calibration_board_instead_of_the_shaft() -> None:
+    from drivers.sim.board import Board
+    from service.calibrate.intrinsics import find_corners
+
+    cam = SimGigECamera(SimCameraSettings(diameter_mm=30.0))
+    assert apply_request(cam, {"get": "shots"})["shots"][:2] == ["view_00", "view_02"]
+    reply = apply_request(cam, {"show": {"shot": "view_04"}})
+    assert reply["ok"] and reply["stats"]["scene"] == "view_04"
+    image = cam._render_next()
+    assert check_stamp(image)[1]
+    assert find_corners(image, Board(11, 8, 8.0)).points is not None
+    reply = apply_request(cam, {"show": {"rotation_deg": 20, "board": "9x6x10"}})
+    assert reply["ok"] and reply["stats"]["scene"] == "custom"
+    assert find_corners(cam._render_next(), Board(9, 6, 10.0)).points is not None
+    assert apply_request(cam, {"show": "shaft"})["stats"]["scene"] == "shaft"
+    assert find_corners(cam._render_next(), Board(11, 8, 8.0)).points is None
+    for bad, words in [({"show": {"shot": "nope"}}, "no shot"), ({"show": 3}, "shaft"),
+                       ({"show": {"zoom": 2}}, "unknown board fields"),
+                       ({"show": {"board": "big"}}, "COLSxROWSxMM"),
+                       ({"show": {"shot": "view_00", "laser": True}}, "no other fields")]:
+        reply = apply_request(cam, bad)
+        assert not reply["ok"] and words in reply["error"], (bad, reply)
