@@ -162,6 +162,8 @@ class Gauge:
         self.latest: MeasurementRecord | None = None
         self.latest_measurement: Measurement | None = None
         self.latest_frame: Frame | None = None
+        # The latest measured frame with its measurement and the geometry it was measured with.
+        self.latest_measured: tuple[Frame, Measurement, RigGeometry] | None = None
         self.history: collections.deque[MeasurementRecord] = collections.deque(
             maxlen=settings.measurement.history)
         self.subscribers = Subscribers()
@@ -289,7 +291,7 @@ class Gauge:
                     continue
                 prior = self.tracker.center() if self.tracker is not None else None
                 fut = loop.run_in_executor(self._pool, self._measure, frame, geometry, prior)
-                await self._in_flight.put((frame, fut))
+                await self._in_flight.put((frame, geometry, fut))
                 submitted = True
             except asyncio.CancelledError:
                 raise
@@ -305,7 +307,7 @@ class Gauge:
         """Results in frame order, each as soon as it and those before it are done."""
         assert self._slots is not None and self._in_flight is not None
         while True:
-            frame, fut = await self._in_flight.get()
+            frame, geometry, fut = await self._in_flight.get()
             try:
                 m = await fut
             except asyncio.CancelledError:
@@ -317,12 +319,13 @@ class Gauge:
             finally:
                 self._slots.release()
             try:
-                self._publish(frame, m)
+                self._publish(frame, m, geometry)
             except Exception:
                 self.counters["pipeline_errors"] += 1
                 log.exception("publishing error")
 
-    def _publish(self, frame: Frame, m: Measurement) -> None:
+    def _publish(self, frame: Frame, m: Measurement, geometry: RigGeometry) -> None:
+        self.latest_measured = (frame, m, geometry)
         raw_diameter = m.diameter_mm
         if m and self.correction is not None:
             m = replace(m, diameter_mm=self.correction.apply(m.diameter_mm),

@@ -6,9 +6,11 @@ import asyncio
 import json
 from collections.abc import AsyncIterator
 
+import cv2
 from fastapi import APIRouter, HTTPException, Query, Request
-from fastapi.responses import StreamingResponse
+from fastapi.responses import Response, StreamingResponse
 
+from service.measure.overlay import draw_overlay
 from service.runtime import Gauge
 
 SSE_KEEPALIVE_S = 10.0
@@ -26,6 +28,25 @@ def router(gauge: Gauge) -> APIRouter:
         if gauge.latest is None:
             raise HTTPException(404, "no measurement yet: " + "; ".join(gauge.problems()))
         return {**gauge.latest.as_dict(), "age_s": gauge.measurement_age_s()}
+
+    @r.get("/frame/latest.jpg", summary="The latest measured frame, stripe and fitted section "
+           "drawn over it", response_class=Response,
+           responses={200: {"content": {"image/jpeg": {}}}})
+    def latest_frame(width: int = Query(688, ge=64, le=4096, description="picture width, px"),
+                     overlay: bool = Query(True, description="draw stripe and section")
+                     ) -> Response:
+        measured = gauge.latest_measured
+        if measured is None:
+            raise HTTPException(404, "no measured frame yet: " + "; ".join(gauge.problems()))
+        frame, m, geometry = measured
+        picture = draw_overlay(frame.image, m if overlay else None, geometry,
+                               min(width, frame.image.shape[1]))
+        ok, jpg = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        if not ok:
+            raise HTTPException(500, "could not encode the frame")
+        return Response(jpg.tobytes(), media_type="image/jpeg",
+                        headers={"Cache-Control": "no-store",
+                                 "X-Frame-Id": str(frame.frame_id)})
 
     @r.get("/measurements", summary="History, newest first")
     def history(

@@ -88,3 +88,40 @@ def light_plane_basis(
     u1 = a - (a @ n) * n
     u1 /= np.linalg.norm(u1)
     return u1, np.cross(n, u1)
+
+
+def section_circle_on_plane(center: tuple[float, float], radius: float,
+                            axis_direction: np.ndarray, plane_normal: np.ndarray,
+                            plane_d: float, n: int = 180) -> np.ndarray:
+    """The inverse of the projection for a fitted section: where the circle's surface meets
+    the light plane (the curve the stripe lies on), for drawing it over the image.
+
+    Parameters
+    ----------
+    center : (float, float)
+        Section centre ``(c1, c2)`` in the basis of ``orthonormal_basis(axis_direction)``, mm.
+    radius : float
+        Section radius, mm.
+    axis_direction, plane_normal : ndarray, shape (3,)
+        Spindle axis direction; light-plane unit normal.
+    plane_d : float
+        Light-plane offset (``n . X = d``), mm.
+    n : int
+        Number of points around the circle.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Camera-frame points, mm (empty when the axis lies in the light plane).
+    """
+    a = np.asarray(axis_direction, np.float64)
+    a = a / np.linalg.norm(a)
+    e1, e2 = orthonormal_basis(a)
+    na = float(plane_normal @ a)
+    if abs(na) < 1e-9:
+        return np.empty((0, 3))
+    th = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    s = ((center[0] + radius * np.cos(th))[:, None] * e1
+         + (center[1] + radius * np.sin(th))[:, None] * e2)
+    t = (plane_d - s @ plane_normal) / na
+    return s + t[:, None] * a
