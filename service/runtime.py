@@ -59,6 +59,9 @@ from service.offsets import OffsetChannel
 log = logging.getLogger("shaftgauge.service")
 
 
+PLC_CHECK_S = 5.0
+
+
 @dataclass(frozen=True)
 class MeasurementRecord:
     """One published measurement, as the API shows it (lengths in mm)."""
@@ -250,6 +253,8 @@ class Gauge:
             loop.create_task(self._refresh_registers(), name="registers"),
             loop.create_task(self.channel.run_settler(), name="settler"),
         ]
+        if self.writer is not None:
+            self._tasks.append(loop.create_task(self._watch_plc(), name="plc-watch"))
 
     async def stop(self) -> None:
         """Stop everything started by ``start``."""
@@ -380,6 +385,19 @@ class Gauge:
                 self._seq, frame.received_ns / 1e9,
                 "held_for_calibration" if self.offset_hold() else m.status.value,
                 d20 if d20 is not None else m.diameter_mm, m.uncertainty_mm))
+
+    async def _watch_plc(self) -> None:
+        """Ask the CNC every few seconds, so its connection state is known before an offset
+        has to be written (the writer serialises this with its writes)."""
+        assert self.writer is not None
+        while True:
+            try:
+                await self.writer.check()
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                log.exception("PLC check")
+            await asyncio.sleep(PLC_CHECK_S)
 
     async def _compensate(self) -> None:
         assert self._comp_queue is not None

@@ -96,6 +96,8 @@ def plane_step(intrinsics: str, pairs: list[str]) -> tuple[dict[str, Any], Plane
     res = calibrate_plane(list(zip(imgs[::2], imgs[1::2], strict=True)), board, K, dist)
     out: dict[str, Any] = {"step": "plane", "ok": bool(res), "reason": res.reason,
                            "rms_mm": res.rms_mm, "per_pose_points": res.per_pose_points,
+                           "per_pose_rms_mm": res.per_pose_rms_mm, "points": res.points,
+                           "worst_mm": res.worst_mm,
                            "rejected": {str(k): v for k, v in res.rejected.items()}}
     if res:
         out["normal"] = [float(x) for x in res.normal]
@@ -135,8 +137,10 @@ def build_step(intrinsics: str, plane: str, axis: str) -> tuple[Calibration | No
                             fig.get("coverage", 0.0), fig.get("tilt_spread_deg", 0.0),
                             list(range(fig.get("images_used", 0))))
     pres = PlaneResult(np.array(p["normal"]) if p.get("ok") else None, p.get("d", float("nan")),
-                       p.get("rms_mm", float("nan")), float("nan"), 0,
-                       p.get("per_pose_points", []), reason=p.get("reason", ""))
+                       p.get("rms_mm", float("nan")), p.get("worst_mm", float("nan")),
+                       p.get("points", 0),
+                       p.get("per_pose_points", []), p.get("per_pose_rms_mm", []),
+                       reason=p.get("reason", ""))
     ares = AxisResult(np.array(a["direction"]) if a.get("ok") else None,
                       np.array(a["point"]) if a.get("ok") else None,
                       a.get("rotation_span_deg", 0.0), a.get("plane_residual_mm", float("nan")),

@@ -65,6 +65,7 @@ class PlaneResult:
     worst_mm: float = math.nan
     points: int = 0
     per_pose_points: list[int] = field(default_factory=list)
+    per_pose_rms_mm: list[float] = field(default_factory=list)
     rejected: dict[int, str] = field(default_factory=dict)
     reason: str = ""
 
@@ -115,5 +116,6 @@ def calibrate_plane(pairs: list[tuple[np.ndarray, np.ndarray]], board: Board, K:
         return PlaneResult(None, per_pose_points=counts, rejected=rejected, reason=(
             "the laser lines do not span a plane: tilt the board between poses"))
     res = allp @ n - d
+    per_pose = [float(np.sqrt(np.mean(r**2))) for r in np.split(res, np.cumsum(counts)[:-1])]
     return PlaneResult(n, d, float(np.sqrt(np.mean(res**2))), float(np.abs(res).max()),
-                       len(allp), counts, rejected)
+                       len(allp), counts, per_pose, rejected)

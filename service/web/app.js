@@ -1,0 +1,70 @@
+// The page: which view is shown, the live connection (SSE) and the status poll.
+import { $, api } from "./api.js";
+import * as comp from "./compensation.js";
+import * as op from "./operator.js";
+import * as tech from "./technician.js";
+
+const VIEWS = { operator: op.loadOperator, compensation: comp.loadCompensation,
+                technician: tech.loadTechnician };
+let source = null, live = false, retry = null;
+
+function setLive(on, why = "") {
+  live = on;
+  $("lost").hidden = on;
+  const link = $("link");
+  link.textContent = on ? "live" : "offline" + (why ? ": " + why : "");
+  link.className = "pill " + (on ? "ok" : "bad");
+}
+
+async function show(name) {
+  if (!VIEWS[name]) name = "operator";
+  for (const v of Object.keys(VIEWS)) $("view-" + v).hidden = v !== name;
+  for (const a of document.querySelectorAll("nav a")) a.classList.toggle("active", a.dataset.view === name);
+  try { await VIEWS[name](); } catch (err) { console.warn(name, err.message); }
+}
+
+async function backOnline() {
+  const wasLost = !live;
+  setLive(true);
+  if (wasLost) await show(location.hash.slice(1));  // reload what was missed
+}
+
+function connect() {
+  clearTimeout(retry);
+  if (source) source.close();
+  source = new EventSource("/api/v1/stream");
+  source.onopen = backOnline;
+  source.addEventListener("measurement", (e) => op.onMeasurement(JSON.parse(e.data)));
+  source.addEventListener("decision", (e) => {
+    const d = JSON.parse(e.data);
+    op.onDecision(d); comp.onDecision(d);
+  });
+  source.onerror = () => {
+    setLive(false, "connection to the service lost");
+    source.close();
+    retry = setTimeout(connect, 2000);
+  };
+}
+
+async function poll() {
+  try {
+    const st = await api("/status");
+    op.onStatus(st); comp.onStatus(st);
+    if (!live) {  // the service answers again: the stream either still stands or is renewed
+      if (source && source.readyState === EventSource.OPEN) await backOnline();
+      else if (!source || source.readyState === EventSource.CLOSED) connect();
+    }
+  } catch (err) {
+    setLive(false, err.message);
+  }
+  if (!$("view-operator").hidden && live) op.refreshFrame();
+}
+
+window.addEventListener("hashchange", () => show(location.hash.slice(1)));
+window.addEventListener("resize", () => op.redraw());
+comp.wireCompensation();
+tech.wireTechnician();
+show(location.hash.slice(1));
+connect();
+poll();
+setInterval(poll, 1000);

@@ -1,0 +1,65 @@
+// Small canvas charts: the diameter trend with its tolerance band, and bars.
+function fit(canvas) {
+  const dpr = window.devicePixelRatio || 1;
+  const w = canvas.clientWidth, h = canvas.clientHeight || canvas.height;
+  if (canvas.width !== Math.round(w * dpr)) { canvas.width = Math.round(w * dpr); canvas.height = Math.round(h * dpr); }
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  ctx.clearRect(0, 0, w, h);
+  return { ctx, w, h };
+}
+
+// points: [{seq, d}] (mm); band: {lo, hi, nominal} (mm) or null; marks: [seq]
+export function drawTrend(canvas, points, band, marks) {
+  const { ctx, w, h } = fit(canvas);
+  const pad = { l: 64, r: 8, t: 8, b: 18 };
+  ctx.font = "12px system-ui"; ctx.fillStyle = "#9aa5b1";
+  if (!points.length) { ctx.fillText("no measurements yet", pad.l, h / 2); return; }
+  const ds = points.map((p) => p.d);
+  let lo = Math.min(...ds), hi = Math.max(...ds);
+  if (band) { lo = Math.min(lo, band.lo); hi = Math.max(hi, band.hi); }
+  const span = Math.max(hi - lo, 0.002); lo -= span * 0.1; hi += span * 0.1;
+  const s0 = points[0].seq, s1 = Math.max(points[points.length - 1].seq, s0 + 1);
+  const x = (s) => pad.l + (s - s0) / (s1 - s0) * (w - pad.l - pad.r);
+  const y = (d) => pad.t + (hi - d) / (hi - lo) * (h - pad.t - pad.b);
+  if (band) {
+    ctx.fillStyle = "rgba(31, 122, 77, .30)";
+    ctx.fillRect(pad.l, y(band.hi), w - pad.l - pad.r, y(band.lo) - y(band.hi));
+    ctx.strokeStyle = "rgba(139, 224, 176, .6)"; ctx.setLineDash([4, 4]);
+    ctx.beginPath(); ctx.moveTo(pad.l, y(band.nominal)); ctx.lineTo(w - pad.r, y(band.nominal)); ctx.stroke();
+    ctx.setLineDash([]);
+  }
+  ctx.fillStyle = "#9aa5b1";
+  for (const v of [hi - (hi - lo) * 0.1, (hi + lo) / 2, lo + (hi - lo) * 0.1]) {
+    ctx.fillText(v.toFixed(4), 4, y(v) + 4);
+  }
+  ctx.strokeStyle = "#e0a030";
+  for (const s of marks) {
+    if (s < s0) continue;
+    ctx.beginPath(); ctx.moveTo(x(s), pad.t); ctx.lineTo(x(s), h - pad.b); ctx.stroke();
+  }
+  ctx.strokeStyle = "#6fb3ff"; ctx.lineWidth = 1.5; ctx.beginPath();
+  points.forEach((p, i) => (i ? ctx.lineTo(x(p.seq), y(p.d)) : ctx.moveTo(x(p.seq), y(p.d))));
+  ctx.stroke(); ctx.lineWidth = 1;
+}
+
+// bars: [{label, value}] ; limit: a reference line (e.g. the "good" limit)
+export function drawBars(canvas, bars, unit, limit) {
+  const { ctx, w, h } = fit(canvas);
+  const pad = { l: 44, r: 8, t: 16, b: 18 };
+  const top = Math.max(...bars.map((b) => b.value), limit || 0) * 1.15 || 1;
+  const bw = (w - pad.l - pad.r) / Math.max(bars.length, 1);
+  const y = (v) => pad.t + (1 - v / top) * (h - pad.t - pad.b);
+  ctx.font = "11px system-ui"; ctx.fillStyle = "#9aa5b1";
+  ctx.fillText(unit, 4, 12);
+  ctx.fillText(top.toFixed(2), 4, y(top) + 10);
+  bars.forEach((b, i) => {
+    ctx.fillStyle = limit && b.value > limit ? "#a32b2b" : "#2d6cdf";
+    ctx.fillRect(pad.l + i * bw + 1, y(b.value), Math.max(bw - 2, 1), h - pad.b - y(b.value));
+    if (bars.length <= 40) { ctx.fillStyle = "#9aa5b1"; ctx.fillText(b.label, pad.l + i * bw + 2, h - 4); }
+  });
+  if (limit) {
+    ctx.strokeStyle = "#f3c76b"; ctx.setLineDash([4, 3]); ctx.beginPath();
+    ctx.moveTo(pad.l, y(limit)); ctx.lineTo(w - pad.r, y(limit)); ctx.stroke(); ctx.setLineDash([]);
+  }
+}

@@ -1,0 +1,59 @@
+// Compensation view: decisions with reasons, the shadow switch, the cumulative offset.
+import { $, api, clock, say, um } from "./api.js";
+
+function row(d) {
+  const tr = document.createElement("tr");
+  const cells = [clock(d.wall_time ?? d.time ?? d.time_s), d.kind,
+                 d.offset_mm == null ? "" : (d.offset_mm * 1000).toFixed(1),
+                 d.deviation_mm == null ? "" : (d.deviation_mm * 1000).toFixed(1), d.reason];
+  cells.forEach((c, i) => {
+    const td = document.createElement("td");
+    td.textContent = c;
+    if (i === 2 || i === 3) td.className = "num";
+    tr.append(td);
+  });
+  tr.dataset.kind = d.kind;
+  return tr;
+}
+
+export async function loadCompensation() {
+  const c = await api("/compensation");
+  $("comp-state").textContent = c.state;
+  $("comp-cumulative").textContent = um(c.cumulative_offset_mm);
+  $("shadow").checked = c.settings.shadow;
+  const kinds = $("comp-filter").value;
+  const log = await api("/compensation/log?limit=100" + (kinds ? "&kinds=" + kinds : ""));
+  $("decisions").replaceChildren(...log.items.map(row));
+}
+
+export function onDecision(d) {
+  if ($("view-compensation").hidden) return;
+  const kinds = $("comp-filter").value;
+  if (kinds && !kinds.split(",").includes(d.kind)) return;
+  const body = $("decisions");
+  body.prepend(row({ ...d, wall_time: Date.now() / 1000 }));
+  while (body.children.length > 100) body.lastChild.remove();
+  $("comp-cumulative").textContent = um(d.after_mm);
+}
+
+export function onStatus(st) {
+  const held = st.compensation.held;
+  $("comp-held").textContent = held ? "held: " + held
+    : st.compensation.shadow ? "proposed only (shadow mode)" : "written to the CNC";
+  $("comp-state").textContent = st.compensation.state;
+}
+
+export function wireCompensation() {
+  $("comp-filter").addEventListener("change", loadCompensation);
+  $("shadow").addEventListener("change", async (e) => {
+    const want = e.target.checked;
+    try {
+      await api("/compensation/shadow", { method: "PUT", json: { shadow: want } });
+      say($("shadow-msg"), want ? "shadow mode on: nothing is written to the CNC"
+                                : "shadow mode off: offsets are written to the CNC", "ok");
+    } catch (err) {
+      e.target.checked = !want;
+      say($("shadow-msg"), err.message, "bad");
+    }
+  });
+}

@@ -1,0 +1,152 @@
+"""The web UI in Debian's Chromium (Playwright) against `shaftgauge serve` with the simulated
+GigE camera and PLC: each view loads, the diameter updates live, a calibration runs from
+rendered images through the wizard, a lost connection is said plainly and recovers.
+
+Screenshots land in test-artifacts/screenshots/."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from playwright.sync_api import Page, expect, sync_playwright
+
+from tests.e2e.conftest import TECH_KEY
+from tests.integration.conftest import SHAFTGAUGE
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+SHOTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "screenshots"
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: deploy/bootstrap.sh installs Debian's chromium")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+def open_page(browser, url: str, width: int = 1280, height: int = 800) -> Page:
+    page = browser.new_page(viewport={"width": width, "height": height})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.errors = errors  # type: ignore[attr-defined]
+    page.goto(url)
+    return page
+
+
+def shot(page: Page, name: str) -> None:
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SHOTS / f"{name}.png"))
+
+
+def test_operator_view_is_live(service, browser) -> None:
+    page = open_page(browser, service.url + "/ui/#operator")
+    expect(page.locator("#link")).to_have_text("live", timeout=15000)
+    first = page.locator("#status").inner_text()
+    expect(page.locator("#status")).not_to_have_text(first, timeout=10000)  # it moves
+    expect(page.locator("#diameter")).to_contain_text("mm")
+    d = float(page.locator("#diameter").inner_text().split()[0])
+    assert abs(d - 30.0) < 0.02
+    expect(page.locator("#verdict")).to_have_text("in tolerance")
+    expect(page.locator("#nominal")).to_have_text("30.0000 mm")
+    expect(page.locator("#camera")).to_contain_text("streaming")
+    expect(page.locator("#plc")).to_contain_text("connected", timeout=15000)
+    page.wait_for_function("document.getElementById('frame').naturalWidth > 0", timeout=10000)
+    page.wait_for_timeout(1500)  # a few points on the trend
+    shot(page, "operator-1280x800")
+    assert page.evaluate("document.documentElement.scrollHeight") <= 800 + 40
+    assert not page.errors  # type: ignore[attr-defined]
+    phone = open_page(browser, service.url + "/ui/#operator", 390, 844)
+    expect(phone.locator("#link")).to_have_text("live", timeout=15000)
+    phone.wait_for_timeout(1000)
+    shot(phone, "operator-phone")
+    assert phone.evaluate("document.documentElement.scrollWidth") <= 391
+
+
+def test_compensation_view_and_shadow_switch(service, browser) -> None:
+    page = open_page(browser, service.url + "/ui/#compensation")
+    expect(page.locator("#decisions tr").first).to_be_visible(timeout=15000)
+    expect(page.locator("#comp-cumulative")).to_contain_text("µm")
+    box = page.locator("#shadow")
+    expect(box).not_to_be_checked()
+    box.click()  # no key yet: refused, said, and the switch goes back
+    expect(page.locator("#shadow-msg")).to_contain_text("technician key")
+    expect(box).not_to_be_checked()
+    page.goto(service.url + "/ui/#technician")
+    page.fill("#key", TECH_KEY)
+    page.locator("#key").dispatch_event("change")
+    page.goto(service.url + "/ui/#compensation")
+    page.locator("#shadow").click()
+    expect(page.locator("#shadow-msg")).to_contain_text("shadow mode on")
+    assert service.get("/api/v1/compensation").json()["settings"]["shadow"] is True
+    expect(page.locator("#comp-held")).to_contain_text("shadow", timeout=5000)
+    shot(page, "compensation")
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("calibration-set")
+    r = subprocess.run([SHAFTGAUGE, "calibrate", "render", "--output", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_calibration_wizard_from_rendered_images(service, browser, rendered) -> None:
+    page = open_page(browser, service.url + "/ui/#technician")
+    page.fill("#key", TECH_KEY)
+    page.locator("#key").dispatch_event("change")
+    expect(page.locator("#history tr")).to_have_count(1, timeout=10000)
+    page.click("#new-session")
+    expect(page.locator("#session-id")).to_contain_text("session")
+    files = {"view": sorted((rendered / "views").glob("*.png")),
+             "plane_off": sorted((rendered / "plane").glob("*_off.png")),
+             "plane_on": sorted((rendered / "plane").glob("*_on.png")),
+             "axis": sorted((rendered / "axis").glob("*.png"))}
+    for kind, paths in files.items():
+        box = page.locator(f".kinds > div[data-kind={kind}]")
+        box.locator("input[type=file]").set_input_files([str(p) for p in paths])
+        expect(box.locator(".count")).to_have_text(str(len(paths)), timeout=30000)
+    page.click("#run-all")
+    expect(page.locator("#progress")).to_contain_text("all steps done", timeout=240000)
+    expect(page.locator("#verdict-word")).to_have_text(["good"])
+    expect(page.locator("#reproj")).to_be_visible()
+    shot(page, "calibration-report")
+    page.click("#activate")
+    expect(page.locator("#activate-msg")).to_contain_text("is in use")
+    expect(page.locator("#history tr")).to_have_count(2)
+    expect(page.locator("#history tr").first).to_contain_text("in use")
+    active = [c for c in service.get("/api/v1/calibrations").json()["items"] if c["active"]]
+    assert active[0]["note"] == "from the calibration page"
+    # Roll back to the first calibration from the history.
+    page.locator("#history tr").nth(1).locator("button").click()
+    expect(page.locator("#history tr").nth(1)).to_contain_text("in use")
+    assert service.get("/api/v1/status").json()["calibration"]["id"] == 1
+    shot(page, "technician")
+
+
+def test_lost_connection_is_said_and_recovers(service, browser) -> None:
+    page = open_page(browser, service.url + "/ui/#operator")
+    expect(page.locator("#link")).to_have_text("live", timeout=15000)
+    expect(page.locator("#lost")).to_be_hidden()
+    os.kill(service.proc.pid, signal.SIGSTOP)  # the service hangs (or the network is cut)
+    try:
+        expect(page.locator("#lost")).to_be_visible(timeout=15000)
+        expect(page.locator("#link")).to_contain_text("offline")
+        shot(page, "connection-lost")
+    finally:
+        os.kill(service.proc.pid, signal.SIGCONT)
+    expect(page.locator("#lost")).to_be_hidden(timeout=20000)
+    expect(page.locator("#link")).to_have_text("live")
+    seq = page.locator("#status").inner_text()
+    time.sleep(1.0)
+    expect(page.locator("#status")).not_to_have_text(seq, timeout=10000)
