@@ -22,13 +22,14 @@ test: setup
 
 ## make bench: accuracy and speed figures; results land in bench-results/.
 bench: setup
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m tests.bench.core_throughput
 	$(PY) -m tests.bench.paper_comparison
 	$(PY) -m tests.bench.beyond_paper
 	$(PY) -m tests.bench.principal_point
 	$(PY) -m tests.bench.camera_throughput
 	$(PY) -m tests.bench.service_throughput
 
-## make soak: the long soak and fault runs.
+## make soak: the long soak and fault runs (an hour; SHAFTGAUGE_SOAK_S=600 for ten minutes).
 soak: setup
 	$(PY) -m pytest -m slow -q
 

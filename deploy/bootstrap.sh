@@ -9,6 +9,7 @@ APT_PACKAGES=(
   libgirepository1.0-dev libcairo2-dev pkg-config      # to build PyGObject from PyPI
   python3-venv python3-dev gcc                          # a venv and compiled wheels
   mbpoll                                                # independent Modbus client for tests
+  faketime                                              # wall-clock jumps in the fault suite
   chromium                                              # browser tests (never downloaded)
 )
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sqlite3
 import time
 from collections.abc import Callable
 
@@ -13,6 +14,10 @@ from drivers.plc.client import OffsetWriter, WriteResult
 from service.compensation import CompensationController, Decision, Kind, MeasurementIn, State
 
 log = logging.getLogger("shaftgauge.compensation")
+
+
+class LogUnavailableError(RuntimeError):
+    """An order to write an offset could not be logged: it must not be carried out."""
 
 
 class OffsetChannel:
@@ -30,11 +35,20 @@ class OffsetChannel:
         self.on_decision = on_decision
         self.clock = clock
         self.last_write: WriteResult | None = None
+        self.log_problem = ""   # why the decision log cannot be written now (empty: it can)
         self._lock = asyncio.Lock()
 
     def _record(self, decision: Decision) -> Decision:
         if self.store is not None:
-            self.store.record(decision, time.time(), self.controller.persisted)
+            try:
+                self.store.record(decision, time.time(), self.controller.persisted)
+                self.log_problem = ""
+            except sqlite3.Error as err:  # a full disk, a damaged file: say so, keep going
+                if not self.log_problem:
+                    log.error("the compensation log cannot be written: %s", err)
+                self.log_problem = f"the compensation log cannot be written ({err})"
+                if decision.kind is Kind.WRITE:
+                    raise LogUnavailableError(self.log_problem) from err
         level = logging.WARNING if decision.kind in (Kind.ALARM, Kind.STOPPED, Kind.UNCERTAIN,
                                                      Kind.NOT_APPLIED, Kind.LIMIT) \
             else logging.DEBUG
@@ -46,7 +60,12 @@ class OffsetChannel:
     async def on_measurement(self, m: MeasurementIn) -> list[Decision]:
         """Judge a measurement; write an offset when the controller asks for one."""
         async with self._lock:
-            out = [self._record(self.controller.on_measurement(m, self.clock()))]
+            order = self.controller.on_measurement(m, self.clock())
+            try:
+                out = [self._record(order)]
+            except LogUnavailableError as err:  # an offset that cannot be logged is not written
+                return [self._record(self.controller.on_write_outcome(
+                    order.offset_seq, False, self.clock(), f"not written: {err}"))]
             if out[0].kind is Kind.WRITE:
                 out.append(await self._write(out[0]))
             return out

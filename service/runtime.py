@@ -494,6 +494,8 @@ class Gauge:
                 out.append("no recent measurement")
             elif self.latest is not None and self.latest.status != "ok":
                 out.append(f"latest frame did not measure: {self.latest.reason}")
+        if self.channel.log_problem:
+            out.append(self.channel.log_problem + ": offsets are not written meanwhile")
         hold = self.offset_hold()
         if hold:
             out.append(f"offsets held: {hold}")

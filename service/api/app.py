@@ -15,6 +15,7 @@ from fastapi.staticfiles import StaticFiles
 
 from service.api import calibrations, compensation, master, measurements, sessions
 from service.api.auth import reader
+from service.api.models import ERRORS
 from service.runtime import Gauge
 
 WEB = Path(__file__).resolve().parent.parent / "web"
@@ -85,7 +86,8 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
         errors = [{k: v for k, v in e.items() if k != "input"} for e in exc.errors()]
         return JSONResponse(status_code=422, content={"detail": jsonable_encoder(errors)})
 
-    api = APIRouter(prefix="/api/v1", dependencies=[Depends(reader(gauge.settings.api))])
+    api = APIRouter(prefix="/api/v1", dependencies=[Depends(reader(gauge.settings.api))],
+                    responses=ERRORS)
     api.include_router(measurements.router(gauge))
     api.include_router(calibrations.router(gauge))
     api.include_router(compensation.router(gauge))

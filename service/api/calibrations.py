@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, HTTPException
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, Path
 from fastapi.responses import JSONResponse
 
 from calib_store.model import CalibrationError, parse_calibration
@@ -10,6 +12,9 @@ from calib_store.store import StoreError
 from service.api.auth import requires
 from service.api.models import CalibrationImportIn
 from service.runtime import Gauge
+
+# SQLite integers are 64-bit: a larger id is a malformed request, not a server error.
+CalibrationId = Annotated[int, Path(ge=1, le=2**63 - 1, description="calibration id")]
 
 
 def router(gauge: Gauge) -> APIRouter:
@@ -38,12 +43,12 @@ def router(gauge: Gauge) -> APIRouter:
         return {"items": store().audit(min(max(limit, 1), 1000))}
 
     @r.get("/calibrations/{cid}", summary="One calibration with its document")
-    def get(cid: int) -> dict:
+    def get(cid: CalibrationId) -> dict:
         info, cal = find(cid)
         return {**info.as_dict(), "document": cal.to_document()}
 
     @r.get("/calibrations/{cid}/export", summary="The interchange document, as a file")
-    def export(cid: int) -> JSONResponse:
+    def export(cid: CalibrationId) -> JSONResponse:
         _, cal = find(cid)
         return JSONResponse(cal.to_document(), headers={
             "Content-Disposition": f'attachment; filename="calibration-{cid}.json"'})
@@ -61,7 +66,7 @@ def router(gauge: Gauge) -> APIRouter:
         return info.as_dict()
 
     @r.post("/calibrations/{cid}/activate", summary="Measure with this calibration")
-    def activate(cid: int, role: str = technician) -> dict:
+    def activate(cid: CalibrationId, role: str = technician) -> dict:
         find(cid)
         try:
             store().activate(cid, by=role)

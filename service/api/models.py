@@ -11,6 +11,21 @@ class _Strict(BaseModel):
     model_config = ConfigDict(strict=True, extra="forbid")
 
 
+class ErrorOut(BaseModel):
+    """What every refusal carries: why, in words (422s list the fields instead)."""
+
+    detail: str | list[dict[str, Any]]
+
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorOut, "description": why} for code, why in (
+        (401, "no or an unknown X-API-Key"), (403, "the key's role is too low"),
+        (404, "no such thing"), (409, "not possible in the present state"),
+        (413, "too large"), (422, "a malformed request"),
+        (503, "a part the request needs is not working"),
+        (504, "the camera did not deliver in time"))}
+
+
 class FeatureIn(_Strict):
     """Nominal diameter and tolerance of the feature being turned, mm."""
 

@@ -37,18 +37,23 @@ class Service:
 
 
 def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
-                  fps: float = 10.0) -> Service:
-    api, modbus, plc = free_port(), free_port(), free_port()
-    data = tmp_path / "data"
+                  fps: float = 10.0, camera_device: str | None = None,
+                  plc_port: int | None = None, data: Path | None = None,
+                  prefix: tuple[str, ...] = (), env: dict[str, str] | None = None) -> Service:
+    """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
+    external camera (``camera_device``) and PLC (``plc_port``) that a test controls."""
+    api, modbus = free_port(), free_port()
+    plc = plc_port or free_port()
+    data = data or tmp_path / "data"
     cfg = tmp_path / "gauge.toml"
+    camera = (f'source = "gige"\ndevice_id = "{camera_device}"' if camera_device else
+              f'source = "sim"\nsim_serial = "E2E001"\nsim_diameter_mm = {diameter}')
     cfg.write_text(f"""
 [camera]
-source = "sim"
-sim_serial = "E2E001"
-sim_diameter_mm = {diameter}
+{camera}
 frame_rate_hz = {fps}
 [plc]
-source = "sim"
+source = "{'modbus' if plc_port else 'sim'}"
 port = {plc}
 sim_ack_delay_s = 0.05
 [modbus]
@@ -70,14 +75,15 @@ max_step_mm = 0.01
 shadow = false
 {extra_toml}
 """)
-    proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = subprocess.Popen([*prefix, SHAFTGAUGE, "serve", "--config", str(cfg)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env={**os.environ, **(env or {})})
     line = proc.stdout.readline()
     if not line:
         raise RuntimeError(f"serve did not start: {proc.stderr.read()[-3000:]}")
     ready = json.loads(line)
     return Service(proc, ready["url"], ready["modbus_port"], plc,
-                   ready["sim_camera_control_port"], data)
+                   ready.get("sim_camera_control_port", 0), data)
 
 
 def stop_service(svc: Service) -> None:
@@ -92,18 +98,24 @@ def stop_service(svc: Service) -> None:
     svc.proc.wait(10)
 
 
+def wait_ready(svc: Service, timeout_s: float = 60.0) -> bool:
+    """Until ``/readyz`` says 200 (True) or the time is up (False)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            if svc.get("/readyz").status_code == 200:
+                return True
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.3)
+    return False
+
+
 @pytest.fixture
 def service(tmp_path) -> Iterator[Service]:
     svc = start_service(tmp_path)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            try:
-                if svc.get("/readyz").status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.3)
+        wait_ready(svc)
         yield svc
     finally:
         stop_service(svc)

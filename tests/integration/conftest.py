@@ -145,3 +145,35 @@ def sim_plc_factory(tmp_path) -> Iterator:
     yield make
     for plc in started:
         plc.stop()
+
+
+@dataclass
+class SmallDisk:
+    """A 2 MiB tmpfs mounted for one test: ``fill()`` leaves it with no free space, ``free()``
+    gives the space back."""
+
+    path: Path
+
+    def fill(self) -> None:
+        with contextlib.suppress(OSError), open(self.path / "filler", "wb") as f:
+            while True:
+                f.write(b"\0" * 4096)
+                f.flush()
+
+    def free(self) -> None:
+        (self.path / "filler").unlink(missing_ok=True)
+
+
+@pytest.fixture
+def small_disk(tmp_path) -> Iterator[SmallDisk]:
+    """A real full-disk condition under a store (needs root to mount a tmpfs, as in CI)."""
+    mnt = tmp_path / "small-disk"
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.fail(f"cannot mount a tmpfs for the full-disk test (run as root): {r.stderr}")
+    try:
+        yield SmallDisk(mnt)
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)

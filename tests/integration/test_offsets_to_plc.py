@@ -126,3 +126,30 @@ async def test_cumulative_offset_survives_a_restart(sim_plc_factory, tmp_path) -
     assert restored.cumulative_mm == cum and restored.persisted.offset_seq == 1
     again.close()
     await writer.close()
+
+
+async def test_an_offset_that_cannot_be_logged_is_not_written(sim_plc_factory, small_disk
+                                                              ) -> None:
+    """The decision log on a full disk: the offset is not written, the problem is said, and
+    once there is room again offsets are logged and written as before."""
+    plc = sim_plc_factory()
+    writer = OffsetWriter("127.0.0.1", plc.port)
+    store = CompensationLog(small_disk.path / "comp.db")
+    channel = OffsetChannel(CompensationController(LIVE), writer, store)
+    small_disk.fill()
+    seq, out = 0, []
+    for _ in range(4):
+        seq += 1
+        out += await channel.on_measurement(MeasurementIn(seq, channel.clock(), "ok", 30.010,
+                                                          0.001))
+    assert "cannot be written" in channel.log_problem
+    assert any(d.kind is Kind.NOT_APPLIED and "not written" in d.reason for d in out), out
+    assert applied_seqs(sim_plc_factory.log) == []
+    small_disk.free()
+    for _ in range(4):
+        seq += 1
+        await channel.on_measurement(MeasurementIn(seq, channel.clock(), "ok", 30.010, 0.001))
+    assert channel.log_problem == ""
+    assert applied_seqs(sim_plc_factory.log) == [2]  # sequence 1 was never sent, never reused
+    assert [d["kind"] for d in store.decisions(kinds=("applied",))] == ["applied"]
+    await writer.close()

@@ -179,3 +179,10 @@ def test_master_correction_and_a_failed_check_block_offsets(client) -> None:
                       json={"masters": [{"certified_mm": 30.0, "measured_mm": 30.0},
                                         {"certified_mm": 30.5, "measured_mm": 30.5}]})
     assert bad.status_code == 422 and "differ" in bad.json()["detail"]
+
+
+def test_an_id_beyond_64_bits_is_a_malformed_request(client) -> None:
+    for path in ("/api/v1/calibrations/40891108549731607904256",
+                 "/api/v1/calibrations/40891108549731607904256/export"):
+        r = client.get(path)
+        assert r.status_code == 422, (path, r.text)
