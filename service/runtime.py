@@ -87,8 +87,9 @@ class MeasurementRecord:
     note: str
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return asdict(self)
+        """JSON-ready: a non-finite number (a fit's NaN residual, say) becomes None."""
+        return {k: finite_or_none(v) if isinstance(v, float) else v
+                for k, v in asdict(self).items()}
 
 
 class Subscribers:

@@ -61,7 +61,7 @@ def router(gauge: Gauge) -> APIRouter:
 
     @r.get("/compensation/log", summary="Compensation decisions, newest first")
     def offset_log(limit: int = Query(100, ge=1, le=5000),
-                   before_id: int | None = Query(None, ge=1),
+                   before_id: int | None = Query(None, ge=1, le=2**63 - 1),
                    kinds: str | None = Query(None, description="comma-separated kinds")
                    ) -> dict:
         if gauge.comp_log is None:

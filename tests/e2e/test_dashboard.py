@@ -131,6 +131,11 @@ def test_calibration_wizard_from_rendered_images(service, browser, rendered) -> 
     page.locator("#history tr").nth(1).locator("button").click()
     expect(page.locator("#history tr").nth(1)).to_contain_text("in use")
     assert service.get("/api/v1/status").json()["calibration"]["id"] == 1
+    # The master check: the simulated shaft is a 30 mm master.
+    page.fill("#master-mm", "30.0")
+    page.click("#master-run")
+    expect(page.locator("#master-msg")).to_contain_text("passed", timeout=60000)
+    expect(page.locator("#master-status")).to_contain_text("passed")
     shot(page, "technician")
 
 

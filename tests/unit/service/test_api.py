@@ -186,3 +186,21 @@ def test_an_id_beyond_64_bits_is_a_malformed_request(client) -> None:
                  "/api/v1/calibrations/40891108549731607904256/export"):
         r = client.get(path)
         assert r.status_code == 422, (path, r.text)
+
+
+def test_a_record_with_non_finite_figures_is_still_json() -> None:
+    import json
+    import math
+
+    from service.runtime import MeasurementRecord
+
+    rec = MeasurementRecord(
+        seq=1, time=0.0, frame_id=1, method="axis", status="fit_failed", diameter_mm=None,
+        raw_diameter_mm=None, uncertainty_mm=math.inf, diameter_20c_mm=None,
+        fused_diameter_mm=None, fused_uncertainty_mm=None, deviation_mm=None,
+        in_tolerance=None, arc_deg=math.nan, n_points=12, rms_residual_mm=math.nan,
+        latency_ms=3.0, reason="fit failed", note="")
+    d = rec.as_dict()
+    assert d["arc_deg"] is None and d["rms_residual_mm"] is None and d["uncertainty_mm"] is None
+    assert d["latency_ms"] == 3.0
+    json.loads(json.dumps(d, allow_nan=False))
