@@ -513,7 +513,9 @@ class Gauge:
     def rate_hz(self, window_s: float = 10.0) -> float:
         """Measurements per second over the last ``window_s``."""
         now = time.monotonic()
-        recent = [t for t in self._times if now - t <= window_s]
+        # A copy first (one C call, atomic under the GIL): API threads read while the event
+        # loop appends, and iterating a deque that changes raises.
+        recent = [t for t in list(self._times) if now - t <= window_s]
         if len(recent) < 2:
             return 0.0
         return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9)

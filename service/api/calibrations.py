@@ -54,7 +54,7 @@ def router(gauge: Gauge) -> APIRouter:
             "Content-Disposition": f'attachment; filename="calibration-{cid}.json"'})
 
     @r.post("/calibrations", status_code=201, summary="Import a calibration document")
-    def import_(body: CalibrationImportIn, role: str = technician) -> dict:
+    async def import_(body: CalibrationImportIn, role: str = technician) -> dict:
         try:
             cal = parse_calibration(body.document)
         except CalibrationError as err:
@@ -66,7 +66,7 @@ def router(gauge: Gauge) -> APIRouter:
         return info.as_dict()
 
     @r.post("/calibrations/{cid}/activate", summary="Measure with this calibration")
-    def activate(cid: CalibrationId, role: str = technician) -> dict:
+    async def activate(cid: CalibrationId, role: str = technician) -> dict:
         find(cid)
         try:
             store().activate(cid, by=role)

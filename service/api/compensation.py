@@ -18,6 +18,8 @@ def router(gauge: Gauge) -> APIRouter:
     technician = Depends(requires(gauge.settings.api, "technician"))
     admin = Depends(requires(gauge.settings.api, "admin"))
 
+    # The endpoints that change the controller are async: they run on the event loop, in turn
+    # with the compensation task and the CNC's register writes, never beside them in a thread.
     def apply(settings) -> dict:
         try:
             d = gauge.update_compensation(settings)
@@ -32,7 +34,7 @@ def router(gauge: Gauge) -> APIRouter:
                 "tol_lower_mm": s.tol_lower_mm}
 
     @r.put("/feature", summary="Set the feature (technician)")
-    def set_feature(body: FeatureIn, _: str = technician) -> dict:
+    async def set_feature(body: FeatureIn, _: str = technician) -> dict:
         return apply(replace(gauge.channel.controller.settings, **body.model_dump()))
 
     @r.get("/compensation", summary="Compensation settings and state")
@@ -43,12 +45,12 @@ def router(gauge: Gauge) -> APIRouter:
                 "offset_seq": c.persisted.offset_seq, "pending_seq": c.persisted.pending_seq}
 
     @r.put("/compensation", summary="Tune compensation (admin)")
-    def tune(body: CompensationIn, _: str = admin) -> dict:
+    async def tune(body: CompensationIn, _: str = admin) -> dict:
         changes = {k: v for k, v in body.model_dump().items() if v is not None}
         return apply(replace(gauge.channel.controller.settings, **changes))
 
     @r.put("/compensation/shadow", summary="Shadow mode on or off (technician)")
-    def shadow(body: ShadowIn, _: str = technician) -> dict:
+    async def shadow(body: ShadowIn, _: str = technician) -> dict:
         return apply(replace(gauge.channel.controller.settings, shadow=body.shadow))
 
     @r.post("/compensation/command", summary="Reset compensation or acknowledge an alarm")

@@ -59,7 +59,8 @@ def router(gauge: Gauge) -> APIRouter:
         if since is not None and until is not None and since > until:
             raise HTTPException(422, "since must not be after until")
         out = []
-        for rec in reversed(gauge.history):
+        # A copy first: this runs in a worker thread while the event loop appends.
+        for rec in reversed(list(gauge.history)):
             if before_seq is not None and rec.seq >= before_seq:
                 continue
             if until is not None and rec.time > until:

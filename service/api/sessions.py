@@ -193,7 +193,7 @@ def router(gauge: Gauge) -> APIRouter:
         return s.as_dict()
 
     @r.post("/calibration-sessions/{sid}/activate", summary="Import and activate the result")
-    def activate(sid: str, body: ActivateIn, role: str = technician) -> dict:
+    async def activate(sid: str, body: ActivateIn, role: str = technician) -> dict:
         s = find(sid)
         if s.calibration is None:
             verdict = (s.report or {}).get("verdict")

@@ -1,6 +1,8 @@
 // Compensation view: decisions with reasons, the shadow switch, the cumulative offset.
 import { $, api, clock, say, um } from "./api.js";
 
+let switching = false;  // a shadow-mode change is on its way: leave the switch alone
+
 function row(d) {
   const tr = document.createElement("tr");
   const cells = [clock(d.wall_time ?? d.time ?? d.time_s), d.kind,
@@ -20,7 +22,7 @@ export async function loadCompensation() {
   const c = await api("/compensation");
   $("comp-state").textContent = c.state;
   $("comp-cumulative").textContent = um(c.cumulative_offset_mm);
-  $("shadow").checked = c.settings.shadow;
+  if (!switching) $("shadow").checked = c.settings.shadow;
   const kinds = $("comp-filter").value;
   const log = await api("/compensation/log?limit=100" + (kinds ? "&kinds=" + kinds : ""));
   $("decisions").replaceChildren(...log.items.map(row));
@@ -41,12 +43,14 @@ export function onStatus(st) {
   $("comp-held").textContent = held ? "held: " + held
     : st.compensation.shadow ? "proposed only (shadow mode)" : "written to the CNC";
   $("comp-state").textContent = st.compensation.state;
+  if (!switching) $("shadow").checked = st.compensation.shadow;  // the service's word counts
 }
 
 export function wireCompensation() {
   $("comp-filter").addEventListener("change", loadCompensation);
   $("shadow").addEventListener("change", async (e) => {
     const want = e.target.checked;
+    switching = true;
     try {
       await api("/compensation/shadow", { method: "PUT", json: { shadow: want } });
       say($("shadow-msg"), want ? "shadow mode on: nothing is written to the CNC"
@@ -54,6 +58,8 @@ export function wireCompensation() {
     } catch (err) {
       e.target.checked = !want;
       say($("shadow-msg"), err.message, "bad");
+    } finally {
+      switching = false;
     }
   });
 }

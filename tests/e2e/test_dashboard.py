@@ -88,6 +88,8 @@ def test_compensation_view_and_shadow_switch(service, browser) -> None:
     page.locator("#shadow").click()
     expect(page.locator("#shadow-msg")).to_contain_text("shadow mode on")
     assert service.get("/api/v1/compensation").json()["settings"]["shadow"] is True
+    page.wait_for_timeout(1500)  # the status poll keeps the switch as the service has it
+    expect(page.locator("#shadow")).to_be_checked()
     expect(page.locator("#comp-held")).to_contain_text("shadow", timeout=5000)
     shot(page, "compensation")
 
