@@ -39,7 +39,7 @@ class Service:
 def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   fps: float = 10.0, camera_device: str | None = None,
                   plc_port: int | None = None, data: Path | None = None,
-                  prefix: tuple[str, ...] = (), env: dict[str, str] | None = None) -> Service:
+                  env: dict[str, str] | None = None) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls."""
     api, modbus = free_port(), free_port()
@@ -75,7 +75,7 @@ max_step_mm = 0.01
 shadow = false
 {extra_toml}
 """)
-    proc = subprocess.Popen([*prefix, SHAFTGAUGE, "serve", "--config", str(cfg)],
+    proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, env={**os.environ, **(env or {})})
     line = proc.stdout.readline()

@@ -72,12 +72,12 @@ def until(predicate, timeout_s: float, what: str, step_s: float = 0.25):
 
 
 def start_rig(tmp: Path, sim_plc_factory, data: Path | None = None,
-              prefix: tuple[str, ...] = (), env: dict[str, str] | None = None) -> Rig:
+              env: dict[str, str] | None = None) -> Rig:
     camera = sim_camera_process(tmp, "FLT001").start()
     plc = sim_plc_factory()
     try:
         svc = start_service(tmp, camera_device=camera.device_id, plc_port=plc.port, data=data,
-                            prefix=prefix, env=env)
+                            env=env)
     except Exception:
         camera.stop()
         raise
