@@ -3,9 +3,10 @@ laser line across it, and clamped between the lathe centres at chosen rotations.
 
 The board is a plane with ``cols x rows`` inner corners spaced ``square_mm`` apart; its own
 frame has the first inner corner at the origin, x along the columns, z out of the board. Each
-pixel's ray is intersected with the board plane; the checker is rendered with 3x3
-supersampling, then blurred and given shot and read noise like the shaft images. The laser
-line is the light sheet's Gaussian profile around the plane, brighter on white squares.
+pixel's ray is intersected with the board plane; each pixel integrates over its area (3x3
+samples, 12x12 at edges), then the image is blurred and given shot and read noise like the
+shaft images. The laser line is the light sheet's Gaussian profile around the plane,
+brighter on white squares.
 """
 
 from __future__ import annotations
@@ -115,50 +116,58 @@ class BoardRenderer:
         y1 = int(np.clip(np.ceil(img[:, 1].max()) + 8, 0, h))
         return x0, y0, max(x0, x1), max(y0, y1)
 
+    def _sample(self, pose: BoardPose, rx: np.ndarray, ry: np.ndarray,
+                laser: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Reflectance of the board (0 off it) and the laser light on it, for rays (rx, ry)."""
+        n = pose.normal
+        denom = n[0] * rx + n[1] * ry + n[2]
+        s = float(n @ pose.t) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
+        X = np.stack([rx * s, ry * s, s], axis=-1)
+        local = (X - pose.t) @ pose.R  # board coordinates
+        u, v = local[..., 0] / self.board.square_mm, local[..., 1] / self.board.square_mm
+        m, b = self.board.margin_squares, self.board
+        inside = (u > -1 - m) & (u < b.cols + m) & (v > -1 - m) & (v < b.rows + m) & (s > 0)
+        checker = (u > -1) & (u < b.cols) & (v > -1) & (v < b.rows)
+        white = ~checker | ((np.floor(u) + np.floor(v)) % 2 == 0)  # white margin
+        refl = np.where(inside, np.where(white, 1.0, 0.12), 0.0)
+        if not laser:
+            return refl, np.zeros_like(refl)
+        p = self._pose
+        dist = X @ p.plane_normal - p.plane_d
+        return refl, refl * np.exp(-0.5 * (dist / self.cfg.sheet_sigma_mm) ** 2)
+
     def render(self, pose: BoardPose, laser: bool = False, frame_index: int = 0,
                ambient_dn: float = 90.0) -> np.ndarray:
         """One 8-bit image of the board at ``pose`` (with the laser line when asked).
 
+        Each pixel integrates the light over its area, as a sensor does: 3x3 samples per
+        pixel, and 12x12 where the samples or the neighbours disagree (the squares' edges and
+        the board's border), so that a corner's position is not biased by the sampling.
         Take the laser-off and laser-on images of a pose at the same light and exposure: their
         difference is the laser line alone.
         """
         cfg = self.cfg
         w, h = cfg.image_size
-        ss = 3
-        rays = self.rig._rays(1)  # (H, W, 2) undistorted normalised rays of pixel centres
-        # Supersample by offsetting the rays within each pixel (small, so linear in x, y).
         K = cfg.camera_matrix()
-        dx = (np.arange(ss) + 0.5) / ss - 0.5
-        n = pose.normal
-        n_d = float(n @ pose.t)
         x0, y0, x1, y1 = self._bbox(pose)
-        rays = rays[y0:y1, x0:x1]
+        # Undistorted normalised rays of the pixel centres; a pixel's area is covered by
+        # offsetting them (small offsets, so linear in x, y).
+        rays = self.rig._rays(1)[y0:y1, x0:x1]
         acc = np.zeros((h, w), np.float32)
         lit = np.zeros((h, w), np.float32)
-        acc_roi, lit_roi = acc[y0:y1, x0:x1], lit[y0:y1, x0:x1]
-        m = self.board.margin_squares
-        for ox in dx:
-            for oy in dx:
-                rx = rays[..., 0] + ox / K[0, 0]
-                ry = rays[..., 1] + oy / K[1, 1]
-                denom = n[0] * rx + n[1] * ry + n[2]
-                s = n_d / np.where(np.abs(denom) > 1e-9, denom, np.nan)
-                X = np.stack([rx * s, ry * s, s], axis=-1)
-                local = (X - pose.t) @ pose.R  # board coordinates
-                u, v = local[..., 0] / self.board.square_mm, local[..., 1] / self.board.square_mm
-                inside = ((u > -1 - m) & (u < self.board.cols + m) & (v > -1 - m)
-                          & (v < self.board.rows + m) & (s > 0))
-                checker = (u > -1) & (u < self.board.cols) & (v > -1) & (v < self.board.rows)
-                white = ~checker | ((np.floor(u) + np.floor(v)) % 2 == 0)  # white margin
-                refl = np.where(inside, np.where(white, 1.0, 0.12), 0.0)
-                acc_roi += refl.astype(np.float32)
-                if laser:
-                    p = self._pose
-                    dist = X @ p.plane_normal - p.plane_d
-                    sheet = np.exp(-0.5 * (dist / cfg.sheet_sigma_mm) ** 2)
-                    lit_roi += np.where(inside, refl * sheet, 0.0).astype(np.float32)
-        acc /= ss * ss
-        lit /= ss * ss
+        if y1 > y0 and x1 > x0:
+            a, li, edge = self._integrate(pose, rays[..., 0], rays[..., 1], K, 3, laser)
+            # An edge may run between the samples of a pixel: its neighbours then differ.
+            step = np.zeros_like(edge)
+            step[:, 1:] |= a[:, 1:] != a[:, :-1]
+            step[1:, :] |= a[1:, :] != a[:-1, :]
+            edge |= step | np.roll(step, -1, axis=1) | np.roll(step, -1, axis=0)
+            iy, ix = np.nonzero(edge)
+            if iy.size:
+                fa, fl, _ = self._integrate(pose, rays[iy, ix, 0], rays[iy, ix, 1], K, 12,
+                                            laser)
+                a[iy, ix], li[iy, ix] = fa, fl
+            acc[y0:y1, x0:x1], lit[y0:y1, x0:x1] = a, li
         img = cfg.background_dn + ambient_dn * acc
         if laser:
             img = img + cfg.peak_dn * lit
@@ -167,6 +176,27 @@ class BoardRenderer:
         sigma = np.sqrt(np.maximum(img, 0) / cfg.electrons_per_dn + cfg.read_noise_dn**2)
         img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+    def _integrate(self, pose: BoardPose, rx: np.ndarray, ry: np.ndarray, K: np.ndarray,
+                   ss: int, laser: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mean reflectance and laser light over the pixels whose centre rays are (rx, ry),
+        from ``ss x ss`` samples each, and where the samples of a pixel disagree."""
+        acc = np.zeros(rx.shape, np.float32)
+        lit = np.zeros(rx.shape, np.float32)
+        lo = np.full(rx.shape, np.inf)
+        hi = np.full(rx.shape, -np.inf)
+        for ox, oy in _offsets(ss):
+            r, li = self._sample(pose, rx + ox / K[0, 0], ry + oy / K[1, 1], laser)
+            acc += r.astype(np.float32)
+            lit += li.astype(np.float32)
+            lo, hi = np.minimum(lo, r), np.maximum(hi, r)
+        return acc / ss**2, lit / ss**2, hi != lo
+
+
+def _offsets(ss: int) -> list[tuple[float, float]]:
+    """Sample positions within a pixel (px from its centre), ``ss x ss`` on a regular grid."""
+    d = (np.arange(ss) + 0.5) / ss - 0.5
+    return [(float(ox), float(oy)) for ox in d for oy in d]
 
 
 @dataclass(frozen=True)
