@@ -132,6 +132,12 @@ class MeasurementSettings(_Section):
     fuse_frames: int = Field(10, ge=1, le=1000)
     axis_sigma_mm: float = Field(0.001, gt=0, le=1.0)
     optics_blur_px: float = Field(0.7, ge=0, le=10)
+    sheet_correction: bool = True
+    """Take out the error the light sheet's thickness leaves on a curved surface (axis,
+    geometric)."""
+    sheet_sigma_mm: float | None = Field(None, gt=0, le=5.0)
+    """The sheet's thickness (Gaussian sigma, mm), e.g. from the laser's data sheet; unset, it
+    is estimated from the stripe's width in each frame."""
     track_axis: bool = True
     max_age_s: float = Field(5.0, gt=0)
     """A measurement older than this no longer counts as current (status, Modbus)."""

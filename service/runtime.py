@@ -160,7 +160,9 @@ class Gauge:
         self.params = MeasureParams(stripe=StripeParams(
             optics_blur_px=settings.measurement.optics_blur_px),
             axis_sigma_mm=settings.measurement.axis_sigma_mm,
-            free_fit=settings.measurement.track_axis)
+            free_fit=settings.measurement.track_axis,
+            sheet_correction=settings.measurement.sheet_correction,
+            sheet_sigma_mm=settings.measurement.sheet_sigma_mm)
         self.method = Method(settings.measurement.method)
         self.part_temp_c = settings.temperature.part_temp_c
         self.latest: MeasurementRecord | None = None

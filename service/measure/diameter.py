@@ -16,6 +16,13 @@ from service.measure.section import (
     orthonormal_basis,
     project_to_section,
 )
+from service.measure.sheet import (
+    SheetBias,
+    arc_angles,
+    light_direction,
+    predict_sheet_bias,
+    sheet_sigma_from_widths,
+)
 from service.measure.stripe import StripeParams, StripePoints, extract_stripe
 from service.measure.triangulate import triangulate
 
@@ -50,6 +57,13 @@ class MeasureParams:
         Standard deviation of the spindle axis position as a prior on the section centre
         (method ``axis``), mm: 1 um is the axis as known after mastering; a bare axis
         calibration is good to tens of micrometres, and the service widens this accordingly.
+    sheet_correction : bool
+        With ``axis`` and ``geometric``, take out the radial error that the light sheet's
+        thickness leaves in the stripe centres on a curved surface (``service.measure.sheet``)
+        and fit again.
+    sheet_sigma_mm : float or None
+        The sheet's thickness (Gaussian sigma, mm) for that correction; None estimates it from
+        the stripe's width in each frame.
     """
 
     stripe: StripeParams = field(default_factory=StripeParams)
@@ -60,6 +74,8 @@ class MeasureParams:
     max_view_angle_deg: float = 75.0
     axis_sigma_mm: float = 0.001
     free_fit: bool = False
+    sheet_correction: bool = True
+    sheet_sigma_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -133,6 +149,53 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
         return points
     return SectionPoints(points.stripe.subset(keep), points.points3d[keep],
                          points.section[keep])
+
+
+SHEET_SAMPLES = 24
+"""Points along the arc where the sheet's error is modelled (it changes slowly along it)."""
+
+
+def correct_sheet_bias(points: SectionPoints, fitted: Measurement, geometry: RigGeometry,
+                       params: MeasureParams) -> SectionPoints:
+    """The section points moved radially by the error the sheet's thickness leaves in them,
+    modelled on the ``fitted`` section (``service.measure.sheet``).
+
+    Points where the model has no answer (the camera does not see across the stripe there)
+    are left where they are.
+    """
+    center, radius = np.asarray(fitted.center_mm, np.float64), fitted.diameter_mm / 2.0
+    angles, _ = arc_angles(points.section, center)
+    samples = np.linspace(angles.min(), angles.max(), SHEET_SAMPLES)
+    blur, filter_px = params.stripe.optics_blur_px, params.stripe.sigma_px
+    smoothing = float(np.hypot(filter_px, blur))
+    st = points.stripe
+    # The stripe's peak brightness: Steger's smoothed value over its curvature, for a Gaussian
+    # profile of width w seen with filters of scale s, is strength (w^2 + s^2)^1.5 / w.
+    s2 = st.width_px**2 + filter_px**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        brightness = st.strength * s2**1.5 / st.width_px
+    toward_laser = light_direction(points.section, center, brightness, geometry)
+
+    def model(sigma_mm: float) -> SheetBias:
+        return predict_sheet_bias(center, radius, samples, geometry, sigma_mm, smoothing,
+                                  light_direction=toward_laser, filter_px=filter_px)
+
+    sigma = params.sheet_sigma_mm
+    if sigma is None:
+        sigma = sheet_sigma_from_widths(st.width_px, np.interp(angles, samples,
+                                                                model(0.0).slope_mm_per_px),
+                                        blur)
+    if not (np.isfinite(sigma) and sigma > 0):
+        return points
+    bias = model(sigma)
+    known = np.isfinite(bias.radial_mm)
+    if known.sum() < 2:
+        return points
+    dr = np.interp(angles, samples[known], bias.radial_mm[known])
+    rel = points.section - center
+    dist = np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)
+    moved = center + rel * ((dist - dr) / dist)[:, None]
+    return SectionPoints(points.stripe, points.points3d, moved)
 
 
 def axis_center(geometry: RigGeometry) -> np.ndarray | None:
@@ -261,4 +324,11 @@ def measure_frame(
             Status.TOO_FEW_POINTS, method,
             f"{len(points.section)} stripe points, need {params.min_points}",
             n_points=len(points.section), points_px=points.stripe.xy)
-    return fit_section(points, geometry, method, params, center_prior)
+    result = fit_section(points, geometry, method, params, center_prior)
+    if result and params.sheet_correction and result.method in (Method.AXIS, Method.GEOMETRIC):
+        corrected = correct_sheet_bias(points, result, geometry, params)
+        if corrected is not points:
+            again = fit_section(corrected, geometry, method, params, center_prior)
+            if again:
+                return again
+    return result

@@ -1,0 +1,238 @@
+"""The light sheet's thickness on a curved surface: where the stripe's smoothed ridge lies
+relative to the sheet's centre plane, and the radial error that leaves in each section point.
+
+The sheet has a Gaussian thickness profile about its centre plane (the calibrated light plane).
+Across the stripe the camera sees that profile laid on the shaft: warped by the cylinder's
+curvature and by foreshortening that changes across the stripe. The profile is symmetric in
+distance from the plane but its image is not, and the extractor finds the maximum of the
+image smoothed by the lens blur and its own derivative filters: a ridge a few hundredths of a
+pixel off the centre plane's image, always toward the same side where the camera looks
+obliquely. At 300 mm that is a fraction of a micrometre, growing with the view angle: small
+per point, but the same in every frame, so no averaging of frames removes it.
+
+This module predicts that offset from the fitted section (a cylinder about the fitted centre)
+and the calibration: for sample points along the arc it casts rays across the stripe, takes
+the sheet's profile on the cylinder, smooths it as the extractor does, finds the ridge, and
+triangulates it as the measurement does. Pure numerics; no image is read.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from service.measure.geometry import RigGeometry
+from service.measure.section import orthonormal_basis
+from service.measure.triangulate import intersect_plane, undistort_to_rays
+
+
+@dataclass(frozen=True)
+class SheetBias:
+    """Predicted radial error of stripe points along the arc.
+
+    Attributes
+    ----------
+    angle_rad : ndarray, shape (K,)
+        Sample angles about the section centre, increasing, radians (unwrapped).
+    radial_mm : ndarray, shape (K,)
+        Radial error (triangulated ridge minus true radius) at each angle, mm.
+    slope_mm_per_px : ndarray, shape (K,)
+        Distance from the centre plane per pixel across the stripe's image, mm/px: the image
+        width of the sheet profile is ``sheet_sigma_mm / slope``.
+    width_px : ndarray, shape (K,)
+        The width the extractor reports for this profile (its Gaussian-equivalent sigma from
+        the smoothed value over the curvature at the ridge, filter scale taken out), px.
+    """
+
+    angle_rad: np.ndarray
+    radial_mm: np.ndarray
+    slope_mm_per_px: np.ndarray
+    width_px: np.ndarray
+
+
+def _to_3d(section: np.ndarray, geometry: RigGeometry) -> np.ndarray:
+    """Points of the given section coordinates that lie on the light plane, camera frame."""
+    e1, e2 = orthonormal_basis(geometry.axis_direction)
+    a = geometry.axis_direction / np.linalg.norm(geometry.axis_direction)
+    base = section[:, :1] * e1 + section[:, 1:] * e2
+    t = (geometry.plane_d - base @ geometry.plane_normal) / float(a @ geometry.plane_normal)
+    return base + t[:, None] * a
+
+
+def unwrap_about(angles: np.ndarray, mid: float) -> np.ndarray:
+    """Angles (radians) brought within pi of ``mid``."""
+    return mid + (np.asarray(angles) - mid + math.pi) % (2 * math.pi) - math.pi
+
+
+def arc_angles(section: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, float]:
+    """Angles of section points about ``center``, unwrapped about the arc's middle, and that
+    middle (radians)."""
+    d = section - center
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    mid = float(np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()))
+    return unwrap_about(ang, mid), mid
+
+
+def predict_sheet_bias(
+    center: np.ndarray, radius: float, angles_rad: np.ndarray, geometry: RigGeometry,
+    sheet_sigma_mm: float, smoothing_px: float, step_px: float = 0.05,
+    light_direction: np.ndarray | None = None, filter_px: float = 0.0,
+) -> SheetBias:
+    """Radial error of the stripe ridge at ``angles_rad`` around a section circle.
+
+    Parameters
+    ----------
+    center : ndarray, shape (2,)
+        Section centre, mm.
+    radius : float
+        Section radius, mm.
+    angles_rad : ndarray, shape (K,)
+        Increasing sample angles about the centre, radians.
+    geometry : RigGeometry
+        Calibration.
+    sheet_sigma_mm : float
+        Gaussian sigma of the sheet's thickness profile, mm (0: a plane of light, no error).
+    smoothing_px : float
+        Total smoothing before the ridge is found, px: the lens blur and the extractor's
+        derivative filters combined.
+    step_px : float
+        Sampling step across the stripe, px.
+    light_direction : ndarray, shape (3,), optional
+        Unit vector toward the laser, camera frame: the surface is then shaded by the cosine
+        of the incidence (Lambert), which changes across the stripe as the surface curves.
+    filter_px : float
+        The extractor's own filter scale (part of ``smoothing_px``), for the width it reports.
+
+    Returns
+    -------
+    SheetBias
+        Radial errors (NaN where the camera does not see the surface across the stripe).
+    """
+    angles = np.asarray(angles_rad, np.float64)
+    k = len(angles)
+    ring = np.column_stack([np.cos(angles), np.sin(angles)])
+    on_plane = _to_3d(center + radius * ring, geometry)
+    # Image of the arc and its normal (from neighbours 1e-4 rad away).
+    da = 1e-4
+    ahead = _to_3d(center + radius * np.column_stack([np.cos(angles + da),
+                                                      np.sin(angles + da)]), geometry)
+    pts = np.concatenate([on_plane, ahead])
+    img, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), geometry.camera_matrix,
+                               geometry.dist_coeffs)
+    img = img.reshape(-1, 2)
+    q, tangent = img[:k], img[k:] - img[:k]
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    n_half = round((6.0 * smoothing_px + 4.0) / step_px)
+    u = step_px * np.arange(-n_half, n_half + 1)  # symmetric: u[n_half] == 0
+    samples = q[:, None, :] + u[None, :, None] * normal[:, None, :]
+    rays = undistort_to_rays(samples.reshape(-1, 2), geometry.camera_matrix,
+                             geometry.dist_coeffs)
+    dist, normals = _plane_distance_on_cylinder(rays, center, radius, geometry)
+    dist = dist.reshape(k, len(u))
+    # Distance from the plane per pixel across the stripe, at its centre.
+    mid = n_half
+    slope = np.abs(dist[:, mid + 1] - dist[:, mid - 1]) / (2 * step_px)
+    radial, width = np.full(k, np.nan), np.full(k, np.nan)
+    if sheet_sigma_mm <= 0:
+        return SheetBias(angles, np.zeros(k), slope, width)
+    profile = np.exp(-0.5 * (np.nan_to_num(dist, nan=np.inf) / sheet_sigma_mm) ** 2)
+    if light_direction is not None:
+        shade = np.clip(np.nan_to_num(normals @ light_direction), 0.0, None)
+        profile = profile * shade.reshape(k, len(u))
+    n_kernel = round(4.0 * smoothing_px / step_px)
+    kernel_u = step_px * np.arange(-n_kernel, n_kernel + 1)  # odd and centred: no shift
+    kernel = np.exp(-0.5 * (kernel_u / max(smoothing_px, 1e-6)) ** 2)
+    smooth = np.array([np.convolve(p, kernel, mode="same") for p in profile])
+    peak = np.argmax(smooth, axis=1)
+    inner = (peak > 0) & (peak < len(u) - 1) & np.isfinite(dist[:, mid])
+    rows = np.nonzero(inner)[0]
+    y0, y1, y2 = (smooth[rows, peak[rows] + j] for j in (-1, 0, 1))
+    den = y0 - 2 * y1 + y2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        width[rows] = np.sqrt(np.clip(y1 * step_px**2 / -den - filter_px**2, 0.0, None))
+    frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
+    ridge = q[rows] + ((u[peak[rows]] + frac * step_px)[:, None]) * normal[rows]
+    seen = undistort_to_rays(ridge, geometry.camera_matrix, geometry.dist_coeffs)
+    pts3 = intersect_plane(seen, geometry.plane_normal, geometry.plane_d)
+    e1, e2 = orthonormal_basis(geometry.axis_direction)
+    sec = np.column_stack([pts3 @ e1, pts3 @ e2])
+    radial[rows] = np.hypot(*(sec - center).T) - radius
+    return SheetBias(angles, radial, slope, width)
+
+
+def _plane_distance_on_cylinder(rays_xy: np.ndarray, center: np.ndarray, radius: float,
+                                geometry: RigGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance from the light plane of each ray's first hit on the cylinder, mm (NaN
+    for a ray that misses), and the surface normal there."""
+    a = geometry.axis_direction / np.linalg.norm(geometry.axis_direction)
+    e1, e2 = orthonormal_basis(a)
+    a0 = center[0] * e1 + center[1] * e2  # a point on the cylinder's axis
+    r = np.column_stack([rays_xy, np.ones(len(rays_xy))])
+    r_perp = r - (r @ a)[:, None] * a
+    w_perp = -(a0 - (a0 @ a) * a)
+    qa = np.sum(r_perp * r_perp, axis=1)
+    qb = r_perp @ w_perp
+    qc = float(w_perp @ w_perp) - radius * radius
+    disc = qb * qb - qa * qc
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = (-qb - np.sqrt(disc)) / qa
+    s = np.where((disc > 0) & (s > 0), s, np.nan)
+    hit = r * s[:, None]
+    rel = hit - a0
+    rel -= (rel @ a)[:, None] * a
+    normals = rel / radius
+    return hit @ geometry.plane_normal - geometry.plane_d, normals
+
+
+def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndarray,
+                    geometry: RigGeometry) -> np.ndarray | None:
+    """Direction toward the laser (unit, camera frame) from the stripe's brightness along the
+    arc.
+
+    The laser's rays lie in the light plane, and a lit surface is as bright as the cosine of
+    their incidence: ``brightness_i ~ N_i . v`` with ``N_i`` the surface normal and ``v`` in
+    the plane, a linear least-squares problem in two unknowns. The source is taken as far
+    away compared with the section (its direction the same over the arc). None when the
+    points do not fix it (too few, or brightness that does not follow any direction).
+    """
+    b = np.asarray(brightness, np.float64)
+    ok = np.isfinite(b) & (b > 0)
+    if ok.sum() < 10:
+        return None
+    e1, e2 = orthonormal_basis(geometry.axis_direction)
+    rel = section[ok] - center
+    rel /= np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)[:, None]
+    normals = rel[:, :1] * e1 + rel[:, 1:] * e2
+    n = geometry.plane_normal / np.linalg.norm(geometry.plane_normal)
+    u1 = e1 - (e1 @ n) * n
+    u1 /= np.linalg.norm(u1)
+    u2 = np.cross(n, u1)
+    design = np.column_stack([normals @ u1, normals @ u2])
+    coef, *_ = np.linalg.lstsq(design, b[ok], rcond=None)
+    v = coef[0] * u1 + coef[1] * u2
+    norm = float(np.linalg.norm(v))
+    if not norm > 0 or not np.isfinite(norm):
+        return None
+    v /= norm
+    # Every point seen lit must face the source.
+    return v if float(np.mean(normals @ v > 0)) > 0.9 else None
+
+
+def sheet_sigma_from_widths(width_px: np.ndarray, slope_mm_per_px: np.ndarray,
+                            blur_px: float) -> float:
+    """The sheet's thickness (Gaussian sigma, mm) from the stripe's measured widths.
+
+    ``width_px`` are the extractor's Gaussian widths of the stripe profile (lens blur
+    included), ``slope_mm_per_px`` the model's distance from the plane per pixel at the same
+    points: without blur the width is ``sigma / slope``. Median over the points; NaN when no
+    point gives a width.
+    """
+    w2 = np.asarray(width_px, np.float64) ** 2 - blur_px**2
+    ok = np.isfinite(w2) & (w2 > 0) & np.isfinite(slope_mm_per_px)
+    if not ok.any():
+        return math.nan
+    return float(np.median(np.sqrt(w2[ok]) * np.asarray(slope_mm_per_px)[ok]))

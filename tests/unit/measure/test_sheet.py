@@ -1,0 +1,89 @@
+"""The light sheet's thickness model (``service.measure.sheet``) against analytic truth and
+the simulated rig."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.measure.diameter import MeasureParams, axis_center, measure_frame
+from service.measure.result import Method
+from service.measure.section import orthonormal_basis
+from service.measure.sheet import light_direction, predict_sheet_bias, sheet_sigma_from_widths
+
+SMOOTHING = math.hypot(1.5, 0.7)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    r = ShaftRenderer(RigConfig(laser_azimuth_deg=20.0, speckle_contrast=0.0), seed=1)
+    return r, r.calibration.to_geometry()
+
+
+def arc(geometry, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The section centre and sample angles over the arc the camera sees (around 180 deg)."""
+    c = axis_center(geometry)
+    return c, np.radians(np.linspace(130.0, 230.0, 24))
+
+
+def test_a_thin_sheet_leaves_no_error(rig) -> None:
+    _, geo = rig
+    c, ang = arc(geo, 18.0)
+    assert np.all(predict_sheet_bias(c, 18.0, ang, geo, 0.0, SMOOTHING).radial_mm == 0)
+    thin = predict_sheet_bias(c, 18.0, ang, geo, 0.003, SMOOTHING).radial_mm
+    assert np.nanmax(np.abs(thin)) < 1e-5  # 0.01 um
+
+
+def test_the_error_grows_with_the_square_of_the_thickness(rig) -> None:
+    _, geo = rig
+    c, ang = arc(geo, 18.0)
+    a = predict_sheet_bias(c, 18.0, ang, geo, 0.03, SMOOTHING).radial_mm
+    b = predict_sheet_bias(c, 18.0, ang, geo, 0.06, SMOOTHING).radial_mm
+    big = np.abs(b) > 2e-4
+    assert big.sum() > 3
+    assert np.median(b[big] / a[big]) == pytest.approx(4.0, rel=0.2)
+    # Inward, and most where the camera looks obliquely (the arc's ends).
+    assert np.nanmean(b) < 0 and abs(b[0]) > abs(b[12]) and abs(b[-1]) > abs(b[12])
+
+
+def test_sheet_sigma_from_widths_inverts_the_width() -> None:
+    slope = np.full(50, 0.08)  # mm per px
+    widths = np.hypot(0.06 / slope, 0.7)
+    assert sheet_sigma_from_widths(widths, slope, 0.7) == pytest.approx(0.06)
+    assert math.isnan(sheet_sigma_from_widths(np.full(5, 0.5), slope[:5], 0.7))
+
+
+def test_light_direction_from_brightness(rig) -> None:
+    _, geo = rig
+    c = axis_center(geo)
+    ang = np.radians(np.linspace(120.0, 240.0, 200))
+    section = c + 18.0 * np.column_stack([np.cos(ang), np.sin(ang)])
+    e1, e2 = orthonormal_basis(geo.axis_direction)
+    normals = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
+    n = geo.plane_normal
+    truth = normals[100] - (normals[100] @ n) * n + 0.3 * np.cross(n, normals[100])
+    truth /= np.linalg.norm(truth)
+    rng = np.random.default_rng(4)
+    brightness = 150 * np.clip(normals @ truth, 0, None) * (1 + 0.05 * rng.standard_normal(200))
+    got = light_direction(section, c, brightness, geo)
+    assert got is not None
+    assert math.degrees(math.acos(min(1.0, float(got @ truth)))) < 2.0
+    assert light_direction(section[:5], c, brightness[:5], geo) is None
+
+
+@pytest.mark.parametrize("az, diameter", [(20.0, 36.0), (47.0, 28.0), (60.0, 44.0)])
+def test_the_correction_takes_out_most_of_the_error(az: float, diameter: float) -> None:
+    """Noise-free images of the simulated rig, centre held on the axis: the systematic error
+    of the stripe centres, with and without the model."""
+    r = ShaftRenderer(RigConfig(laser_azimuth_deg=az, speckle_contrast=0.0), seed=1)
+    geo = r.calibration.to_geometry()
+    img = r.render_clean(diameter) + 3.0
+    held = dict(axis_sigma_mm=1e-5)
+    off = measure_frame(img, geo, Method.AXIS, MeasureParams(sheet_correction=False, **held))
+    on = measure_frame(img, geo, Method.AXIS, MeasureParams(**held))
+    assert off and on
+    e_off, e_on = off.diameter_mm - diameter, on.diameter_mm - diameter
+    assert abs(e_on) < 0.5 * abs(e_off), (e_off, e_on)
