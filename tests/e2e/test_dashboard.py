@@ -43,6 +43,16 @@ def open_page(browser, url: str, width: int = 1280, height: int = 800) -> Page:
     return page
 
 
+def enter_key(page: Page) -> None:
+    """Type the technician key once the page's scripts are wired (the history table filled
+    proves it), and check that the page kept it: typed earlier, the change event found no
+    listener and the first request went out without a key."""
+    expect(page.locator("#history tr")).not_to_have_count(0, timeout=10000)
+    page.fill("#key", TECH_KEY)
+    page.locator("#key").dispatch_event("change")
+    assert page.evaluate("sessionStorage.getItem('shaftgauge-key')") == TECH_KEY
+
+
 def shot(page: Page, name: str) -> None:
     SHOTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(SHOTS / f"{name}.png"))
@@ -82,8 +92,7 @@ def test_compensation_view_and_shadow_switch(service, browser) -> None:
     expect(page.locator("#shadow-msg")).to_contain_text("technician key")
     expect(box).not_to_be_checked()
     page.goto(service.url + "/ui/#technician")
-    page.fill("#key", TECH_KEY)
-    page.locator("#key").dispatch_event("change")
+    enter_key(page)
     page.goto(service.url + "/ui/#compensation")
     page.locator("#shadow").click()
     expect(page.locator("#shadow-msg")).to_contain_text("shadow mode on")
@@ -105,9 +114,8 @@ def rendered(tmp_path_factory) -> Path:
 
 def test_calibration_wizard_from_rendered_images(service, browser, rendered) -> None:
     page = open_page(browser, service.url + "/ui/#technician")
-    page.fill("#key", TECH_KEY)
-    page.locator("#key").dispatch_event("change")
-    expect(page.locator("#history tr")).to_have_count(1, timeout=10000)
+    enter_key(page)
+    expect(page.locator("#history tr")).to_have_count(1)
     page.click("#new-session")
     expect(page.locator("#session-id")).to_contain_text("session")
     files = {"view": sorted((rendered / "views").glob("*.png")),
