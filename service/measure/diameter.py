@@ -17,11 +17,11 @@ from service.measure.section import (
     project_to_section,
 )
 from service.measure.sheet import (
-    SheetBias,
     arc_angles,
+    cross_the_stripe,
     light_direction,
-    predict_sheet_bias,
-    sheet_sigma_from_widths,
+    ridge_bias,
+    sheet_sigma_from_profile,
 )
 from service.measure.stripe import StripeParams, StripePoints, extract_stripe
 from service.measure.triangulate import triangulate
@@ -166,32 +166,31 @@ def correct_sheet_bias(points: SectionPoints, fitted: Measurement, geometry: Rig
     center, radius = np.asarray(fitted.center_mm, np.float64), fitted.diameter_mm / 2.0
     angles, _ = arc_angles(points.section, center)
     samples = np.linspace(angles.min(), angles.max(), SHEET_SAMPLES)
+    st = points.stripe
+    if st.peak is None:
+        return points
     blur, filter_px = params.stripe.optics_blur_px, params.stripe.sigma_px
     smoothing = float(np.hypot(filter_px, blur))
-    st = points.stripe
-    # The stripe's peak brightness: Steger's smoothed value over its curvature, for a Gaussian
-    # profile of width w seen with filters of scale s, is strength (w^2 + s^2)^1.5 / w.
-    s2 = st.width_px**2 + filter_px**2
+    order = np.argsort(angles)  # the points in arc order, for the light and the width
+    # The laser's irradiance: the smoothed height of a Gaussian line of width w, seen with
+    # filters of scale s, is its height times w / sqrt(w^2 + s^2).
     with np.errstate(divide="ignore", invalid="ignore"):
-        brightness = st.strength * s2**1.5 / st.width_px
+        brightness = st.peak * np.sqrt(st.width_px**2 + filter_px**2) / st.width_px
     toward_laser = light_direction(points.section, center, brightness, geometry)
-
-    def model(sigma_mm: float) -> SheetBias:
-        return predict_sheet_bias(center, radius, samples, geometry, sigma_mm, smoothing,
-                                  light_direction=toward_laser, filter_px=filter_px)
-
+    crossings = cross_the_stripe(center, radius, samples, geometry, 4.0 * smoothing + 4.0,
+                                 step_px=0.1)
     sigma = params.sheet_sigma_mm
     if sigma is None:
-        sigma = sheet_sigma_from_widths(st.width_px, np.interp(angles, samples,
-                                                                model(0.0).slope_mm_per_px),
-                                        blur)
+        slope = np.interp(angles, samples, crossings.slope_mm_per_px)
+        sigma = sheet_sigma_from_profile(st.peak[order], st.strength[order], slope[order],
+                                         filter_px, blur)
     if not (np.isfinite(sigma) and sigma > 0):
         return points
-    bias = model(sigma)
-    known = np.isfinite(bias.radial_mm)
+    radial = ridge_bias(crossings, geometry, center, radius, sigma, smoothing, toward_laser)
+    known = np.isfinite(radial)
     if known.sum() < 2:
         return points
-    dr = np.interp(angles, samples[known], bias.radial_mm[known])
+    dr = np.interp(angles, samples[known], radial[known])
     rel = points.section - center
     dist = np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)
     moved = center + rel * ((dist - dr) / dist)[:, None]

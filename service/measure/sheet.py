@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from service.measure.geometry import RigGeometry
 from service.measure.section import orthonormal_basis
@@ -42,15 +43,11 @@ class SheetBias:
     slope_mm_per_px : ndarray, shape (K,)
         Distance from the centre plane per pixel across the stripe's image, mm/px: the image
         width of the sheet profile is ``sheet_sigma_mm / slope``.
-    width_px : ndarray, shape (K,)
-        The width the extractor reports for this profile (its Gaussian-equivalent sigma from
-        the smoothed value over the curvature at the ridge, filter scale taken out), px.
     """
 
     angle_rad: np.ndarray
     radial_mm: np.ndarray
     slope_mm_per_px: np.ndarray
-    width_px: np.ndarray
 
 
 def _to_3d(section: np.ndarray, geometry: RigGeometry) -> np.ndarray:
@@ -76,10 +73,105 @@ def arc_angles(section: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, flo
     return unwrap_about(ang, mid), mid
 
 
+@dataclass(frozen=True)
+class Crossings:
+    """The fitted cylinder seen across the stripe at sample points along the arc.
+
+    Attributes
+    ----------
+    angle_rad : ndarray, shape (K,)
+        Sample angles about the section centre, radians.
+    q, normal : ndarray, shape (K, 2)
+        Image of the section (the plane's line on the cylinder) and its unit normal there, px.
+    u : ndarray, shape (M,)
+        Offsets across the stripe along ``normal``, px (symmetric, ``u[M // 2] == 0``).
+    dist : ndarray, shape (K, M)
+        Distance from the light plane of the surface each offset sees, mm (NaN: no surface).
+    normals : ndarray, shape (K, M, 3)
+        Surface normal there, camera frame.
+    slope_mm_per_px : ndarray, shape (K,)
+        Distance from the plane per pixel across the stripe, at its centre, mm/px: the image
+        width of the sheet profile is ``sheet_sigma_mm / slope``.
+    """
+
+    angle_rad: np.ndarray
+    q: np.ndarray
+    normal: np.ndarray
+    u: np.ndarray
+    dist: np.ndarray
+    normals: np.ndarray
+    slope_mm_per_px: np.ndarray
+
+
+def cross_the_stripe(center: np.ndarray, radius: float, angles_rad: np.ndarray,
+                     geometry: RigGeometry, half_width_px: float, step_px: float = 0.05
+                     ) -> Crossings:
+    """Cast rays across the stripe at ``angles_rad`` around a section circle (centre mm,
+    radius mm) onto the cylinder it belongs to, ``half_width_px`` either side."""
+    angles = np.asarray(angles_rad, np.float64)
+    k = len(angles)
+    # The section's image and its normal (from neighbours 1e-4 rad on).
+    ring = np.column_stack([np.cos(angles), np.sin(angles)])
+    ahead = np.column_stack([np.cos(angles + 1e-4), np.sin(angles + 1e-4)])
+    pts = np.concatenate([_to_3d(center + radius * ring, geometry),
+                          _to_3d(center + radius * ahead, geometry)])
+    img, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), geometry.camera_matrix,
+                               geometry.dist_coeffs)
+    img = img.reshape(-1, 2)
+    q, tangent = img[:k], img[k:] - img[:k]
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    n_half = round(half_width_px / step_px)
+    u = step_px * np.arange(-n_half, n_half + 1)
+    samples = q[:, None, :] + u[None, :, None] * normal[:, None, :]
+    rays = undistort_to_rays(samples.reshape(-1, 2), geometry.camera_matrix,
+                             geometry.dist_coeffs)
+    dist, normals = _plane_distance_on_cylinder(rays, center, radius, geometry)
+    dist = dist.reshape(k, len(u))
+    slope = np.abs(dist[:, n_half + 1] - dist[:, n_half - 1]) / (2 * step_px)
+    return Crossings(angles, q, normal, u, dist, normals.reshape(k, len(u), 3), slope)
+
+
+def ridge_bias(crossings: Crossings, geometry: RigGeometry, center: np.ndarray, radius: float,
+               sheet_sigma_mm: float, smoothing_px: float,
+               light_direction: np.ndarray | None = None) -> np.ndarray:
+    """Radial error (mm) of the stripe's ridge at each of ``crossings``' angles: NaN where
+    the camera does not see the surface across the stripe.
+
+    The sheet's Gaussian profile (``sheet_sigma_mm``) on the surface, shaded by the cosine of
+    the incidence when ``light_direction`` (unit, toward the laser) is given, smoothed by
+    ``smoothing_px`` as the extractor sees it; its maximum is triangulated on the light plane
+    as a stripe centre is.
+    """
+    c = crossings
+    k, m = c.dist.shape
+    if sheet_sigma_mm <= 0:
+        return np.zeros(k)
+    step = float(c.u[1] - c.u[0])
+    profile = np.exp(-0.5 * (np.nan_to_num(c.dist, nan=np.inf) / sheet_sigma_mm) ** 2)
+    if light_direction is not None:
+        profile *= np.clip(np.nan_to_num(c.normals @ light_direction), 0.0, None)
+    smooth = gaussian_filter1d(profile, max(smoothing_px, 1e-6) / step, axis=1,
+                               mode="constant", truncate=4.0)
+    peak = np.argmax(smooth, axis=1)
+    rows = np.nonzero((peak > 0) & (peak < m - 1) & np.isfinite(c.dist[:, m // 2]))[0]
+    y0, y1, y2 = (smooth[rows, peak[rows] + j] for j in (-1, 0, 1))
+    den = y0 - 2 * y1 + y2
+    frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
+    ridge = c.q[rows] + ((c.u[peak[rows]] + frac * step)[:, None]) * c.normal[rows]
+    seen = undistort_to_rays(ridge, geometry.camera_matrix, geometry.dist_coeffs)
+    pts3 = intersect_plane(seen, geometry.plane_normal, geometry.plane_d)
+    e1, e2 = orthonormal_basis(geometry.axis_direction)
+    sec = np.column_stack([pts3 @ e1, pts3 @ e2])
+    radial = np.full(k, np.nan)
+    radial[rows] = np.hypot(*(sec - center).T) - radius
+    return radial
+
+
 def predict_sheet_bias(
     center: np.ndarray, radius: float, angles_rad: np.ndarray, geometry: RigGeometry,
     sheet_sigma_mm: float, smoothing_px: float, step_px: float = 0.05,
-    light_direction: np.ndarray | None = None, filter_px: float = 0.0,
+    light_direction: np.ndarray | None = None,
 ) -> SheetBias:
     """Radial error of the stripe ridge at ``angles_rad`` around a section circle.
 
@@ -103,65 +195,17 @@ def predict_sheet_bias(
     light_direction : ndarray, shape (3,), optional
         Unit vector toward the laser, camera frame: the surface is then shaded by the cosine
         of the incidence (Lambert), which changes across the stripe as the surface curves.
-    filter_px : float
-        The extractor's own filter scale (part of ``smoothing_px``), for the width it reports.
 
     Returns
     -------
     SheetBias
         Radial errors (NaN where the camera does not see the surface across the stripe).
     """
-    angles = np.asarray(angles_rad, np.float64)
-    k = len(angles)
-    ring = np.column_stack([np.cos(angles), np.sin(angles)])
-    on_plane = _to_3d(center + radius * ring, geometry)
-    # Image of the arc and its normal (from neighbours 1e-4 rad away).
-    da = 1e-4
-    ahead = _to_3d(center + radius * np.column_stack([np.cos(angles + da),
-                                                      np.sin(angles + da)]), geometry)
-    pts = np.concatenate([on_plane, ahead])
-    img, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), geometry.camera_matrix,
-                               geometry.dist_coeffs)
-    img = img.reshape(-1, 2)
-    q, tangent = img[:k], img[k:] - img[:k]
-    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
-    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-    n_half = round((6.0 * smoothing_px + 4.0) / step_px)
-    u = step_px * np.arange(-n_half, n_half + 1)  # symmetric: u[n_half] == 0
-    samples = q[:, None, :] + u[None, :, None] * normal[:, None, :]
-    rays = undistort_to_rays(samples.reshape(-1, 2), geometry.camera_matrix,
-                             geometry.dist_coeffs)
-    dist, normals = _plane_distance_on_cylinder(rays, center, radius, geometry)
-    dist = dist.reshape(k, len(u))
-    # Distance from the plane per pixel across the stripe, at its centre.
-    mid = n_half
-    slope = np.abs(dist[:, mid + 1] - dist[:, mid - 1]) / (2 * step_px)
-    radial, width = np.full(k, np.nan), np.full(k, np.nan)
-    if sheet_sigma_mm <= 0:
-        return SheetBias(angles, np.zeros(k), slope, width)
-    profile = np.exp(-0.5 * (np.nan_to_num(dist, nan=np.inf) / sheet_sigma_mm) ** 2)
-    if light_direction is not None:
-        shade = np.clip(np.nan_to_num(normals @ light_direction), 0.0, None)
-        profile = profile * shade.reshape(k, len(u))
-    n_kernel = round(4.0 * smoothing_px / step_px)
-    kernel_u = step_px * np.arange(-n_kernel, n_kernel + 1)  # odd and centred: no shift
-    kernel = np.exp(-0.5 * (kernel_u / max(smoothing_px, 1e-6)) ** 2)
-    smooth = np.array([np.convolve(p, kernel, mode="same") for p in profile])
-    peak = np.argmax(smooth, axis=1)
-    inner = (peak > 0) & (peak < len(u) - 1) & np.isfinite(dist[:, mid])
-    rows = np.nonzero(inner)[0]
-    y0, y1, y2 = (smooth[rows, peak[rows] + j] for j in (-1, 0, 1))
-    den = y0 - 2 * y1 + y2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        width[rows] = np.sqrt(np.clip(y1 * step_px**2 / -den - filter_px**2, 0.0, None))
-    frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
-    ridge = q[rows] + ((u[peak[rows]] + frac * step_px)[:, None]) * normal[rows]
-    seen = undistort_to_rays(ridge, geometry.camera_matrix, geometry.dist_coeffs)
-    pts3 = intersect_plane(seen, geometry.plane_normal, geometry.plane_d)
-    e1, e2 = orthonormal_basis(geometry.axis_direction)
-    sec = np.column_stack([pts3 @ e1, pts3 @ e2])
-    radial[rows] = np.hypot(*(sec - center).T) - radius
-    return SheetBias(angles, radial, slope, width)
+    c = cross_the_stripe(center, radius, angles_rad, geometry, 6.0 * smoothing_px + 4.0,
+                         step_px)
+    radial = ridge_bias(c, geometry, center, radius, sheet_sigma_mm, smoothing_px,
+                        light_direction)
+    return SheetBias(c.angle_rad, radial, c.slope_mm_per_px)
 
 
 def _plane_distance_on_cylinder(rays_xy: np.ndarray, center: np.ndarray, radius: float,
@@ -222,17 +266,28 @@ def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndar
     return v if float(np.mean(normals @ v > 0)) > 0.9 else None
 
 
-def sheet_sigma_from_widths(width_px: np.ndarray, slope_mm_per_px: np.ndarray,
-                            blur_px: float) -> float:
-    """The sheet's thickness (Gaussian sigma, mm) from the stripe's measured widths.
+def sheet_sigma_from_profile(peak: np.ndarray, curvature: np.ndarray, slope_mm_per_px: np.ndarray,
+                             filter_px: float, blur_px: float, groups: int = 12) -> float:
+    """The sheet's thickness (Gaussian sigma, mm) from the stripe's profile at its centres.
 
-    ``width_px`` are the extractor's Gaussian widths of the stripe profile (lens blur
-    included), ``slope_mm_per_px`` the model's distance from the plane per pixel at the same
-    points: without blur the width is ``sigma / slope``. Median over the points; NaN when no
-    point gives a width.
+    At each centre the extractor's smoothed profile has height ``peak`` and curvature
+    ``curvature`` across the stripe; for a Gaussian line of image width ``w`` (lens blur
+    included) seen with filters of scale ``s`` their ratio is ``w^2 + s^2``. A ratio per point
+    is inflated by the noise in the curvature (the mean of 1/x exceeds 1/mean), so the ratio is
+    taken of sums over ``groups`` runs of consecutive points (in arc order), and without blur
+    the width is ``sigma / slope``, ``slope_mm_per_px`` the model's distance from the plane per
+    pixel. Median over the groups; NaN when no group gives a width.
     """
-    w2 = np.asarray(width_px, np.float64) ** 2 - blur_px**2
-    ok = np.isfinite(w2) & (w2 > 0) & np.isfinite(slope_mm_per_px)
-    if not ok.any():
-        return math.nan
-    return float(np.median(np.sqrt(w2[ok]) * np.asarray(slope_mm_per_px)[ok]))
+    peak = np.asarray(peak, np.float64)
+    curv = np.asarray(curvature, np.float64)
+    slope = np.asarray(slope_mm_per_px, np.float64)
+    ok = np.isfinite(peak) & np.isfinite(curv) & (curv > 0) & np.isfinite(slope)
+    idx = np.nonzero(ok)[0]
+    sigmas = []
+    for run in np.array_split(idx, max(1, min(groups, len(idx) // 5))):
+        if len(run) == 0:
+            continue
+        w2 = peak[run].sum() / curv[run].sum() - filter_px**2 - blur_px**2
+        if w2 > 0:
+            sigmas.append(math.sqrt(w2) * float(np.median(slope[run])))
+    return float(np.median(sigmas)) if sigmas else math.nan

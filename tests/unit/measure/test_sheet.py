@@ -12,7 +12,11 @@ from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import MeasureParams, axis_center, measure_frame
 from service.measure.result import Method
 from service.measure.section import orthonormal_basis
-from service.measure.sheet import light_direction, predict_sheet_bias, sheet_sigma_from_widths
+from service.measure.sheet import (
+    light_direction,
+    predict_sheet_bias,
+    sheet_sigma_from_profile,
+)
 
 SMOOTHING = math.hypot(1.5, 0.7)
 
@@ -49,11 +53,31 @@ def test_the_error_grows_with_the_square_of_the_thickness(rig) -> None:
     assert np.nanmean(b) < 0 and abs(b[0]) > abs(b[12]) and abs(b[-1]) > abs(b[12])
 
 
-def test_sheet_sigma_from_widths_inverts_the_width() -> None:
-    slope = np.full(50, 0.08)  # mm per px
-    widths = np.hypot(0.06 / slope, 0.7)
-    assert sheet_sigma_from_widths(widths, slope, 0.7) == pytest.approx(0.06)
-    assert math.isnan(sheet_sigma_from_widths(np.full(5, 0.5), slope[:5], 0.7))
+def test_sheet_sigma_from_the_profile() -> None:
+    slope = np.full(60, 0.08)  # mm per px
+    w2 = (0.06 / slope) ** 2 + 0.7**2  # the image width, blur included
+    curvature = np.random.default_rng(1).uniform(20, 40, 60)
+    peak = curvature * (w2 + 1.5**2)
+    assert sheet_sigma_from_profile(peak, curvature, slope, 1.5, 0.7) == pytest.approx(0.06)
+    assert math.isnan(sheet_sigma_from_profile(peak * 0.1, curvature, slope, 1.5, 0.7))
+
+
+def test_sheet_sigma_on_rendered_images(rig) -> None:
+    """The estimate on a noise-free image of the simulated rig, whose sheet has sigma 0.06."""
+    r, geo = rig
+    seen = {}
+    import service.measure.diameter as diameter
+
+    def spy(*args: object) -> float:
+        seen["sigma"] = sheet_sigma_from_profile(*args)
+        return seen["sigma"]
+
+    original, diameter.sheet_sigma_from_profile = diameter.sheet_sigma_from_profile, spy
+    try:
+        assert measure_frame(r.render_clean(36.0) + 3.0, geo, Method.AXIS)
+    finally:
+        diameter.sheet_sigma_from_profile = original
+    assert seen["sigma"] == pytest.approx(0.06, rel=0.05)
 
 
 def test_light_direction_from_brightness(rig) -> None:
