@@ -230,6 +230,15 @@ class Gauge:
         self._hold = (time.monotonic() + seconds, why)
         log.info("offsets held for %.0f s: %s", seconds, why)
 
+    def release_hold(self, owner: str) -> bool:
+        """End the hold if ``owner`` set it (its reason names the owner): a calibration
+        session that has been activated. True when a hold ended."""
+        if self.offset_hold() is None or owner not in self._hold[1]:
+            return False
+        log.info("offsets no longer held: %s is done", owner)
+        self._hold = None
+        return True
+
     def offset_hold(self) -> str | None:
         """Why offsets are held now, or None."""
         if self._hold is not None and time.monotonic() < self._hold[0]:

@@ -192,7 +192,8 @@ def router(gauge: Gauge) -> APIRouter:
         await asyncio.sleep(0)
         return s.as_dict()
 
-    @r.post("/calibration-sessions/{sid}/activate", summary="Import and activate the result")
+    @r.post("/calibration-sessions/{sid}/activate",
+            summary="Import and activate the result (ends the hold its captures set)")
     async def activate(sid: str, body: ActivateIn, role: str = technician) -> dict:
         s = find(sid)
         if s.calibration is None:
@@ -206,6 +207,9 @@ def router(gauge: Gauge) -> APIRouter:
                               quality=s.report, activate=True)
         gauge.set_calibration(*gauge.store.get(cid))
         s.activated_id = cid
+        # The technician is done with the board: its captures no longer hold offsets back (the
+        # compensation still needs good measurements of a part near nominal to write any).
+        gauge.release_hold(f"calibration session {sid}")
         return s.as_dict()
 
     return r

@@ -42,6 +42,11 @@ def test_session_from_upload_to_activation(client, images) -> None:
     r = client.post("/api/v1/calibration-sessions", headers=H, json={"note": "monday"})
     assert r.status_code == 201
     sid = r.json()["id"]
+    # A capture holds offsets (the camera looks at a board); the live frame here is a shaft,
+    # which the intrinsics step sets aside as an image without a board.
+    assert client.post(f"/api/v1/calibration-sessions/{sid}/capture/view",
+                       headers=H).status_code == 201
+    assert sid in client.get("/api/v1/status").json()["compensation"]["held"]
     for p in sorted((images / "views").glob("*.png")):
         upload(client, sid, "view", p)
     for i in range(4):
@@ -61,6 +66,7 @@ def test_session_from_upload_to_activation(client, images) -> None:
     cid = r.json()["activated_id"]
     cal = client.get(f"/api/v1/calibrations/{cid}").json()
     assert cal["active"] and cal["quality"]["verdict"] == s["report"]["verdict"]
+    assert client.get("/api/v1/status").json()["compensation"]["held"] is None
 
 
 def test_bad_sessions_are_refused(client, images) -> None:
