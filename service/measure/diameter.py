@@ -155,20 +155,21 @@ SHEET_SAMPLES = 24
 """Points along the arc where the sheet's error is modelled (it changes slowly along it)."""
 
 
-def correct_sheet_bias(points: SectionPoints, fitted: Measurement, geometry: RigGeometry,
-                       params: MeasureParams) -> SectionPoints:
-    """The section points moved radially by the error the sheet's thickness leaves in them,
-    modelled on the ``fitted`` section (``service.measure.sheet``).
+def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
+                       geometry: RigGeometry, params: MeasureParams) -> np.ndarray:
+    """The section coordinates (mm) moved radially by the error the sheet's thickness leaves
+    in them, modelled on a fitted section of ``center`` (mm) and ``radius`` (mm)
+    (``service.measure.sheet``).
 
     Points where the model has no answer (the camera does not see across the stripe there)
-    are left where they are.
+    are left where they are; so are all when the stripe gives no heights or no width.
     """
-    center, radius = np.asarray(fitted.center_mm, np.float64), fitted.diameter_mm / 2.0
+    center = np.asarray(center, np.float64)
     angles, _ = arc_angles(points.section, center)
     samples = np.linspace(angles.min(), angles.max(), SHEET_SAMPLES)
     st = points.stripe
     if st.peak is None:
-        return points
+        return points.section
     blur, filter_px = params.stripe.optics_blur_px, params.stripe.sigma_px
     smoothing = float(np.hypot(filter_px, blur))
     order = np.argsort(angles)  # the points in arc order, for the light and the width
@@ -185,16 +186,15 @@ def correct_sheet_bias(points: SectionPoints, fitted: Measurement, geometry: Rig
         sigma = sheet_sigma_from_profile(st.peak[order], st.strength[order], slope[order],
                                          filter_px, blur)
     if not (np.isfinite(sigma) and sigma > 0):
-        return points
+        return points.section
     radial = ridge_bias(crossings, geometry, center, radius, sigma, smoothing, toward_laser)
     known = np.isfinite(radial)
     if known.sum() < 2:
-        return points
+        return points.section
     dr = np.interp(angles, samples[known], radial[known])
     rel = points.section - center
     dist = np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)
-    moved = center + rel * ((dist - dr) / dist)[:, None]
-    return SectionPoints(points.stripe, points.points3d, moved)
+    return center + rel * ((dist - dr) / dist)[:, None]
 
 
 def axis_center(geometry: RigGeometry) -> np.ndarray | None:
@@ -202,6 +202,16 @@ def axis_center(geometry: RigGeometry) -> np.ndarray | None:
     if geometry.axis_point is None:
         return None
     return project_to_section(geometry.axis_point[None, :], geometry.axis_direction)[0]
+
+
+def _fit_circle(sec: np.ndarray, method: Method,
+                center_prior: tuple[np.ndarray, float] | None, weights: np.ndarray,
+                start: fits.CircleFit | None = None) -> fits.CircleFit:
+    """The circle of ``axis`` (with the centre prior) or ``geometric``."""
+    if method is Method.AXIS and center_prior is not None:
+        return fits.fit_axis_prior(sec, center_prior[0], center_prior[1], weights=weights,
+                                   start=start)
+    return fits.fit_geometric(sec, weights=weights, start=start)
 
 
 def fit_section(
@@ -239,8 +249,15 @@ def fit_section(
         std = 2.0 * ell.minor_std
     else:
         weights = fits.point_weights(points.stripe.strength, len(sec))
+        if method in (Method.AXIS, Method.GEOMETRIC):
+            circ = _fit_circle(sec, method, center_prior, weights)
+            if circ and params.sheet_correction:
+                # Take out the sheet's error modelled on this fit, and fit again from it.
+                moved = correct_sheet_bias(points, circ.center, circ.radius, geometry, params)
+                again = _fit_circle(moved, method, center_prior, weights, start=circ)
+                if again:
+                    sec, circ = moved, again
         if method is Method.AXIS:
-            circ = fits.fit_axis_prior(sec, center_prior[0], center_prior[1], weights=weights)
             free = fits.fit_geometric(sec, weights=weights) if params.free_fit else None
             if free:
                 cov = fits.circle_covariance(sec[free.inliers], free.center, free.radius,
@@ -248,9 +265,7 @@ def fit_section(
                 free_extra = {"free_center_mm": (float(free.center[0]), float(free.center[1])),
                               "free_center_cov": (float(cov[0, 0]), float(cov[0, 1]),
                                                   float(cov[1, 1]))}
-        elif method is Method.GEOMETRIC:
-            circ = fits.fit_geometric(sec, weights=weights)
-        else:  # the paper's algorithms, as the paper has them: unweighted
+        elif method is not Method.GEOMETRIC:  # the paper's algorithms as it has them: unweighted
             circ = (fits.fit_kasa if method is Method.CIRCLE else fits.fit_paper)(sec)
         if not circ:
             return Measurement.failed(Status.FIT_FAILED, method, circ.reason,
@@ -323,11 +338,4 @@ def measure_frame(
             Status.TOO_FEW_POINTS, method,
             f"{len(points.section)} stripe points, need {params.min_points}",
             n_points=len(points.section), points_px=points.stripe.xy)
-    result = fit_section(points, geometry, method, params, center_prior)
-    if result and params.sheet_correction and result.method in (Method.AXIS, Method.GEOMETRIC):
-        corrected = correct_sheet_bias(points, result, geometry, params)
-        if corrected is not points:
-            again = fit_section(corrected, geometry, method, params, center_prior)
-            if again:
-                return again
-    return result
+    return fit_section(points, geometry, method, params, center_prior)

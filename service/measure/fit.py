@@ -330,7 +330,7 @@ def _lm_circle(pts: np.ndarray, start: CircleFit, sqrt_w: np.ndarray | None = No
 
 def fit_geometric(
     points: np.ndarray, reject_k: float = 3.5, max_rounds: int = 6, floor_mm: float = 1e-4,
-    weights: np.ndarray | None = None,
+    weights: np.ndarray | None = None, start: CircleFit | None = None,
 ) -> CircleFit:
     """Orthogonal-distance circle fit with robust outlier rejection.
 
@@ -351,6 +351,9 @@ def fit_geometric(
         Least rejection distance, mm, so that near-perfect data keeps its points.
     weights : ndarray, shape (N,), optional
         Relative weights (``point_weights``); residuals are judged scaled by sqrt(weight).
+    start : CircleFit, optional
+        A fit of nearly the same points to start from (its centre, radius and inliers)
+        instead of ``fit_hyper``.
 
     Returns
     -------
@@ -364,10 +367,12 @@ def fit_geometric(
     w = np.ones(len(pts)) if weights is None else np.asarray(weights, np.float64)
     sw = np.sqrt(w)
     inliers = np.ones(len(pts), bool)
-    fit = fit_hyper(pts)
+    fit = start if start and start.inliers.size == len(pts) else fit_hyper(pts)
     if not fit:
         return fit
     center, radius = fit.center, fit.radius
+    if fit is start:
+        inliers = start.inliers.copy()
     for _ in range(max_rounds):
         if inliers.sum() < 3:
             return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
@@ -480,7 +485,8 @@ def fit_paper(points: np.ndarray) -> CircleFit:
 
 def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: float,
                    reject_k: float = 3.5, max_rounds: int = 6,
-                   floor_mm: float = 1e-4, weights: np.ndarray | None = None) -> CircleFit:
+                   floor_mm: float = 1e-4, weights: np.ndarray | None = None,
+                   start: CircleFit | None = None) -> CircleFit:
     """Circle with a Gaussian prior on its centre, by maximum a posteriori.
 
     A surface turned on the lathe is concentric with the spindle axis, so the section centre
@@ -501,6 +507,8 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
         Standard deviation of the prior centre, mm (> 0).
     reject_k, max_rounds, floor_mm, weights
         Outlier rejection and point weights, as in ``fit_geometric``.
+    start : CircleFit, optional
+        A fit of nearly the same points to start from (its centre, radius and inliers).
 
     Returns
     -------
@@ -520,6 +528,8 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
     inliers = np.ones(len(pts), bool)
     center = c0.copy()
     radius = float(np.average(np.hypot(*(pts - c0).T), weights=w))
+    if start and start.inliers.size == len(pts):
+        inliers, center, radius = start.inliers.copy(), start.center.copy(), start.radius
     for _ in range(max_rounds):
         use, sw = pts[inliers], sw_all[inliers]
         if len(use) < 3:
