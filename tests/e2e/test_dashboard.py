@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import time
 from pathlib import Path
 
@@ -16,7 +15,6 @@ import pytest
 from playwright.sync_api import Page, expect, sync_playwright
 
 from tests.e2e.conftest import TECH_KEY
-from tests.integration.conftest import SHAFTGAUGE
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -104,12 +102,8 @@ def test_compensation_view_and_shadow_switch(service, browser) -> None:
 
 
 @pytest.fixture(scope="module")
-def rendered(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("calibration-set")
-    r = subprocess.run([SHAFTGAUGE, "calibrate", "render", "--output", str(out)],
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return out
+def rendered(calibration_images) -> Path:
+    return calibration_images
 
 
 def test_calibration_wizard_from_rendered_images(service, browser, rendered) -> None:

@@ -2,24 +2,18 @@
 
 from __future__ import annotations
 
-import subprocess
 import time
 
 import pytest
 
-from tests.integration.conftest import SHAFTGAUGE
 from tests.unit.service.conftest import OPERATOR, TECHNICIAN
 
 H = {"X-API-Key": TECHNICIAN}
 
 
 @pytest.fixture(scope="module")
-def images(tmp_path_factory):
-    out = tmp_path_factory.mktemp("set")
-    r = subprocess.run([SHAFTGAUGE, "calibrate", "render", "--output", str(out)],
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return out
+def images(calibration_images):
+    return calibration_images
 
 
 def wait_done(client, sid, step, timeout_s=120):
