@@ -151,7 +151,7 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
                          points.section[keep])
 
 
-SHEET_SAMPLES = 24
+SHEET_SAMPLES = 16
 """Points along the arc where the sheet's error is modelled (it changes slowly along it)."""
 
 
@@ -179,7 +179,7 @@ def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
         brightness = st.peak * np.sqrt(st.width_px**2 + filter_px**2) / st.width_px
     toward_laser = light_direction(points.section, center, brightness, geometry)
     crossings = cross_the_stripe(center, radius, samples, geometry, 4.0 * smoothing + 4.0,
-                                 step_px=0.1)
+                                 step_px=0.2)
     sigma = params.sheet_sigma_mm
     if sigma is None:
         slope = np.interp(angles, samples, crossings.slope_mm_per_px)
@@ -207,11 +207,13 @@ def axis_center(geometry: RigGeometry) -> np.ndarray | None:
 def _fit_circle(sec: np.ndarray, method: Method,
                 center_prior: tuple[np.ndarray, float] | None, weights: np.ndarray,
                 start: fits.CircleFit | None = None) -> fits.CircleFit:
-    """The circle of ``axis`` (with the centre prior) or ``geometric``."""
+    """The circle of ``axis`` (with the centre prior) or ``geometric``; from ``start`` (a fit
+    of the same points before a sub-micrometre correction) one round, keeping its inliers."""
+    rounds = 1 if start else 6
     if method is Method.AXIS and center_prior is not None:
         return fits.fit_axis_prior(sec, center_prior[0], center_prior[1], weights=weights,
-                                   start=start)
-    return fits.fit_geometric(sec, weights=weights, start=start)
+                                   start=start, max_rounds=rounds)
+    return fits.fit_geometric(sec, weights=weights, start=start, max_rounds=rounds)
 
 
 def fit_section(

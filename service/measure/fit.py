@@ -373,7 +373,8 @@ def fit_geometric(
     center, radius = fit.center, fit.radius
     if fit is start:
         inliers = start.inliers.copy()
-    for _ in range(max_rounds):
+    for k in range(max_rounds):
+        last = k == max_rounds - 1
         if inliers.sum() < 3:
             return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
         solved = _lm_circle(pts[inliers], CircleFit(center, radius), sw[inliers])
@@ -383,8 +384,8 @@ def fit_geometric(
         res = (np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) - radius) * sw
         scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
         new = np.abs(res) <= max(reject_k * scale, floor_mm)
-        if np.array_equal(new, inliers):
-            break
+        if np.array_equal(new, inliers) or last:
+            break  # the inliers reported are those this fit was made with
         inliers = new
     return _with_std(CircleFit(center, radius, circle_rms(pts[inliers], center, radius),
                                inliers), pts, w)
@@ -530,7 +531,8 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
     radius = float(np.average(np.hypot(*(pts - c0).T), weights=w))
     if start and start.inliers.size == len(pts):
         inliers, center, radius = start.inliers.copy(), start.center.copy(), start.radius
-    for _ in range(max_rounds):
+    for k in range(max_rounds):
+        last = k == max_rounds - 1
         use, sw = pts[inliers], sw_all[inliers]
         if len(use) < 3:
             return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
@@ -553,8 +555,8 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
         res = (np.hypot(*(pts - center).T) - radius) * sw_all
         scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
         new = np.abs(res - np.median(res[inliers])) <= max(reject_k * scale, floor_mm)
-        if np.array_equal(new, inliers):
-            break
+        if np.array_equal(new, inliers) or last:
+            break  # the inliers reported are those this fit was made with
         inliers = new
     use = pts[inliers]
     cov = circle_covariance(use, center, radius, center_prior_sigma=center_sigma,
