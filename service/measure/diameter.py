@@ -259,16 +259,16 @@ def fit_section(
                 again = _fit_circle(moved, method, center_prior, weights, start=circ)
                 if again:
                     sec, circ = moved, again
-        if method is Method.AXIS:
-            free = fits.fit_geometric(sec, weights=weights) if params.free_fit else None
-            if free:
-                cov = fits.circle_covariance(sec[free.inliers], free.center, free.radius,
-                                             weights=weights[free.inliers])
-                free_extra = {"free_center_mm": (float(free.center[0]), float(free.center[1])),
-                              "free_center_cov": (float(cov[0, 0]), float(cov[0, 1]),
-                                                  float(cov[1, 1]))}
-        elif method is not Method.GEOMETRIC:  # the paper's algorithms as it has them: unweighted
+        else:  # the paper's algorithms, as the paper has them: unweighted
             circ = (fits.fit_kasa if method is Method.CIRCLE else fits.fit_paper)(sec)
+        free = fits.fit_geometric(sec, weights=weights) \
+            if method is Method.AXIS and params.free_fit else None
+        if free:  # for the axis tracker
+            cov = fits.circle_covariance(sec[free.inliers], free.center, free.radius,
+                                         weights=weights[free.inliers])
+            free_extra = {"free_center_mm": (float(free.center[0]), float(free.center[1])),
+                          "free_center_cov": (float(cov[0, 0]), float(cov[0, 1]),
+                                              float(cov[1, 1]))}
         if not circ:
             return Measurement.failed(Status.FIT_FAILED, method, circ.reason,
                                       n_points=len(sec), points_px=points.stripe.xy)
