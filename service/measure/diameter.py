@@ -207,13 +207,13 @@ def axis_center(geometry: RigGeometry) -> np.ndarray | None:
 def _fit_circle(sec: np.ndarray, method: Method,
                 center_prior: tuple[np.ndarray, float] | None, weights: np.ndarray,
                 start: fits.CircleFit | None = None) -> fits.CircleFit:
-    """The circle of ``axis`` (with the centre prior) or ``geometric``; from ``start`` (a fit
-    of the same points before a sub-micrometre correction) one round, keeping its inliers."""
-    rounds = 1 if start else 6
+    """The circle of ``axis`` (with the centre prior) or ``geometric``, from ``start`` when
+    given (a fit of the same points before a sub-micrometre correction). Outliers are judged
+    again: corrected, a point at the stripe's faded end may rejoin or leave."""
     if method is Method.AXIS and center_prior is not None:
         return fits.fit_axis_prior(sec, center_prior[0], center_prior[1], weights=weights,
-                                   start=start, max_rounds=rounds)
-    return fits.fit_geometric(sec, weights=weights, start=start, max_rounds=rounds)
+                                   start=start)
+    return fits.fit_geometric(sec, weights=weights, start=start)
 
 
 def fit_section(
