@@ -194,7 +194,8 @@ class Gauge:
                                         thread_name_prefix="measure")
         self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
         self._running = False
-        self._hold: tuple[float, str] | None = None   # (monotonic end, why) of an offset hold
+        # (monotonic end, why, who set it) of an offset hold
+        self._hold: tuple[float, str, str | None] | None = None
         self.started = time.time()
         if store is not None:
             try:
@@ -224,18 +225,19 @@ class Gauge:
         self._window.clear()
         log.info("calibration %d in use (%s)", info.id, info.note or "no note")
 
-    def hold_offsets(self, seconds: float, why: str) -> None:
+    def hold_offsets(self, seconds: float, why: str, owner: str | None = None) -> None:
         """Treat every measurement as doubtful for ``seconds`` from now (the camera is
-        looking at a calibration board): nothing is written to the CNC meanwhile."""
-        self._hold = (time.monotonic() + seconds, why)
+        looking at a calibration board): nothing is written to the CNC meanwhile. ``owner``
+        (a calibration session's id) may end it early with ``release_hold``."""
+        self._hold = (time.monotonic() + seconds, why, owner)
         log.info("offsets held for %.0f s: %s", seconds, why)
 
     def release_hold(self, owner: str) -> bool:
-        """End the hold if ``owner`` set it (its reason names the owner): a calibration
-        session that has been activated. True when a hold ended."""
-        if self.offset_hold() is None or owner not in self._hold[1]:
+        """End the hold if ``owner`` set it (a calibration session that has been activated).
+        True when a hold ended."""
+        if self.offset_hold() is None or self._hold[2] != owner:
             return False
-        log.info("offsets no longer held: %s is done", owner)
+        log.info("offsets no longer held (were: %s)", self._hold[1])
         self._hold = None
         return True
 

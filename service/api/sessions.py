@@ -125,7 +125,8 @@ def router(gauge: Gauge) -> APIRouter:
     async def capture(sid: str, kind: Kind, _: str = technician) -> dict:
         s = find(sid)
         # The camera now looks at a board, not a part: no offset from what it measures.
-        gauge.hold_offsets(CAPTURE_HOLD_S, f"calibration session {sid} is capturing")
+        gauge.hold_offsets(CAPTURE_HOLD_S, f"calibration session {sid} is capturing",
+                           owner=sid)
         asked = time.monotonic_ns()
         deadline = time.monotonic() + CAPTURE_TIMEOUT_S
         while True:  # a frame taken after the request, never one from before it
@@ -209,7 +210,7 @@ def router(gauge: Gauge) -> APIRouter:
         s.activated_id = cid
         # The technician is done with the board: its captures no longer hold offsets back (the
         # compensation still needs good measurements of a part near nominal to write any).
-        gauge.release_hold(f"calibration session {sid}")
+        gauge.release_hold(sid)
         return s.as_dict()
 
     return r
