@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from calib_store.model import SCHEMA, Calibration, parse_calibration
-from service.measure.section import orthonormal_basis
+from service.measure.section import first_hit_on_cylinder, orthonormal_basis
 
 
 def _rotation(rx_deg: float, ry_deg: float, rz_deg: float) -> np.ndarray:
@@ -197,23 +197,7 @@ class ShaftRenderer:
         off = np.array([0.0, *self.config.axis_offset_mm])
         a = p.axis_direction
         a0 = p.R @ (off - p.C)  # a point on the shaft's axis, camera frame
-        r = np.concatenate([rays_xy, np.ones((*rays_xy.shape[:-1], 1))], axis=-1)
-        r_perp = r - (r @ a)[..., None] * a
-        w = -a0
-        w_perp = w - (w @ a) * a
-        qa = np.sum(r_perp * r_perp, axis=-1)
-        qb = r_perp @ w_perp
-        qc = w_perp @ w_perp - radius * radius
-        disc = qb * qb - qa * qc
-        hit = disc > 0
-        s = np.where(hit, (-qb - np.sqrt(np.where(hit, disc, 0.0))) / np.maximum(qa, 1e-300),
-                     np.nan)
-        hit &= s > 0
-        pts = r * s[..., None]
-        rel = pts - a0
-        nrm = rel - (rel @ a)[..., None] * a
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-300)
-        return hit, pts, nrm
+        return first_hit_on_cylinder(rays_xy, a0, a, radius)
 
     def _stripe_roi(self, radius: float) -> tuple[int, int, int, int]:
         """Pixel bounding box (x0, y0, x1, y1) of the lit section, with a margin."""

@@ -125,3 +125,44 @@ def section_circle_on_plane(center: tuple[float, float], radius: float,
          + (center[1] + radius * np.sin(th))[:, None] * e2)
     t = (plane_d - s @ plane_normal) / na
     return s + t[:, None] * a
+
+
+def first_hit_on_cylinder(rays_xy: np.ndarray, axis_point: np.ndarray,
+                          axis_direction: np.ndarray, radius: float
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where camera rays first meet a cylinder, and its outward normal there.
+
+    Parameters
+    ----------
+    rays_xy : ndarray, shape (..., 2)
+        Undistorted normalised rays ``(x, y)`` (the ray is ``s (x, y, 1)``, s > 0).
+    axis_point, axis_direction : ndarray, shape (3,)
+        A point on the cylinder's axis and its unit direction, camera frame, mm.
+    radius : float
+        Radius, mm.
+
+    Returns
+    -------
+    hit : ndarray of bool, shape (...)
+        The ray meets the cylinder in front of the camera.
+    points, normals : ndarray, shape (..., 3)
+        The first intersection (NaN for a miss), mm, and the unit surface normal there.
+    """
+    a, a0 = np.asarray(axis_direction, np.float64), np.asarray(axis_point, np.float64)
+    r = np.concatenate([rays_xy, np.ones((*rays_xy.shape[:-1], 1))], axis=-1)
+    r_perp = r - (r @ a)[..., None] * a
+    w = -a0
+    w_perp = w - (w @ a) * a
+    qa = np.sum(r_perp * r_perp, axis=-1)
+    qb = r_perp @ w_perp
+    qc = w_perp @ w_perp - radius * radius
+    disc = qb * qb - qa * qc
+    hit = disc > 0
+    s = np.where(hit, (-qb - np.sqrt(np.where(hit, disc, 0.0))) / np.maximum(qa, 1e-300),
+                 np.nan)
+    hit &= s > 0
+    points = r * s[..., None]
+    rel = points - a0
+    nrm = rel - (rel @ a)[..., None] * a
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-300)
+    return hit, points, nrm

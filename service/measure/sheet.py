@@ -26,7 +26,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from service.measure.geometry import RigGeometry
-from service.measure.section import orthonormal_basis
+from service.measure.section import first_hit_on_cylinder, orthonormal_basis
 from service.measure.triangulate import intersect_plane, undistort_to_rays
 
 
@@ -212,23 +212,10 @@ def _plane_distance_on_cylinder(rays_xy: np.ndarray, center: np.ndarray, radius:
                                 geometry: RigGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance from the light plane of each ray's first hit on the cylinder, mm (NaN
     for a ray that misses), and the surface normal there."""
+    e1, e2 = orthonormal_basis(geometry.axis_direction)
     a = geometry.axis_direction / np.linalg.norm(geometry.axis_direction)
-    e1, e2 = orthonormal_basis(a)
-    a0 = center[0] * e1 + center[1] * e2  # a point on the cylinder's axis
-    r = np.column_stack([rays_xy, np.ones(len(rays_xy))])
-    r_perp = r - (r @ a)[:, None] * a
-    w_perp = -(a0 - (a0 @ a) * a)
-    qa = np.sum(r_perp * r_perp, axis=1)
-    qb = r_perp @ w_perp
-    qc = float(w_perp @ w_perp) - radius * radius
-    disc = qb * qb - qa * qc
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = (-qb - np.sqrt(disc)) / qa
-    s = np.where((disc > 0) & (s > 0), s, np.nan)
-    hit = r * s[:, None]
-    rel = hit - a0
-    rel -= (rel @ a)[:, None] * a
-    normals = rel / radius
+    _, hit, normals = first_hit_on_cylinder(rays_xy, center[0] * e1 + center[1] * e2, a,
+                                            radius)
     return hit @ geometry.plane_normal - geometry.plane_d, normals
 
 
