@@ -164,12 +164,12 @@ def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
     Points where the model has no answer (the camera does not see across the stripe there)
     are left where they are; so are all when the stripe gives no heights or no width.
     """
-    center = np.asarray(center, np.float64)
-    angles, _ = arc_angles(points.section, center)
-    samples = np.linspace(angles.min(), angles.max(), SHEET_SAMPLES)
     st = points.stripe
     if st.peak is None:
         return points.section
+    center = np.asarray(center, np.float64)
+    angles, _ = arc_angles(points.section, center)
+    samples = np.linspace(angles.min(), angles.max(), SHEET_SAMPLES)
     blur, filter_px = params.stripe.optics_blur_px, params.stripe.sigma_px
     smoothing = float(np.hypot(filter_px, blur))
     order = np.argsort(angles)  # the points in arc order, for the light and the width
@@ -178,8 +178,7 @@ def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
     with np.errstate(divide="ignore", invalid="ignore"):
         brightness = st.peak * np.sqrt(st.width_px**2 + filter_px**2) / st.width_px
     toward_laser = light_direction(points.section, center, brightness, geometry)
-    crossings = cross_the_stripe(center, radius, samples, geometry, 4.0 * smoothing + 4.0,
-                                 step_px=0.2)
+    crossings = cross_the_stripe(center, radius, samples, geometry, smoothing)
     sigma = params.sheet_sigma_mm
     if sigma is None:
         slope = np.interp(angles, samples, crossings.slope_mm_per_px)

@@ -30,26 +30,6 @@ from service.measure.section import first_hit_on_cylinder, orthonormal_basis
 from service.measure.triangulate import intersect_plane, undistort_to_rays
 
 
-@dataclass(frozen=True)
-class SheetBias:
-    """Predicted radial error of stripe points along the arc.
-
-    Attributes
-    ----------
-    angle_rad : ndarray, shape (K,)
-        Sample angles about the section centre, increasing, radians (unwrapped).
-    radial_mm : ndarray, shape (K,)
-        Radial error (triangulated ridge minus true radius) at each angle, mm.
-    slope_mm_per_px : ndarray, shape (K,)
-        Distance from the centre plane per pixel across the stripe's image, mm/px: the image
-        width of the sheet profile is ``sheet_sigma_mm / slope``.
-    """
-
-    angle_rad: np.ndarray
-    radial_mm: np.ndarray
-    slope_mm_per_px: np.ndarray
-
-
 def _to_3d(section: np.ndarray, geometry: RigGeometry) -> np.ndarray:
     """Points of the given section coordinates that lie on the light plane, camera frame."""
     e1, e2 = orthonormal_basis(geometry.axis_direction)
@@ -59,7 +39,7 @@ def _to_3d(section: np.ndarray, geometry: RigGeometry) -> np.ndarray:
     return base + t[:, None] * a
 
 
-def unwrap_about(angles: np.ndarray, mid: float) -> np.ndarray:
+def _unwrap_about(angles: np.ndarray, mid: float) -> np.ndarray:
     """Angles (radians) brought within pi of ``mid``."""
     return mid + (np.asarray(angles) - mid + math.pi) % (2 * math.pi) - math.pi
 
@@ -70,7 +50,7 @@ def arc_angles(section: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, flo
     d = section - center
     ang = np.arctan2(d[:, 1], d[:, 0])
     mid = float(np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()))
-    return unwrap_about(ang, mid), mid
+    return _unwrap_about(ang, mid), mid
 
 
 @dataclass(frozen=True)
@@ -104,10 +84,11 @@ class Crossings:
 
 
 def cross_the_stripe(center: np.ndarray, radius: float, angles_rad: np.ndarray,
-                     geometry: RigGeometry, half_width_px: float, step_px: float = 0.05
+                     geometry: RigGeometry, smoothing_px: float, step_px: float = 0.2
                      ) -> Crossings:
     """Cast rays across the stripe at ``angles_rad`` around a section circle (centre mm,
-    radius mm) onto the cylinder it belongs to, ``half_width_px`` either side."""
+    radius mm) onto the cylinder it belongs to, every ``step_px``, as far either side as a
+    ridge smoothed by ``smoothing_px`` (px) can be moved by: ``4 smoothing + 4`` px."""
     angles = np.asarray(angles_rad, np.float64)
     k = len(angles)
     # The section's image and its normal (from neighbours 1e-4 rad on).
@@ -121,7 +102,7 @@ def cross_the_stripe(center: np.ndarray, radius: float, angles_rad: np.ndarray,
     q, tangent = img[:k], img[k:] - img[:k]
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
     normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-    n_half = round(half_width_px / step_px)
+    n_half = round((4.0 * smoothing_px + 4.0) / step_px)
     u = step_px * np.arange(-n_half, n_half + 1)
     samples = q[:, None, :] + u[None, :, None] * normal[:, None, :]
     rays = undistort_to_rays(samples.reshape(-1, 2), geometry.camera_matrix,
@@ -166,46 +147,6 @@ def ridge_bias(crossings: Crossings, geometry: RigGeometry, center: np.ndarray, 
     radial = np.full(k, np.nan)
     radial[rows] = np.hypot(*(sec - center).T) - radius
     return radial
-
-
-def predict_sheet_bias(
-    center: np.ndarray, radius: float, angles_rad: np.ndarray, geometry: RigGeometry,
-    sheet_sigma_mm: float, smoothing_px: float, step_px: float = 0.05,
-    light_direction: np.ndarray | None = None,
-) -> SheetBias:
-    """Radial error of the stripe ridge at ``angles_rad`` around a section circle.
-
-    Parameters
-    ----------
-    center : ndarray, shape (2,)
-        Section centre, mm.
-    radius : float
-        Section radius, mm.
-    angles_rad : ndarray, shape (K,)
-        Increasing sample angles about the centre, radians.
-    geometry : RigGeometry
-        Calibration.
-    sheet_sigma_mm : float
-        Gaussian sigma of the sheet's thickness profile, mm (0: a plane of light, no error).
-    smoothing_px : float
-        Total smoothing before the ridge is found, px: the lens blur and the extractor's
-        derivative filters combined.
-    step_px : float
-        Sampling step across the stripe, px.
-    light_direction : ndarray, shape (3,), optional
-        Unit vector toward the laser, camera frame: the surface is then shaded by the cosine
-        of the incidence (Lambert), which changes across the stripe as the surface curves.
-
-    Returns
-    -------
-    SheetBias
-        Radial errors (NaN where the camera does not see the surface across the stripe).
-    """
-    c = cross_the_stripe(center, radius, angles_rad, geometry, 6.0 * smoothing_px + 4.0,
-                         step_px)
-    radial = ridge_bias(c, geometry, center, radius, sheet_sigma_mm, smoothing_px,
-                        light_direction)
-    return SheetBias(c.angle_rad, radial, c.slope_mm_per_px)
 
 
 def _plane_distance_on_cylinder(rays_xy: np.ndarray, center: np.ndarray, radius: float,
