@@ -101,21 +101,16 @@ def test_compensation_view_and_shadow_switch(service, browser) -> None:
     shot(page, "compensation")
 
 
-@pytest.fixture(scope="module")
-def rendered(calibration_images) -> Path:
-    return calibration_images
-
-
-def test_calibration_wizard_from_rendered_images(service, browser, rendered) -> None:
+def test_calibration_wizard_from_rendered_images(service, browser, calibration_images) -> None:
     page = open_page(browser, service.url + "/ui/#technician")
     enter_key(page)
     expect(page.locator("#history tr")).to_have_count(1)
     page.click("#new-session")
     expect(page.locator("#session-id")).to_contain_text("session")
-    files = {"view": sorted((rendered / "views").glob("*.png")),
-             "plane_off": sorted((rendered / "plane").glob("*_off.png")),
-             "plane_on": sorted((rendered / "plane").glob("*_on.png")),
-             "axis": sorted((rendered / "axis").glob("*.png"))}
+    files = {"view": sorted((calibration_images / "views").glob("*.png")),
+             "plane_off": sorted((calibration_images / "plane").glob("*_off.png")),
+             "plane_on": sorted((calibration_images / "plane").glob("*_on.png")),
+             "axis": sorted((calibration_images / "axis").glob("*.png"))}
     for kind, paths in files.items():
         box = page.locator(f".kinds > div[data-kind={kind}]")
         box.locator("input[type=file]").set_input_files([str(p) for p in paths])

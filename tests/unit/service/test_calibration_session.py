@@ -4,16 +4,9 @@ from __future__ import annotations
 
 import time
 
-import pytest
-
 from tests.unit.service.conftest import OPERATOR, TECHNICIAN
 
 H = {"X-API-Key": TECHNICIAN}
-
-
-@pytest.fixture(scope="module")
-def images(calibration_images):
-    return calibration_images
 
 
 def wait_done(client, sid, step, timeout_s=120):
@@ -32,7 +25,7 @@ def upload(client, sid, kind, path):
     assert r.status_code == 201, r.text
 
 
-def test_session_from_upload_to_activation(client, images) -> None:
+def test_session_from_upload_to_activation(client, calibration_images) -> None:
     r = client.post("/api/v1/calibration-sessions", headers=H, json={"note": "monday"})
     assert r.status_code == 201
     sid = r.json()["id"]
@@ -41,12 +34,12 @@ def test_session_from_upload_to_activation(client, images) -> None:
     assert client.post(f"/api/v1/calibration-sessions/{sid}/capture/view",
                        headers=H).status_code == 201
     assert sid in client.get("/api/v1/status").json()["compensation"]["held"]
-    for p in sorted((images / "views").glob("*.png")):
+    for p in sorted((calibration_images / "views").glob("*.png")):
         upload(client, sid, "view", p)
     for i in range(4):
-        upload(client, sid, "plane_off", images / "plane" / f"pose{i}_off.png")
-        upload(client, sid, "plane_on", images / "plane" / f"pose{i}_on.png")
-    for p in sorted((images / "axis").glob("*.png")):
+        upload(client, sid, "plane_off", calibration_images / "plane" / f"pose{i}_off.png")
+        upload(client, sid, "plane_on", calibration_images / "plane" / f"pose{i}_on.png")
+    for p in sorted((calibration_images / "axis").glob("*.png")):
         upload(client, sid, "axis", p)
     for step in ("intrinsics", "plane", "axis", "build"):
         assert client.post(f"/api/v1/calibration-sessions/{sid}/run/{step}",
@@ -63,7 +56,7 @@ def test_session_from_upload_to_activation(client, images) -> None:
     assert client.get("/api/v1/status").json()["compensation"]["held"] is None
 
 
-def test_bad_sessions_are_refused(client, images) -> None:
+def test_bad_sessions_are_refused(client, calibration_images) -> None:
     sid = client.post("/api/v1/calibration-sessions", headers=H, json={}).json()["id"]
     assert client.post("/api/v1/calibration-sessions", headers=H,
                        json={"board": "banana"}).status_code == 422
@@ -72,7 +65,7 @@ def test_bad_sessions_are_refused(client, images) -> None:
     assert r.status_code == 422 and "image" in r.json()["detail"]
     assert client.post(f"/api/v1/calibration-sessions/{sid}/images/colour", headers=H,
                        content=b"x").status_code == 422
-    for p in sorted((images / "views").glob("*.png"))[:2]:
+    for p in sorted((calibration_images / "views").glob("*.png"))[:2]:
         upload(client, sid, "view", p)
     client.post(f"/api/v1/calibration-sessions/{sid}/run/intrinsics", headers=H)
     s = wait_done(client, sid, "intrinsics")
