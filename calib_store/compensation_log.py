@@ -1,16 +1,37 @@
-"""Every compensation decision, and the controller's state, in SQLite: the cumulative offset
-survives a restart, and the offset log can be read back (newest first)."""
+"""Every compensation decision, the controller's state and the service's own durable values in
+SQLite, written by one thread of its own (never on the event loop).
+
+- A run of quiet decisions (held, refused, proposed) of one kind and code between two
+  significant ones (a write, an outcome, an alarm, a reset, a settings change, ...) is one row
+  with a ``count``, its first and last time and measurement, and the latest reason: "held: no
+  nominal diameter set" ten times a second for a day is one row, not 860 000.
+- Writes are batched: one transaction a batch, the controller's latest state with it. A
+  decision submitted ``durable`` (an order to write an offset) is committed before its future
+  resolves: an offset that cannot be logged is not written.
+- Retention by age and by rows (``LogRetention``); indexed for the log's queries, which run on
+  a connection of their own and never wait for the writer.
+- A write that fails (a full disk) is kept and tried again every second; ``problem`` says
+  why meanwhile.
+"""
 
 from __future__ import annotations
 
+import concurrent.futures
+import contextlib
 import json
+import logging
+import queue
+import sqlite3
 import threading
-from dataclasses import asdict
+import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from calib_store.store import open_database, transaction
-from service.compensation import ControllerState, Decision
+from service.compensation import QUIET_KINDS, ControllerState, Decision, Kind
+
+log = logging.getLogger("shaftgauge.compensation_log")
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS compensation_decisions (
@@ -31,43 +52,152 @@ CREATE TABLE IF NOT EXISTS compensation_state (
     id INTEGER PRIMARY KEY CHECK (id = 1),
     state TEXT NOT NULL
 );
+CREATE TABLE IF NOT EXISTS gauge_values (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
 """
+# Columns added since the first version of the table (older files get them on opening).
+_ADDED_COLUMNS = {"code": "TEXT NOT NULL DEFAULT ''", "who": "TEXT NOT NULL DEFAULT ''",
+                  "count": "INTEGER NOT NULL DEFAULT 1", "last_time": "REAL",
+                  "last_measurement_seq": "INTEGER"}
+_INDEXES = """
+CREATE INDEX IF NOT EXISTS compensation_decisions_kind ON compensation_decisions (kind, id);
+CREATE INDEX IF NOT EXISTS compensation_decisions_last_time
+    ON compensation_decisions (last_time);
+"""
+_COLUMNS = ("id", "wall_time", "last_time", "count", "kind", "code", "reason", "who",
+            "measurement_seq", "last_measurement_seq", "deviation_mm", "filtered_mm",
+            "offset_mm", "offset_seq", "before_mm", "after_mm", "shadow")
+RETRY_S = 1.0
+MAX_BACKLOG = 10_000
+
+
+@dataclass(frozen=True)
+class LogRetention:
+    """How much of the decision log is kept: rows newer than ``max_age_days`` and at most
+    ``max_rows`` of them (the oldest go first)."""
+
+    max_age_days: float = 365.0
+    max_rows: int = 1_000_000
+    prune_every_s: float = 60.0
+
+
+@dataclass
+class _Item:
+    """One unit of work for the writer thread."""
+
+    kind: str  # "decision", "value", "barrier"
+    payload: Any
+    future: concurrent.futures.Future | None
 
 
 class CompensationLog:
-    """SQLite store of decisions and state. Thread-safe; one connection."""
+    """The decision log, the controller's state and the service's durable values.
 
-    def __init__(self, path: str | Path, create_if_missing: bool = True) -> None:
+    Parameters
+    ----------
+    path : str or Path
+        The SQLite file (shared with the calibration store).
+    create_if_missing : bool
+        Create the file when it is not there.
+    retention : LogRetention
+        What is kept.
+    """
+
+    def __init__(self, path: str | Path, create_if_missing: bool = True,
+                 retention: LogRetention | None = None) -> None:
         self.path = Path(path)
-        self._lock = threading.Lock()
+        self.retention = retention or LogRetention()
         self._db = open_database(self.path, create_if_missing)
         self._db.executescript(_SCHEMA)
+        have = {row[1] for row in self._db.execute("PRAGMA table_info(compensation_decisions)")}
+        for column, decl in _ADDED_COLUMNS.items():
+            if column not in have:
+                self._db.execute(f"ALTER TABLE compensation_decisions ADD COLUMN {column} {decl}")
+        self._db.execute("UPDATE compensation_decisions SET last_time = wall_time "
+                         "WHERE last_time IS NULL")
+        self._db.executescript(_INDEXES)
+        self._read_lock = threading.Lock()
+        self._read = sqlite3.connect(str(self.path), check_same_thread=False,
+                                     isolation_level=None)
+        self._queue: queue.Queue[_Item | None] = queue.Queue()
+        self._backlog: list[_Item] = []   # items whose write failed, tried again
+        self._open_runs: dict[tuple[str, str, bool], int] = {}
+        self._last_prune = 0.0
+        self.problem = ""                 # why the log cannot be written now ("" when it can)
+        self.dropped = 0                  # quiet decisions dropped past MAX_BACKLOG
+        self.rows_written = 0
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name="compensation-log", daemon=True)
+        self._thread.start()
+
+    # ---- submitting ----------------------------------------------------------------------
+
+    def submit(self, decision: Decision, wall_time: float, state: ControllerState,
+               durable: bool = False) -> concurrent.futures.Future | None:
+        """Queue a decision and the state after it. With ``durable`` the returned future
+        resolves once both are committed (or raises the ``sqlite3.Error`` that stopped it)."""
+        fut: concurrent.futures.Future | None = concurrent.futures.Future() if durable else None
+        self._put(_Item("decision", (decision, wall_time, json.dumps(asdict(state))), fut))
+        return fut
 
     def record(self, decision: Decision, wall_time: float, state: ControllerState) -> None:
-        """Store a decision and the state after it, in one transaction."""
-        d = decision.as_dict()
-        with self._lock, transaction(self._db):
-            self._db.execute(
-                "INSERT INTO compensation_decisions (wall_time, kind, reason, measurement_seq,"
-                " deviation_mm, filtered_mm, offset_mm, offset_seq, before_mm, after_mm, shadow)"
-                " VALUES (?,?,?,?,?,?,?,?,?,?,?)",
-                (wall_time, d["kind"], d["reason"], d["measurement_seq"], d["deviation_mm"],
-                 d["filtered_mm"], d["offset_mm"], d["offset_seq"], d["before_mm"],
-                 d["after_mm"], int(d["shadow"])))
-            self._db.execute("INSERT OR REPLACE INTO compensation_state (id, state) "
-                             "VALUES (1, ?)", (json.dumps(asdict(state)),))
+        """Store a decision and the state after it, and wait until they are committed."""
+        fut = self.submit(decision, wall_time, state, durable=True)
+        assert fut is not None
+        fut.result()
+
+    def submit_value(self, key: str, value: Any) -> concurrent.futures.Future:
+        """Store a JSON-ready value under ``key``; the future resolves once it is committed."""
+        fut: concurrent.futures.Future = concurrent.futures.Future()
+        self._put(_Item("value", (key, json.dumps(value)), fut))
+        return fut
+
+    def put_value(self, key: str, value: Any) -> None:
+        """Store a JSON-ready value under ``key`` and wait until it is committed."""
+        self.submit_value(key, value).result()
+
+    def flush(self, timeout_s: float = 2.0) -> bool:
+        """Wait until everything submitted so far is written (False: not within the time)."""
+        fut: concurrent.futures.Future = concurrent.futures.Future()
+        self._put(_Item("barrier", None, fut))
+        try:
+            fut.result(timeout_s)
+            return True
+        except (concurrent.futures.TimeoutError, sqlite3.Error):
+            return False
+
+    def _put(self, item: _Item) -> None:
+        if self._closed:
+            raise sqlite3.ProgrammingError("the compensation log is closed")
+        self._queue.put(item)
+
+    # ---- reading -------------------------------------------------------------------------
+
+    def get_value(self, key: str, default: Any = None) -> Any:
+        """The value stored under ``key``, or ``default``."""
+        with self._read_lock:
+            row = self._read.execute("SELECT value FROM gauge_values WHERE key = ?",
+                                     (key,)).fetchone()
+        return json.loads(row[0]) if row else default
 
     def load_state(self) -> ControllerState:
-        """The last saved state, or a fresh one."""
-        with self._lock:
-            row = self._db.execute("SELECT state FROM compensation_state WHERE id = 1"
-                                   ).fetchone()
-        return ControllerState(**json.loads(row[0])) if row else ControllerState()
+        """The last saved state, or a fresh one (fields added since are defaulted)."""
+        with self._read_lock:
+            row = self._read.execute("SELECT state FROM compensation_state WHERE id = 1"
+                                     ).fetchone()
+        if not row:
+            return ControllerState()
+        known = ControllerState.__dataclass_fields__
+        return ControllerState(**{k: v for k, v in json.loads(row[0]).items() if k in known})
 
     def decisions(self, limit: int = 100, before_id: int | None = None,
                   kinds: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
-        """Newest first, paged by id."""
-        sql = "SELECT * FROM compensation_decisions WHERE 1=1"
+        """Newest first, paged by id. Each row is a decision, or a run of identical quiet
+        ones (``count``, ``wall_time`` the first, ``last_time`` the last)."""
+        self.flush(0.5)  # what was decided a moment ago, when the disk lets it be written
+        sql = f"SELECT {', '.join(_COLUMNS)} FROM compensation_decisions WHERE 1=1"
         args: list[Any] = []
         if before_id is not None:
             sql += " AND id < ?"
@@ -77,16 +207,145 @@ class CompensationLog:
             args.extend(kinds)
         sql += " ORDER BY id DESC LIMIT ?"
         args.append(int(limit))
-        with self._lock:
-            cur = self._db.execute(sql, args)
-            cols = [c[0] for c in cur.description]
-            rows = cur.fetchall()
-        out = [dict(zip(cols, r, strict=True)) for r in rows]
+        with self._read_lock:
+            rows = self._read.execute(sql, args).fetchall()
+        out = [dict(zip(_COLUMNS, r, strict=True)) for r in rows]
         for r in out:
             r["shadow"] = bool(r["shadow"])
         return out
 
+    def count_rows(self) -> int:
+        """Rows in the decision log."""
+        self.flush(0.5)
+        with self._read_lock:
+            return self._read.execute("SELECT COUNT(*) FROM compensation_decisions"
+                                      ).fetchone()[0]
+
     def close(self) -> None:
-        """Close the database."""
-        with self._lock:
-            self._db.close()
+        """Write what is queued (a few seconds at most), then close."""
+        if self._closed:
+            return
+        self.flush(5.0)
+        self._closed = True
+        self._queue.put(None)
+        self._thread.join(10.0)
+        with self._read_lock:
+            self._read.close()
+
+    # ---- the writer thread ---------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            try:
+                item = self._queue.get(timeout=RETRY_S if self._backlog else
+                                       self.retention.prune_every_s)
+            except queue.Empty:
+                item = _Item("barrier", None, None)
+            if item is None:
+                break
+            batch = [*self._backlog, item]
+            self._backlog = []
+            with contextlib.suppress(queue.Empty):
+                while len(batch) < 2000:
+                    nxt = self._queue.get_nowait()
+                    if nxt is None:
+                        self._queue.put(None)
+                        break
+                    batch.append(nxt)
+            self._write(batch)
+        with contextlib.suppress(sqlite3.Error):
+            self._write(self._backlog) if self._backlog else None
+        self._db.close()
+
+    def _write(self, batch: list[_Item]) -> None:
+        state_json = None
+        try:
+            with transaction(self._db):
+                runs = dict(self._open_runs)
+                for item in batch:
+                    if item.kind == "decision":
+                        decision, wall_time, state_json = item.payload
+                        self._insert(decision, wall_time, runs)
+                    elif item.kind == "value":
+                        self._db.execute("INSERT OR REPLACE INTO gauge_values (key, value) "
+                                         "VALUES (?, ?)", item.payload)
+                if state_json is not None:
+                    self._db.execute("INSERT OR REPLACE INTO compensation_state (id, state) "
+                                     "VALUES (1, ?)", (state_json,))
+                if self._prune():
+                    runs.clear()
+        except sqlite3.Error as err:
+            if not self.problem:
+                log.error("the compensation log cannot be written: %s", err)
+            self.problem = f"the compensation log cannot be written ({err})"
+            keep = []
+            for item in batch:
+                if item.future is not None and not item.future.done():
+                    item.future.set_exception(err)
+                if item.kind != "barrier":
+                    keep.append(_Item(item.kind, item.payload, None))
+            if len(keep) > MAX_BACKLOG:  # keep the significant ones, drop the oldest quiet
+                quiet = [i for i in keep if i.kind == "decision"
+                         and i.payload[0].kind in QUIET_KINDS]
+                excess = quiet[:len(keep) - MAX_BACKLOG]
+                self.dropped += len(excess)
+                drop = {id(i) for i in excess}
+                keep = [i for i in keep if id(i) not in drop]
+            self._backlog = keep
+            return
+        self._open_runs = runs
+        if self.problem:
+            log.info("the compensation log can be written again")
+        self.problem = ""
+        for item in batch:
+            if item.future is not None and not item.future.done():
+                item.future.set_result(None)
+
+    def _insert(self, decision: Decision, wall_time: float,
+                runs: dict[tuple[str, str, bool], int]) -> None:
+        d = decision.as_dict()
+        key = (d["kind"], d["code"], bool(d["shadow"]))
+        if decision.kind in QUIET_KINDS and key in runs:
+            self._db.execute(
+                "UPDATE compensation_decisions SET count = count + 1, last_time = ?, "
+                "reason = ?, last_measurement_seq = ?, deviation_mm = ?, filtered_mm = ?, "
+                "offset_mm = ?, before_mm = ?, after_mm = ? WHERE id = ?",
+                (wall_time, d["reason"], d["measurement_seq"], d["deviation_mm"],
+                 d["filtered_mm"], d["offset_mm"], d["before_mm"], d["after_mm"], runs[key]))
+            return
+        cur = self._db.execute(
+            "INSERT INTO compensation_decisions (wall_time, last_time, count, kind, code, "
+            "reason, who, measurement_seq, last_measurement_seq, deviation_mm, filtered_mm, "
+            "offset_mm, offset_seq, before_mm, after_mm, shadow) "
+            "VALUES (?,?,1,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+            (wall_time, wall_time, d["kind"], d["code"], d["reason"], d["who"],
+             d["measurement_seq"], d["measurement_seq"], d["deviation_mm"], d["filtered_mm"],
+             d["offset_mm"], d["offset_seq"], d["before_mm"], d["after_mm"], int(d["shadow"])))
+        self.rows_written += 1
+        if decision.kind in QUIET_KINDS:
+            runs[key] = int(cur.lastrowid)
+        else:  # a significant decision ends every run
+            runs.clear()
+
+    def _prune(self) -> bool:
+        """Apply the retention now and then; True when it ran (open runs may be gone)."""
+        now = time.time()
+        if now - self._last_prune < self.retention.prune_every_s:
+            return False
+        self._last_prune = now
+        r = self.retention
+        self._db.execute("DELETE FROM compensation_decisions WHERE last_time < ?",
+                         (now - r.max_age_days * 86400.0,))
+        self._db.execute("DELETE FROM compensation_decisions WHERE id <= (SELECT id FROM "
+                         "compensation_decisions ORDER BY id DESC LIMIT 1 OFFSET ?)",
+                         (r.max_rows,))
+        return True
+
+
+def as_kind(value: str) -> Kind:
+    """A decision kind by name (ValueError naming the known ones)."""
+    try:
+        return Kind(value)
+    except ValueError:
+        raise ValueError(f"unknown decision kind {value!r} (one of "
+                         f"{', '.join(k.value for k in Kind)})") from None

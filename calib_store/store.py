@@ -258,20 +258,25 @@ class CalibrationStore:
     def add_master_check(self, calibration_id: int | None, certified_mm: float,
                          measured_mm: float, error_mm: float, limit_mm: float, passed: bool,
                          by: str) -> None:
-        """Record a master check."""
-        with self._lock:
+        """Record a master check (audited)."""
+        with self._lock, self._transaction():
             self._db.execute(
                 "INSERT INTO master_checks (time, calibration_id, certified_mm, measured_mm, "
                 "error_mm, limit_mm, passed, created_by) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 (time.time(), calibration_id, certified_mm, measured_mm, error_mm, limit_mm,
                  int(passed), by))
+            self._audit(by, "master check", calibration_id,
+                        f"certified {certified_mm:.4f} mm, error {error_mm * 1000:+.2f} um, "
+                        f"{'passed' if passed else 'failed'}")
 
-    def last_master_check(self) -> dict[str, Any] | None:
-        """The newest master check, or None."""
+    def last_master_check(self, calibration_id: int | None) -> dict[str, Any] | None:
+        """The newest master check made with this calibration, or None (a check made with
+        another calibration says nothing of this one)."""
         with self._lock:
             cur = self._db.execute("SELECT time, calibration_id, certified_mm, measured_mm, "
                                    "error_mm, limit_mm, passed, created_by FROM master_checks "
-                                   "ORDER BY id DESC LIMIT 1")
+                                   "WHERE calibration_id IS ? ORDER BY id DESC LIMIT 1",
+                                   (calibration_id,))
             cols = [c[0] for c in cur.description]
             row = cur.fetchone()
         if row is None:

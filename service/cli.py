@@ -161,7 +161,8 @@ def cmd_sim_plc(args: argparse.Namespace) -> int:
                                   args.unit_id, WordOrder(args.word_order)),
                      ack_delay_s=args.ack_delay,
                      log_path=Path(args.log) if args.log else None,
-                     state_path=Path(args.state) if args.state else None)
+                     state_path=Path(args.state) if args.state else None,
+                     never_ack=args.never_ack)
         try:
             port = await plc.start()
         except (OSError, RuntimeError) as err:
@@ -347,6 +348,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds between receiving and acknowledging an offset")
     p.add_argument("--log", metavar="FILE", help="JSON-lines log of writes and applications")
     p.add_argument("--state", metavar="FILE", help="keep the applied total across restarts")
+    p.add_argument("--never-ack", action="store_true",
+                   help="keep every offset request, apply and acknowledge none")
     p.set_defaults(func=cmd_sim_plc)
 
     cal = sub.add_parser("calibrate", help="calibrate from image files, step by step")

@@ -21,9 +21,18 @@ Per measurement, in this order (each step records a ``Decision`` with its reason
    so the cumulative offset stays within ``max_total_mm`` (refused when already there). In
    shadow mode the offset is *proposed* and nothing is written.
 
-The cumulative offset changes only when the CNC acknowledged a write. An offset whose fate is
-unknown (the PLC went silent after the write) blocks everything until ``reconcile`` says
-whether it was applied; it is never sent again.
+The cumulative limit is checked against the CNC's own total wear offset (its ``total``
+register), not against the gauge's bookkeeping: ``baseline_mm`` is the CNC's total when
+compensation was enabled or reset by a person, and no offset is written that would take the
+CNC's total further than ``max_total_mm`` from it (``check_before_write`` with a fresh reading
+of the total, just before each write). Resets, restarts and settings changes cannot walk
+around it.
+
+An offset whose fate is unknown (no acknowledgement in time, the PLC went silent, the service
+was killed) stays UNCERTAIN and blocks everything until the CNC's registers settle it
+(``settle_from_cnc``): its acknowledgement echoes the sequence (applied), its request
+registers no longer hold the sequence (cleared or never received: not applied), or its total
+moved by exactly the offset (applied). It is never sent again.
 """
 
 from __future__ import annotations
@@ -52,6 +61,12 @@ class Kind(enum.StrEnum):
     RESET = "reset"
     ACKNOWLEDGED = "acknowledged"
     SETTINGS = "settings"
+    BASELINE = "baseline"        # the CNC's total taken as the reference of the limit
+
+
+QUIET_KINDS = frozenset({Kind.REFUSED, Kind.HELD, Kind.PROPOSED})
+"""Kinds that repeat with every measurement in a steady state; the log keeps a run of them as
+one row with a count (see ``calib_store.compensation_log``)."""
 
 
 class State(enum.StrEnum):
@@ -171,6 +186,7 @@ class MeasurementIn:
     status: str                   # "ok" or a failure status
     diameter_mm: float | None
     uncertainty_mm: float | None
+    calibration_id: int | None = None  # the calibration it was measured with
 
 
 @dataclass(frozen=True)
@@ -192,6 +208,11 @@ class Decision:
     before_mm: float = 0.0
     after_mm: float = 0.0
     shadow: bool = False
+    code: str = ""
+    """A stable name of the reason (``no_nominal``, ``deadband``, ``stale``, ...): decisions
+    of one kind and code are "the same" for the log's runs."""
+    who: str = ""
+    """Who asked, for a person's or the CNC's command (``api:technician``, ``modbus``)."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -210,6 +231,27 @@ class ControllerState:
     pending_seq: int | None = None
     pending_offset_mm: float | None = None
     last_measurement_seq: int = -1
+    baseline_mm: float | None = None
+    """The CNC's total wear offset when compensation was enabled or last reset by a person
+    (None: taken at the next reading of the CNC's total)."""
+    cnc_total_mm: float | None = None
+    """The CNC's total wear offset as last read."""
+    pending_total_before_mm: float | None = None
+    """The CNC's total read just before the pending offset was written."""
+
+
+@dataclass(frozen=True)
+class CncReading:
+    """The CNC's side of the offset exchange, as read from its registers (offset units).
+
+    ``request_seq`` is the sequence in its request registers (0 once the CNC cleared a request
+    it will not apply), ``ack_seq`` the sequence it last applied, ``total_mm`` its total wear
+    offset.
+    """
+
+    ack_seq: int
+    request_seq: int
+    total_mm: float
 
 
 @dataclass
@@ -223,6 +265,9 @@ class CompensationController:
     writes_blocked: str = ""
     """Set by the service when offsets must not be written (a failed or overdue master check):
     offsets are then only proposed, with this reason."""
+
+    calibration_id: int | None = None
+    """The active calibration: measurements made with another one are refused."""
 
     def __post_init__(self) -> None:
         problems = self.settings.problems()
@@ -249,48 +294,84 @@ class CompensationController:
         """Sum of the acknowledged offsets since the last reset, offset units."""
         return self.persisted.cumulative_mm
 
-    def _decision(self, kind: Kind, reason: str, now: float, **kw: Any) -> Decision:
+    def cnc_offset_mm(self) -> float | None:
+        """How far the CNC's total stands from the baseline (None while either is unknown):
+        the figure the cumulative limit is checked against."""
+        p = self.persisted
+        if p.cnc_total_mm is None or p.baseline_mm is None:
+            return None
+        return p.cnc_total_mm - p.baseline_mm
+
+    def _decision(self, kind: Kind, code: str, reason: str, now: float,
+                  **kw: Any) -> Decision:
         cum = self.persisted.cumulative_mm
         kw.setdefault("before_mm", cum)
         kw.setdefault("after_mm", cum)
-        return Decision(kind, reason, now, shadow=self.settings.shadow, **kw)
+        return Decision(kind, reason, now, shadow=self.settings.shadow, code=code, **kw)
 
-    def _enter(self, state: State, kind: Kind, reason: str, now: float, **kw: Any) -> Decision:
+    def _enter(self, state: State, kind: Kind, code: str, reason: str, now: float,
+               **kw: Any) -> Decision:
         """Move to ``state`` (the filter window starts afresh) and record why."""
         self.persisted.state = state.value
         self._window.clear()
-        return self._decision(kind, reason, now, **kw)
+        return self._decision(kind, code, reason, now, **kw)
 
     # ---- inputs --------------------------------------------------------------------------
 
-    def update_settings(self, settings: CompensationSettings, now: float) -> Decision:
-        """New settings (a new feature, tolerance or tuning); the window starts afresh."""
+    def update_settings(self, settings: CompensationSettings, now: float,
+                        who: str = "") -> Decision:
+        """New settings (a new feature, tolerance or tuning); the window starts afresh.
+        Switching shadow mode off enables compensation: the CNC's total at the next reading
+        becomes the baseline of the cumulative limit."""
         problems = settings.problems()
         if problems:
             raise ValueError("; ".join(problems))
+        old = self.settings
+        changed = {k: v for k, v in asdict(settings).items() if asdict(old)[k] != v}
         self.settings = settings
         self._window = collections.deque(maxlen=settings.window)
-        return self._decision(Kind.SETTINGS, "settings changed: filter window restarted", now)
+        enabled = old.shadow and not settings.shadow
+        if enabled:
+            self.persisted.baseline_mm = None
+        what = ", ".join(f"{k}={v!r}" for k, v in changed.items()) or "nothing changed"
+        return self._decision(Kind.SETTINGS, "settings", f"settings changed ({what}): filter "
+                              "window restarted" + ("; compensation enabled: the CNC's total "
+                                                    "is the new baseline" if enabled else ""),
+                              now, who=who)
 
-    def set_shadow(self, shadow: bool, now: float) -> Decision:
+    def set_shadow(self, shadow: bool, now: float, who: str = "") -> Decision:
         """Switch shadow mode."""
-        return self.update_settings(replace(self.settings, shadow=shadow), now)
+        return self.update_settings(replace(self.settings, shadow=shadow), now, who)
+
+    def observe_cnc_total(self, total_mm: float, now: float) -> Decision | None:
+        """The CNC's total wear offset as just read. Takes it as the baseline when there is
+        none and compensation is enabled (a BASELINE decision), else None."""
+        p = self.persisted
+        p.cnc_total_mm = total_mm
+        if p.baseline_mm is None and not self.settings.shadow and self.state not in (
+                State.PENDING, State.UNCERTAIN):
+            p.baseline_mm = total_mm
+            return self._decision(Kind.BASELINE, "baseline", f"the CNC's total wear offset "
+                                  f"{total_mm * 1000:+.1f} um is the reference of the "
+                                  f"cumulative limit (+-{self.settings.max_total_mm * 1000:.0f}"
+                                  " um)", now)
+        return None
 
     def on_measurement(self, m: MeasurementIn, now: float) -> Decision:
         """Judge one measurement; see the module docstring for the order of the checks."""
         s = self.settings
-        why = self._refusal(m, now)
+        code, why = self._refusal(m, now)
         if why:
-            return self._decision(Kind.REFUSED, why, now, measurement_seq=m.seq)
+            return self._decision(Kind.REFUSED, code, why, now, measurement_seq=m.seq)
         self.persisted.last_measurement_seq = m.seq
         if s.nominal_mm is None:
-            return self._decision(Kind.HELD, "no nominal diameter set", now,
+            return self._decision(Kind.HELD, "no_nominal", "no nominal diameter set", now,
                                   measurement_seq=m.seq)
         deviation = float(m.diameter_mm) - s.nominal_mm
         kw: dict[str, Any] = {"measurement_seq": m.seq, "deviation_mm": deviation}
         if abs(deviation) > s.safe_area_mm:
             return self._enter(
-                State.STOPPED, Kind.STOPPED,
+                State.STOPPED, Kind.STOPPED, "safe_area",
                 f"deviation {deviation * 1000:+.1f} um is beyond the safe area of "
                 f"{s.safe_area_mm * 1000:.0f} um (broken tool, wrong part or wrong "
                 "nominal?): stopped; a person must check and reset", now, **kw)
@@ -299,17 +380,19 @@ class CompensationController:
                 State.PENDING: f"waiting for the CNC to acknowledge offset "
                                f"{self.persisted.pending_seq}",
                 State.UNCERTAIN: f"offset {self.persisted.pending_seq} was not acknowledged: "
-                                 "holding until the CNC's acknowledgement can be read"}
+                                 "holding until the CNC's registers settle it"}
         if self.state in gate:
-            return self._decision(Kind.HELD, gate[self.state], now, **kw)
+            return self._decision(Kind.HELD, f"gate_{self.state.value}", gate[self.state],
+                                  now, **kw)
         self._since_correction += 1
         if (self._since_correction <= s.dead_time_measurements
                 or now - self._correction_time < s.dead_time_s):
-            return self._decision(Kind.HELD, "dead time after a correction", now, **kw)
+            return self._decision(Kind.HELD, "dead_time", "dead time after a correction", now,
+                                  **kw)
         self._window.append((deviation, max(float(m.uncertainty_mm), 1e-6)))
         if len(self._window) < s.window:
-            return self._decision(Kind.HELD, f"filling the window ({len(self._window)} of "
-                                  f"{s.window})", now, **kw)
+            return self._decision(Kind.HELD, "filling_window", f"filling the window "
+                                  f"({len(self._window)} of {s.window})", now, **kw)
         devs = [d for d, _ in self._window]
         if s.filter == "median":
             filtered = float(statistics.median(devs))
@@ -320,125 +403,228 @@ class CompensationController:
         kw["filtered_mm"] = filtered
         if not s.tol_lower_mm <= filtered <= s.tol_upper_mm:
             return self._enter(
-                State.ALARM, Kind.ALARM,
+                State.ALARM, Kind.ALARM, "out_of_tolerance",
                 f"filtered deviation {filtered * 1000:+.1f} um is outside the tolerance "
                 f"{s.tol_lower_mm * 1000:+.1f}/{s.tol_upper_mm * 1000:+.1f} um: "
                 "out of tolerance, nothing written; acknowledge to go on", now, **kw)
         if abs(filtered) <= s.deadband_mm:
-            return self._decision(Kind.HELD, f"filtered deviation {filtered * 1000:+.1f} um "
-                                  f"inside the deadband of {s.deadband_mm * 1000:.1f} um",
-                                  now, **kw)
+            return self._decision(Kind.HELD, "deadband", f"filtered deviation "
+                                  f"{filtered * 1000:+.1f} um inside the deadband of "
+                                  f"{s.deadband_mm * 1000:.1f} um", now, **kw)
         return self._correct(filtered, now, kw)
 
-    def _refusal(self, m: MeasurementIn, now: float) -> str:
+    def _refusal(self, m: MeasurementIn, now: float) -> tuple[str, str]:
+        """(code, reason) of a refusal, or ("", "")."""
         s = self.settings
         if m.status != "ok":
-            return f"measurement status {m.status!r}"
+            return f"status_{m.status}", f"measurement status {m.status!r}"
         if m.diameter_mm is None or not math.isfinite(m.diameter_mm) or m.diameter_mm <= 0:
-            return f"diameter {m.diameter_mm!r} is not a positive finite number"
+            return "bad_diameter", f"diameter {m.diameter_mm!r} is not a positive finite number"
         if m.uncertainty_mm is None or not math.isfinite(m.uncertainty_mm) \
                 or m.uncertainty_mm < 0:
-            return f"uncertainty {m.uncertainty_mm!r} is not a finite number >= 0"
+            return "bad_uncertainty", (f"uncertainty {m.uncertainty_mm!r} is not a finite "
+                                       "number >= 0")
         limit = s.max_uncertainty_fraction * (s.tol_upper_mm - s.tol_lower_mm)
         if m.uncertainty_mm > limit:
-            return (f"uncertainty {m.uncertainty_mm * 1000:.1f} um is above "
-                    f"{limit * 1000:.1f} um ({s.max_uncertainty_fraction:.0%} of the "
-                    "tolerance width)")
+            return "uncertain_measurement", (
+                f"uncertainty {m.uncertainty_mm * 1000:.1f} um is above {limit * 1000:.1f} um "
+                f"({s.max_uncertainty_fraction:.0%} of the tolerance width)")
+        if m.calibration_id != self.calibration_id:
+            return "other_calibration", (f"measured with calibration {m.calibration_id}, "
+                                         f"calibration {self.calibration_id} is active")
         if m.seq <= self.persisted.last_measurement_seq:
-            return (f"measurement {m.seq} is not newer than {self.persisted.last_measurement_seq}"
-                    " (out of order or repeated)")
+            return "out_of_order", (f"measurement {m.seq} is not newer than "
+                                    f"{self.persisted.last_measurement_seq} (out of order or "
+                                    "repeated)")
         if not math.isfinite(m.time_s) or now - m.time_s > s.max_age_s:
-            return f"measurement is stale (older than {s.max_age_s:g} s)"
+            return "stale", f"measurement is stale (older than {s.max_age_s:g} s)"
         if m.time_s - now > 1.0:
-            return "measurement is from the future (clock jump?)"
-        return ""
+            return "future", "measurement is from the future (clock jump?)"
+        return "", ""
 
     def _correct(self, filtered: float, now: float, kw: dict[str, Any]) -> Decision:
         s = self.settings
         factor = 0.5 if s.programming == "radius" else 1.0
         wanted = -s.gain * filtered * factor * s.offset_sign
         step = max(-s.max_step_mm, min(s.max_step_mm, wanted))
-        cum = self.persisted.cumulative_mm
+        writing = not (s.shadow or self.writes_blocked)
+        # Writing, the limit is on the CNC's own total; proposing, on our bookkeeping.
+        cnc = self.cnc_offset_mm()
+        if writing and cnc is None:
+            self._window.clear()
+            return self._decision(Kind.HELD, "cnc_total_unknown", "the CNC's total wear offset "
+                                  "has not been read yet: no offset until it is (the "
+                                  "cumulative limit is checked against it)", now, **kw)
+        cum = cnc if writing else self.persisted.cumulative_mm
         target = max(-s.max_total_mm, min(s.max_total_mm, cum + step))
         step = target - cum
         self._window.clear()
         if abs(step) < 1e-7:  # already at the cumulative limit in this direction
             return self._decision(
-                Kind.LIMIT, f"the cumulative offset {cum * 1000:+.1f} um is at its limit of "
-                f"{s.max_total_mm * 1000:.0f} um: change or re-measure the tool, then reset",
-                now, **kw)
+                Kind.LIMIT, "limit", f"the cumulative offset {cum * 1000:+.1f} um is at its "
+                f"limit of {s.max_total_mm * 1000:.0f} um: change or re-measure the tool, then "
+                "reset", now, **kw)
         note = "" if abs(step - wanted) < 1e-12 else \
             f" (clipped from {wanted * 1000:+.2f} um)"
-        if s.shadow or self.writes_blocked:
+        own = self.persisted.cumulative_mm
+        if not writing:
             why = "shadow mode" if s.shadow else f"writes blocked ({self.writes_blocked})"
-            return self._decision(Kind.PROPOSED, f"{why}: offset {step * 1000:+.2f} um "
-                                  f"proposed, not written{note}", now, offset_mm=step,
-                                  after_mm=cum + step, **kw)
+            return self._decision(Kind.PROPOSED, "proposed", f"{why}: offset "
+                                  f"{step * 1000:+.2f} um proposed, not written{note}", now,
+                                  offset_mm=step, after_mm=own + step, **kw)
         self.persisted.offset_seq += 1
         self.persisted.pending_seq = self.persisted.offset_seq
         self.persisted.pending_offset_mm = step
+        self.persisted.pending_total_before_mm = None
         self.persisted.state = State.PENDING.value
-        return self._decision(Kind.WRITE, f"write offset {step * 1000:+.2f} um{note}", now,
-                              offset_mm=step, offset_seq=self.persisted.offset_seq,
-                              after_mm=cum + step, **kw)
+        return self._decision(Kind.WRITE, "write", f"write offset {step * 1000:+.2f} um{note}",
+                              now, offset_mm=step, offset_seq=self.persisted.offset_seq,
+                              after_mm=own + step, **kw)
+
+    def check_before_write(self, offset_seq: int, total_mm: float | None,
+                           now: float) -> Decision | None:
+        """Just before the pending offset goes out: the CNC's total as read now. None when it
+        may be written; otherwise the offset is dropped (never written) and the decision says
+        why: the total cannot be read, or the offset would take it beyond the limit."""
+        p, s = self.persisted, self.settings
+        if p.pending_seq != offset_seq or self.state is not State.PENDING:
+            return self._drop(offset_seq, "not_in_flight", "it is not the offset in flight",
+                              now)
+        if total_mm is None:
+            return self._drop(offset_seq, "cnc_total_unreadable", "the CNC's total wear "
+                              "offset cannot be read, so the cumulative limit cannot be checked",
+                              now)
+        p.cnc_total_mm = total_mm
+        if p.baseline_mm is None:  # a reset or enabling came between the decision and now
+            return self._drop(offset_seq, "no_baseline", "the reference of the cumulative "
+                              "limit is being taken again", now)
+        step = p.pending_offset_mm or 0.0
+        after = total_mm + step - p.baseline_mm
+        if abs(after) > s.max_total_mm + 1e-9:
+            return self._drop(offset_seq, "limit", f"the CNC's total would stand "
+                              f"{after * 1000:+.1f} um from the baseline, beyond the limit of "
+                              f"{s.max_total_mm * 1000:.0f} um", now, kind=Kind.LIMIT)
+        p.pending_total_before_mm = total_mm
+        return None
+
+    def _drop(self, offset_seq: int, code: str, why: str, now: float,
+              kind: Kind = Kind.NOT_APPLIED) -> Decision:
+        p = self.persisted
+        if p.pending_seq == offset_seq and self.state is State.PENDING:
+            p.pending_seq, p.pending_offset_mm, p.pending_total_before_mm = None, None, None
+            p.state = State.ACTIVE.value
+            self._window.clear()
+        return self._decision(kind, code, f"offset {offset_seq} not written: {why}", now,
+                              offset_seq=offset_seq)
 
     def on_write_outcome(self, offset_seq: int, applied: bool | None, now: float,
                          detail: str = "") -> Decision:
         """The outcome of a WRITE: True acknowledged, False definitely not applied, None
-        unknown (written, then silence)."""
+        unknown (written, then no acknowledgement in time, or silence)."""
         p = self.persisted
         if p.pending_seq != offset_seq or self.state not in (State.PENDING, State.UNCERTAIN):
-            return self._decision(Kind.HELD, f"outcome of offset {offset_seq} ignored: it is "
-                                  "not the offset in flight", now, offset_seq=offset_seq)
+            return self._decision(Kind.HELD, "not_in_flight", f"outcome of offset "
+                                  f"{offset_seq} ignored: it is not the offset in flight", now,
+                                  offset_seq=offset_seq)
         step = p.pending_offset_mm or 0.0
         if applied is None:
             p.state = State.UNCERTAIN.value
-            return self._decision(Kind.UNCERTAIN, f"offset {offset_seq} "
+            return self._decision(Kind.UNCERTAIN, "uncertain", f"offset {offset_seq} "
                                   f"({step * 1000:+.2f} um) not acknowledged{_colon(detail)}; "
-                                  "holding, it will not be sent again", now,
-                                  offset_mm=step, offset_seq=offset_seq)
+                                  "holding until the CNC's registers settle it, it will not be "
+                                  "sent again", now, offset_mm=step, offset_seq=offset_seq)
         before = p.cumulative_mm
-        p.pending_seq, p.pending_offset_mm = None, None
+        p.pending_seq, p.pending_offset_mm, p.pending_total_before_mm = None, None, None
         p.state = State.ACTIVE.value
         self._window.clear()
         if applied:
             p.cumulative_mm = before + step
+            if p.cnc_total_mm is not None and p.baseline_mm is not None:
+                p.cnc_total_mm += step
             self._since_correction = 0
             self._correction_time = now
-            return self._decision(Kind.APPLIED, f"offset {offset_seq} "
-                                  f"({step * 1000:+.2f} um) acknowledged by the CNC", now,
+            return self._decision(Kind.APPLIED, "applied", f"offset {offset_seq} "
+                                  f"({step * 1000:+.2f} um) acknowledged by the "
+                                  f"CNC{_colon(detail)}", now,
                                   offset_mm=step, offset_seq=offset_seq, before_mm=before,
                                   after_mm=p.cumulative_mm)
-        return self._decision(Kind.NOT_APPLIED, f"offset {offset_seq} ({step * 1000:+.2f} um) "
-                              f"was not applied{_colon(detail)}; it will not be sent again",
-                              now, offset_mm=step, offset_seq=offset_seq)
+        return self._decision(Kind.NOT_APPLIED, "not_applied", f"offset {offset_seq} "
+                              f"({step * 1000:+.2f} um) was not applied{_colon(detail)}; it "
+                              "will not be sent again", now, offset_mm=step,
+                              offset_seq=offset_seq)
+
+    def settle_from_cnc(self, cnc: CncReading, now: float) -> Decision | None:
+        """Settle an UNCERTAIN offset from the CNC's registers, or None while they cannot
+        tell (the request is still there, unacknowledged: nothing else is sent meanwhile).
+
+        Applied when the CNC echoes its sequence, or when its total moved from the total read
+        before the write by exactly the offset; not applied when its request registers no
+        longer hold the sequence (the CNC cleared a request it will not apply, or never
+        received it).
+        """
+        p = self.persisted
+        seq = p.pending_seq
+        if self.state is not State.UNCERTAIN or seq is None:
+            return None
+        step = p.pending_offset_mm or 0.0
+        if cnc.ack_seq == seq:
+            d = self.on_write_outcome(seq, True, now, "the CNC's acknowledgement register "
+                                      "echoes its sequence")
+        elif p.pending_total_before_mm is not None and abs(step) > 0 and \
+                abs(cnc.total_mm - (p.pending_total_before_mm + step)) < 0.5e-4:
+            d = self.on_write_outcome(seq, True, now, "the CNC's total moved by the offset")
+        elif cnc.request_seq != seq:
+            d = self.on_write_outcome(seq, False, now, "the CNC's request registers no longer "
+                                      f"hold it (they hold {cnc.request_seq}): cleared by the "
+                                      "CNC or never received")
+        else:
+            return None
+        self.persisted.cnc_total_mm = cnc.total_mm
+        return d
 
     def reconcile(self, offset_seq: int, applied: bool, now: float) -> Decision:
-        """Settle an UNCERTAIN offset once the CNC's acknowledgement register is readable."""
+        """Settle an UNCERTAIN offset with a known outcome."""
         return self.on_write_outcome(offset_seq, applied, now,
                                      "settled from the CNC's acknowledgement register")
 
-    def acknowledge_alarm(self, now: float) -> Decision:
+    def acknowledge_alarm(self, now: float, who: str = "") -> Decision:
         """Leave the out-of-tolerance alarm."""
         if self.state is not State.ALARM:
-            return self._decision(Kind.HELD, f"no alarm to acknowledge ({self.state.value})",
-                                  now)
+            return self._decision(Kind.HELD, "no_alarm", f"no alarm to acknowledge "
+                                  f"({self.state.value})", now, who=who)
         self.persisted.state = State.ACTIVE.value
         self._window.clear()
-        return self._decision(Kind.ACKNOWLEDGED, "alarm acknowledged", now)
+        return self._decision(Kind.ACKNOWLEDGED, "acknowledged", "alarm acknowledged", now,
+                              who=who)
 
-    def reset(self, now: float) -> Decision:
-        """A person reset compensation (after a tool change): cumulative offset back to 0,
-        leave STOPPED or ALARM. Refused while an offset's fate is unknown."""
+    def reset(self, now: float, who: str = "", rebaseline: bool = True) -> Decision:
+        """A reset (after a tool change): the gauge's cumulative offset back to 0, leave
+        STOPPED or ALARM. With ``rebaseline`` (a person's reset) the CNC's total at the next
+        reading becomes the reference of the cumulative limit; without it the reference stays
+        where it is. Refused while an offset's fate is unknown."""
         if self.state in (State.PENDING, State.UNCERTAIN):
-            return self._decision(Kind.HELD, f"reset refused: offset {self.persisted.pending_seq}"
-                                  " is still unsettled", now)
+            return self._decision(Kind.HELD, "reset_refused", f"reset refused: offset "
+                                  f"{self.persisted.pending_seq} is still unsettled", now,
+                                  who=who)
         before = self.persisted.cumulative_mm
         self.persisted.cumulative_mm = 0.0
         self.persisted.state = State.ACTIVE.value
+        if rebaseline:
+            self.persisted.baseline_mm = None
         self._window.clear()
-        return self._decision(Kind.RESET, "compensation reset: cumulative offset back to 0",
-                              now, before_mm=before, after_mm=0.0)
+        return self._decision(Kind.RESET, "reset", "compensation reset: cumulative offset "
+                              "back to 0" + ("; the CNC's total at the next reading is the "
+                                             "new baseline" if rebaseline else ""),
+                              now, before_mm=before, after_mm=0.0, who=who)
+
+    def note_settings(self, what: str, now: float, who: str) -> Decision:
+        """Record a change of a setting outside the controller (for the audit trail)."""
+        return self._decision(Kind.SETTINGS, "other_settings", what, now, who=who)
+
+    def refuse_reset(self, now: float, who: str, why: str) -> Decision:
+        """Record a reset that was asked for and not carried out."""
+        return self._decision(Kind.REFUSED, "reset_refused", f"reset refused: {why}", now,
+                              who=who)
 
 
 def _colon(detail: str) -> str:

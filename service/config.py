@@ -81,6 +81,11 @@ class ModbusSettings(_Section):
     port: int = Field(5020, ge=0, le=65535)
     unit_id: int = Field(1, ge=0, le=255)
     word_order: Literal["big", "little"] = "big"
+    reset_command: bool = False
+    """Whether the CNC may reset compensation through the ``command`` register (2). Off, a
+    reset from the register is refused and logged; a technician resets over the API. On, the
+    CNC's program takes that authority: its reset moves the reference of the cumulative limit
+    as a technician's does."""
 
 
 class ApiSettings(_Section):
@@ -92,6 +97,20 @@ class ApiSettings(_Section):
     """Reading without a key is allowed from ``read_networks``; elsewhere a key is needed."""
     read_networks: list[str] = ["127.0.0.0/8", "::1/128", "10.0.0.0/8", "172.16.0.0/12",
                                 "192.168.0.0/16"]
+    max_body_bytes: int = Field(1 << 20, ge=1024)
+    """Largest request body (413 past it, checked before the body is read or the key)."""
+    max_image_bytes: int = Field(32 << 20, ge=1024)
+    """Largest image upload to a calibration session."""
+    max_connections: int = Field(200, ge=4)
+    """Connections and requests served at once (uvicorn's limit_concurrency; 503 past it)."""
+    max_streams: int = Field(32, ge=1)
+    """Live streams (SSE) open at once; 503 past it."""
+    max_calibration_sessions: int = Field(4, ge=1)
+    """Calibration sessions open at once (409 past it; expired ones are deleted first)."""
+    max_session_images: int = Field(200, ge=1)
+    """Images one calibration session may hold."""
+    session_expiry_h: float = Field(24.0, gt=0)
+    """A calibration session untouched this long is deleted with its images."""
     keys: dict[str, Literal["operator", "technician", "admin"]] = {}
     """API key -> role (operator: read where reading is not open; technician: calibrations,
     feature, shadow mode, commands, temperature; admin: also compensation tuning). Put keys in
@@ -145,6 +164,11 @@ class MeasurementSettings(_Section):
     """A master check is due this often; when overdue (or failed) no offset is written."""
     master_limit_mm: float = Field(0.003, gt=0)
     """A master check passes when the corrected master reads within this of its certificate."""
+    max_correction_offset_mm: float = Field(0.02, gt=0)
+    """A master correction whose offset is larger than this is refused (the calibration is
+    wrong, or the master's certificate: calibrate again rather than correct)."""
+    max_correction_scale_error: float = Field(0.002, gt=0)
+    """A master correction whose scale differs from 1 by more than this is refused."""
 
 
 class TemperatureSettings(_Section):

@@ -1,5 +1,12 @@
 """Compensation in motion: measurements into the controller, its offsets out to the CNC, every
-decision into the log. The controller decides; this module only carries its orders out."""
+decision into the log. The controller decides; this module only carries its orders out.
+
+Before each write the CNC's total wear offset is read and checked against the cumulative
+limit (``check_before_write``); an offset whose outcome is unknown is settled from the CNC's
+registers (acknowledgement, request, total) once they can tell, never re-sent. The log is
+written by its own thread: an order to write is committed before the write goes out, the
+rest is handed over without waiting.
+"""
 
 from __future__ import annotations
 
@@ -8,47 +15,72 @@ import logging
 import sqlite3
 import time
 from collections.abc import Callable
+from typing import Protocol
 
 from calib_store.compensation_log import CompensationLog
-from drivers.plc.client import OffsetWriter, WriteResult
-from service.compensation import CompensationController, Decision, Kind, MeasurementIn, State
+from service.compensation import (
+    CncReading,
+    CompensationController,
+    CompensationSettings,
+    Decision,
+    Kind,
+    MeasurementIn,
+    State,
+)
 
 log = logging.getLogger("shaftgauge.compensation")
+
+CNC_REFRESH_S = 5.0
+"""How often the CNC's registers are read when nothing is in flight (connection state,
+total wear offset)."""
 
 
 class LogUnavailableError(RuntimeError):
     """An order to write an offset could not be logged: it must not be carried out."""
 
 
+class OffsetTransport(Protocol):
+    """What the channel needs of the CNC side (``drivers.plc.client.OffsetWriter``, or a
+    fake CNC in tests)."""
+
+    async def write_offset(self, offset_mm: float, seq: int):  # -> WriteResult
+        """Write one offset once; the result says APPLIED, NOT_APPLIED or UNKNOWN."""
+
+    async def read_cnc(self) -> CncReading | None:
+        """The CNC's registers, or None when they cannot be read now."""
+
+
 class OffsetChannel:
     """Drives one controller with one offset writer (None: nothing is ever written).
 
-    Serialised by an asyncio lock: measurements, write outcomes and person's commands are
-    handled one at a time, in order.
+    Serialised by an asyncio lock: measurements, write outcomes, settings and people's
+    commands are handled one at a time, in order. Every change of the controller goes
+    through a method of this class.
     """
 
-    def __init__(self, controller: CompensationController, writer: OffsetWriter | None,
+    def __init__(self, controller: CompensationController, writer: OffsetTransport | None,
                  store: CompensationLog | None = None,
                  on_decision: Callable[[Decision], None] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.controller, self.writer, self.store = controller, writer, store
         self.on_decision = on_decision
         self.clock = clock
-        self.last_write: WriteResult | None = None
-        self.log_problem = ""   # why the decision log cannot be written now (empty: it can)
+        self.last_write = None
         self._lock = asyncio.Lock()
+        self._last_refresh = -float("inf")
 
-    def _record(self, decision: Decision) -> Decision:
+    @property
+    def log_problem(self) -> str:
+        """Why the decision log cannot be written now (empty: it can)."""
+        return self.store.problem if self.store is not None else ""
+
+    def _note(self, decision: Decision) -> Decision:
+        """Hand a decision to the log (without waiting), the log file and the listeners."""
         if self.store is not None:
             try:
-                self.store.record(decision, time.time(), self.controller.persisted)
-                self.log_problem = ""
-            except sqlite3.Error as err:  # a full disk, a damaged file: say so, keep going
-                if not self.log_problem:
-                    log.error("the compensation log cannot be written: %s", err)
-                self.log_problem = f"the compensation log cannot be written ({err})"
-                if decision.kind is Kind.WRITE:
-                    raise LogUnavailableError(self.log_problem) from err
+                self.store.submit(decision, time.time(), self.controller.persisted)
+            except sqlite3.Error as err:  # closed while stopping
+                log.warning("decision not logged: %s", err)
         level = logging.WARNING if decision.kind in (Kind.ALARM, Kind.STOPPED, Kind.UNCERTAIN,
                                                      Kind.NOT_APPLIED, Kind.LIMIT) \
             else logging.DEBUG
@@ -57,62 +89,138 @@ class OffsetChannel:
             self.on_decision(decision)
         return decision
 
+    async def _note_durable(self, decision: Decision) -> Decision:
+        """Log a decision and wait until it is committed (LogUnavailableError if it cannot
+        be)."""
+        if self.store is not None:
+            fut = self.store.submit(decision, time.time(), self.controller.persisted,
+                                    durable=True)
+            try:
+                await asyncio.wrap_future(fut)
+            except sqlite3.Error as err:
+                raise LogUnavailableError(f"the compensation log cannot be written ({err})"
+                                          ) from err
+        if self.on_decision is not None:
+            self.on_decision(decision)
+        return decision
+
     async def on_measurement(self, m: MeasurementIn) -> list[Decision]:
         """Judge a measurement; write an offset when the controller asks for one."""
         async with self._lock:
             order = self.controller.on_measurement(m, self.clock())
+            if order.kind is not Kind.WRITE:
+                return [self._note(order)]
             try:
-                out = [self._record(order)]
+                await self._note_durable(order)
             except LogUnavailableError as err:  # an offset that cannot be logged is not written
-                return [self._record(self.controller.on_write_outcome(
+                return [order, self._note(self.controller.on_write_outcome(
                     order.offset_seq, False, self.clock(), f"not written: {err}"))]
-            if out[0].kind is Kind.WRITE:
-                out.append(await self._write(out[0]))
-            return out
+            return [order, *await self._write(order)]
 
-    async def _write(self, order: Decision) -> Decision:
+    async def _write(self, order: Decision) -> list[Decision]:
         assert order.offset_mm is not None and order.offset_seq is not None
         if self.writer is None:
-            return self._record(self.controller.on_write_outcome(
-                order.offset_seq, False, self.clock(), "no CNC connection is configured"))
+            return [self._note(self.controller.on_write_outcome(
+                order.offset_seq, False, self.clock(), "no CNC connection is configured"))]
+        cnc = await self.writer.read_cnc()
+        veto = self.controller.check_before_write(
+            order.offset_seq, None if cnc is None else cnc.total_mm, self.clock())
+        if veto is not None:
+            return [self._note(veto)]
         result = await self.writer.write_offset(order.offset_mm, order.offset_seq)
         self.last_write = result
-        return self._record(self.controller.on_write_outcome(
-            order.offset_seq, result.applied, self.clock(), result.message))
+        return [self._note(self.controller.on_write_outcome(
+            order.offset_seq, result.applied, self.clock(), result.message))]
 
     async def settle(self) -> Decision | None:
-        """If an offset's fate is unknown, read the CNC's acknowledgement and settle it.
-
-        The CNC echoes the sequence of the last offset it applied; offsets are never re-sent,
-        so the pending one was applied exactly when the echo equals its sequence.
-        """
+        """If an offset's fate is unknown, read the CNC's registers and settle it when they
+        can tell; otherwise None (nothing is sent meanwhile)."""
         async with self._lock:
             c = self.controller
             if c.state is not State.UNCERTAIN or self.writer is None:
                 return None
-            seq = c.persisted.pending_seq
-            ack = await self.writer.read_ack()
-            if ack is None or seq is None:
+            cnc = await self.writer.read_cnc()
+            if cnc is None:
                 return None
-            return self._record(c.reconcile(seq, ack == seq, self.clock()))
+            d = c.settle_from_cnc(cnc, self.clock())
+            return None if d is None else self._note(d)
+
+    async def refresh(self) -> Decision | None:
+        """Read the CNC's registers now: its connection state and total wear offset (taken as
+        the baseline of the cumulative limit when there is none)."""
+        async with self._lock:
+            if self.writer is None:
+                return None
+            self._last_refresh = self.clock()
+            cnc = await self.writer.read_cnc()
+            if cnc is None:
+                return None
+            d = self.controller.observe_cnc_total(cnc.total_mm, self.clock())
+            return None if d is None else self._note(d)
 
     async def run_settler(self, period_s: float = 1.0) -> None:
-        """Settle unknown offsets as soon as the CNC answers again; runs until cancelled."""
+        """Settle unknown offsets as soon as the CNC's registers tell, and read the CNC now
+        and then (every second while no baseline is known); runs until cancelled."""
         while True:
-            await asyncio.sleep(period_s)
             try:
-                await self.settle()
+                if self.controller.state is State.UNCERTAIN:
+                    await self.settle()
+                elif (self.controller.persisted.baseline_mm is None
+                      or self.controller.persisted.cnc_total_mm is None
+                      or self.clock() - self._last_refresh >= CNC_REFRESH_S):
+                    await self.refresh()
+            except asyncio.CancelledError:
+                raise
             except Exception:  # keep settling: a bug here must not end the task silently
                 log.exception("settling an offset failed")
+            await asyncio.sleep(period_s)
 
-    async def command(self, action: str) -> Decision:
-        """A person's command: ``reset`` or ``acknowledge``."""
+    async def command(self, action: str, who: str = "", rebaseline: bool = True) -> Decision:
+        """A command: ``reset`` (``rebaseline``: a person's reset moves the limit's reference
+        to where the CNC's total stands) or ``acknowledge``."""
         async with self._lock:
             now = self.clock()
             if action == "reset":
-                d = self.controller.reset(now)
+                d = self.controller.reset(now, who, rebaseline)
             elif action == "acknowledge":
-                d = self.controller.acknowledge_alarm(now)
+                d = self.controller.acknowledge_alarm(now, who)
             else:
                 raise ValueError(f"unknown compensation command {action!r}")
-            return self._record(d)
+            d = self._note(d)
+        if action == "reset" and d.kind is Kind.RESET and rebaseline:
+            await self.refresh()  # the new baseline at once, when the CNC answers
+        return d
+
+    async def refuse_reset(self, who: str, why: str) -> Decision:
+        """Log a reset that was asked for and not carried out."""
+        async with self._lock:
+            return self._note(self.controller.refuse_reset(self.clock(), who, why))
+
+    async def update_settings(self, settings: CompensationSettings, who: str) -> Decision:
+        """New settings (ValueError naming the bad one); committed to the log before the
+        call returns, so a restart keeps them."""
+        async with self._lock:
+            d = self.controller.update_settings(settings, self.clock(), who)
+            try:
+                return await self._note_durable(d)
+            except LogUnavailableError as err:
+                log.error("settings changed but not stored: %s", err)
+                return d
+
+    async def note_settings(self, what: str, who: str) -> Decision:
+        """Log a change of a setting the controller does not own (the part temperature)."""
+        async with self._lock:
+            d = self.controller.note_settings(what, self.clock(), who)
+            try:
+                return await self._note_durable(d)
+            except LogUnavailableError as err:
+                log.error("settings changed but not logged: %s", err)
+                return d
+
+    def set_calibration(self, calibration_id: int | None) -> None:
+        """Measurements from another calibration than this one are refused from now on."""
+        self.controller.calibration_id = calibration_id
+
+    def set_writes_blocked(self, why: str) -> None:
+        """Offsets are only proposed while ``why`` is not empty (a master check)."""
+        self.controller.writes_blocked = why

@@ -14,8 +14,10 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import json
 import logging
 import math
+import sqlite3
 import statistics
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -59,7 +61,24 @@ from service.offsets import OffsetChannel
 log = logging.getLogger("shaftgauge.service")
 
 
-PLC_CHECK_S = 5.0
+SEQ_BLOCK = 10_000
+"""Measurement sequence numbers are reserved in the store this many at a time: after a
+restart the sequence goes on above every number used before (with a gap), never back."""
+RUNTIME_SETTINGS_KEY = "runtime_settings"
+SEQ_KEY = "measurement_seq_reserved"
+
+
+@dataclass(frozen=True)
+class CalibrationInUse:
+    """The calibration frames are measured with, and what belongs to it (its master
+    correction, its axis tracker). A frame keeps the one it was taken under, even if another
+    is activated while it is being measured."""
+
+    info: CalibrationInfo
+    calibration: Calibration
+    geometry: RigGeometry
+    correction: DiameterCorrection | None
+    tracker: AxisTracker | None
 
 
 @dataclass(frozen=True)
@@ -85,6 +104,7 @@ class MeasurementRecord:
     latency_ms: float           # frame received -> published
     reason: str
     note: str
+    calibration_id: int | None = None  # the calibration it was measured with
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: a non-finite number (a fit's NaN residual, say) becomes None."""
@@ -154,7 +174,8 @@ class Gauge:
         self.modbus = GaugeModbusServer(self.bank, settings.modbus.host, settings.modbus.port,
                                         settings.modbus.unit_id, on_write=self._on_register_write)
         state = comp_log.load_state() if comp_log else None
-        controller = CompensationController(settings.compensation, state or
+        comp_settings, self.part_temp_c, self.alpha_per_k = self._runtime_settings()
+        controller = CompensationController(comp_settings, state or
                                             CompensationController().persisted)
         self.channel = OffsetChannel(controller, writer, comp_log, on_decision=self._on_decision)
         self.params = MeasureParams(stripe=StripeParams(
@@ -164,7 +185,6 @@ class Gauge:
             sheet_correction=settings.measurement.sheet_correction,
             sheet_sigma_mm=settings.measurement.sheet_sigma_mm)
         self.method = Method(settings.measurement.method)
-        self.part_temp_c = settings.temperature.part_temp_c
         self.latest: MeasurementRecord | None = None
         self.latest_measurement: Measurement | None = None
         self.latest_frame: Frame | None = None
@@ -174,14 +194,11 @@ class Gauge:
             maxlen=settings.measurement.history)
         self.subscribers = Subscribers()
         self.decisions = Subscribers()
-        self.calibration: tuple[CalibrationInfo, Calibration] | None = None
-        self.correction: DiameterCorrection | None = None
-        self._last_master_check = store.last_master_check() if store is not None else None
-        self.geometry: RigGeometry | None = None
-        self.tracker: AxisTracker | None = None
+        self.in_use: CalibrationInUse | None = None
+        self._last_master_check: dict[str, Any] | None = None
         self._window: collections.deque[Measurement] = collections.deque(
             maxlen=settings.measurement.fuse_frames)
-        self._seq = 0
+        self._seq, self._seq_reserved = self._reserve_sequence(controller)
         self.counters = collections.Counter()
         self._times: collections.deque[float] = collections.deque(maxlen=2000)
         self.latency_ms: collections.deque[float] = collections.deque(maxlen=2000)
@@ -194,8 +211,8 @@ class Gauge:
                                         thread_name_prefix="measure")
         self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
         self._running = False
-        # (monotonic end, why, who set it) of an offset hold
-        self._hold: tuple[float, str, str | None] | None = None
+        # (monotonic end, why, who set it, code) of an offset hold
+        self._hold: tuple[float, str, str | None, str] | None = None
         self.started = time.time()
         if store is not None:
             try:
@@ -205,31 +222,120 @@ class Gauge:
                 active = None
             if active is not None:
                 self.set_calibration(*active)
-        self.bank.set_many({"nominal": mm_to_units(settings.compensation.nominal_mm),
-                            "tol_upper": mm_to_units(settings.compensation.tol_upper_mm),
-                            "tol_lower": mm_to_units(settings.compensation.tol_lower_mm)})
+        self._feature_registers(comp_settings)
+        self.bank.set("measurement_seq", self._seq & 0xFFFFFFFF)
+
+    # ---- what survives a restart -------------------------------------------------------
+
+    def _runtime_settings(self) -> tuple[CompensationSettings, float | None, float]:
+        """The compensation settings and part temperature to start with: those last changed
+        at run time, unless the config file's own have changed since (then the file's)."""
+        s = self.settings
+        from_file = _settings_doc(s.compensation, s.temperature.part_temp_c,
+                                  s.temperature.alpha_per_k)
+        stored = self.comp_log.get_value(RUNTIME_SETTINGS_KEY) if self.comp_log else None
+        if stored is None or stored.get("config") != from_file:
+            if stored is not None:
+                log.warning("the config file's compensation or temperature settings changed "
+                            "since the last run: they replace the changes made at run time")
+            return s.compensation, s.temperature.part_temp_c, s.temperature.alpha_per_k
+        known = CompensationSettings.__dataclass_fields__
+        comp = CompensationSettings(**{k: v for k, v in stored["compensation"].items()
+                                       if k in known})
+        if comp.problems():
+            log.error("stored runtime settings are inconsistent (%s): the config file's are "
+                      "used", "; ".join(comp.problems()))
+            return s.compensation, s.temperature.part_temp_c, s.temperature.alpha_per_k
+        log.info("compensation settings as last changed at run time (shadow %s)", comp.shadow)
+        return comp, stored["part_temp_c"], stored["alpha_per_k"]
+
+    async def _save_runtime_settings(self) -> None:
+        if self.comp_log is None:
+            return
+        s = self.settings
+        doc = _settings_doc(self.channel.controller.settings, self.part_temp_c,
+                            self.alpha_per_k)
+        doc["config"] = _settings_doc(s.compensation, s.temperature.part_temp_c,
+                                      s.temperature.alpha_per_k)
+        try:
+            await asyncio.wrap_future(self.comp_log.submit_value(RUNTIME_SETTINGS_KEY, doc))
+        except sqlite3.Error as err:
+            log.error("runtime settings not stored: %s", err)
+
+    def _reserve_sequence(self, controller: CompensationController) -> tuple[int, int]:
+        """(last used, reserved up to) for the measurement sequence: above every number used
+        before, the next block reserved in the store before any is used."""
+        start = controller.persisted.last_measurement_seq + 1
+        if self.comp_log is None:
+            return start, 1 << 62
+        start = max(start, int(self.comp_log.get_value(SEQ_KEY, 0)))
+        try:
+            self.comp_log.put_value(SEQ_KEY, start + SEQ_BLOCK)
+        except sqlite3.Error as err:  # a full disk: the block stays unreserved, say so
+            log.error("measurement sequence not reserved (%s)", err)
+        return start, start + SEQ_BLOCK
+
+    def _next_seq(self) -> int:
+        self._seq += 1
+        if self.comp_log is not None and self._seq >= self._seq_reserved - SEQ_BLOCK // 2:
+            self._seq_reserved += SEQ_BLOCK
+            with contextlib.suppress(sqlite3.Error):
+                self.comp_log.submit_value(SEQ_KEY, self._seq_reserved)
+        return self._seq
 
     # ---- calibration -------------------------------------------------------------------
 
+    @property
+    def calibration(self) -> tuple[CalibrationInfo, Calibration] | None:
+        """The active calibration and its info."""
+        u = self.in_use
+        return None if u is None else (u.info, u.calibration)
+
+    @property
+    def geometry(self) -> RigGeometry | None:
+        """The active calibration's geometry."""
+        return None if self.in_use is None else self.in_use.geometry
+
+    @property
+    def correction(self) -> DiameterCorrection | None:
+        """The active calibration's master correction."""
+        return None if self.in_use is None else self.in_use.correction
+
+    @property
+    def tracker(self) -> AxisTracker | None:
+        """The active calibration's axis tracker."""
+        return None if self.in_use is None else self.in_use.tracker
+
     def set_calibration(self, info: CalibrationInfo, calibration: Calibration) -> None:
-        """Measure with this calibration from the next frame on."""
+        """Measure with this calibration from the next frame on; compensation takes only
+        measurements made with it from now on."""
         geometry = calibration.to_geometry()
-        self.calibration = (info, calibration)
-        self.geometry = geometry
         corr = self.store.correction(info.id) if self.store is not None else None
-        self.correction = None if corr is None else DiameterCorrection(
-            corr["offset_mm"], corr["scale"], corr["time"])
         c0 = axis_center(geometry)
-        self.tracker = (AxisTracker(c0, self.settings.measurement.axis_sigma_mm)
-                        if c0 is not None and self.settings.measurement.track_axis else None)
+        tracker = (AxisTracker(c0, self.settings.measurement.axis_sigma_mm)
+                   if c0 is not None and self.settings.measurement.track_axis else None)
+        self.in_use = CalibrationInUse(info, calibration, geometry, None if corr is None else
+                                       DiameterCorrection(corr["offset_mm"], corr["scale"],
+                                                          corr["time"]), tracker)
+        self._last_master_check = (self.store.last_master_check(info.id)
+                                   if self.store is not None else None)
+        self.channel.set_calibration(info.id)
         self._window.clear()
         log.info("calibration %d in use (%s)", info.id, info.note or "no note")
 
-    def hold_offsets(self, seconds: float, why: str, owner: str | None = None) -> None:
+    def set_correction(self, correction: DiameterCorrection) -> None:
+        """The active calibration's master correction, from the next frame on."""
+        if self.in_use is None:
+            raise RuntimeError("no active calibration")
+        self.in_use = replace(self.in_use, correction=correction)
+
+    def hold_offsets(self, seconds: float, why: str, owner: str | None = None,
+                     code: str = "calibration") -> None:
         """Treat every measurement as doubtful for ``seconds`` from now (the camera is
-        looking at a calibration board): nothing is written to the CNC meanwhile. ``owner``
-        (a calibration session's id) may end it early with ``release_hold``."""
-        self._hold = (time.monotonic() + seconds, why, owner)
+        looking at a calibration board, or at the master): nothing is written to the CNC
+        meanwhile. ``owner`` (a calibration session's id) may end it early with
+        ``release_hold``; ``code`` names it in the decision log (``held_for_<code>``)."""
+        self._hold = (time.monotonic() + seconds, why, owner, code)
         log.info("offsets held for %.0f s: %s", seconds, why)
 
     def release_hold(self, owner: str) -> bool:
@@ -267,8 +373,6 @@ class Gauge:
             loop.create_task(self._refresh_registers(), name="registers"),
             loop.create_task(self.channel.run_settler(), name="settler"),
         ]
-        if self.writer is not None:
-            self._tasks.append(loop.create_task(self._watch_plc(), name="plc-watch"))
 
     async def stop(self) -> None:
         """Stop everything started by ``start``."""
@@ -283,6 +387,8 @@ class Gauge:
             await self.writer.close()
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._intake_pool.shutdown(wait=True, cancel_futures=True)
+        if self.comp_log is not None:  # what was decided is on disk before the process ends
+            await asyncio.to_thread(self.comp_log.flush, 5.0)
 
     # ---- the pipeline ------------------------------------------------------------------
 
@@ -304,13 +410,14 @@ class Gauge:
                     continue
                 self.counters["frames_in"] += 1
                 self.latest_frame = frame
-                geometry = self.geometry
-                if geometry is None:
+                in_use = self.in_use
+                if in_use is None:
                     self.counters["frames_without_calibration"] += 1
                     continue
-                prior = self.tracker.center() if self.tracker is not None else None
-                fut = loop.run_in_executor(self._pool, self._measure, frame, geometry, prior)
-                await self._in_flight.put((frame, geometry, fut))
+                prior = in_use.tracker.center() if in_use.tracker is not None else None
+                fut = loop.run_in_executor(self._pool, self._measure, frame, in_use.geometry,
+                                           prior)
+                await self._in_flight.put((frame, in_use, fut))
                 submitted = True
             except asyncio.CancelledError:
                 raise
@@ -326,7 +433,7 @@ class Gauge:
         """Results in frame order, each as soon as it and those before it are done."""
         assert self._slots is not None and self._in_flight is not None
         while True:
-            frame, geometry, fut = await self._in_flight.get()
+            frame, in_use, fut = await self._in_flight.get()
             try:
                 m = await fut
             except asyncio.CancelledError:
@@ -338,38 +445,38 @@ class Gauge:
             finally:
                 self._slots.release()
             try:
-                self._publish(frame, m, geometry)
+                self._publish(frame, m, in_use)
             except Exception:
                 self.counters["pipeline_errors"] += 1
                 log.exception("publishing error")
 
-    def _publish(self, frame: Frame, m: Measurement, geometry: RigGeometry) -> None:
-        self.latest_measured = (frame, m, geometry)
+    def _publish(self, frame: Frame, m: Measurement, in_use: CalibrationInUse) -> None:
+        self.latest_measured = (frame, m, in_use.geometry)
         raw_diameter = m.diameter_mm
-        if m and self.correction is not None:
-            m = replace(m, diameter_mm=self.correction.apply(m.diameter_mm),
+        correction, tracker = in_use.correction, in_use.tracker
+        if m and correction is not None:
+            m = replace(m, diameter_mm=correction.apply(m.diameter_mm),
                         uncertainty_mm=None if m.uncertainty_mm is None
-                        else m.uncertainty_mm * abs(self.correction.scale))
-        self._seq += 1
+                        else m.uncertainty_mm * abs(correction.scale))
+        seq = self._next_seq()
         now_ns = time.monotonic_ns()
         self.counters["measured"] += 1
         self.counters["ok" if m else f"status_{m.status.value}"] += 1
-        if m and self.tracker is not None and m.free_center_mm and m.free_center_cov:
+        if m and tracker is not None and m.free_center_mm and m.free_center_cov:
             xx, xy, yy = m.free_center_cov
-            self.tracker.update(np.array(m.free_center_mm), np.array([[xx, xy], [xy, yy]]),
+            tracker.update(np.array(m.free_center_mm), np.array([[xx, xy], [xy, yy]]),
                                 m.diameter_mm)
         self._window.append(m)
         fused = fuse(list(self._window)) if len(self._window) >= 3 else None
         d20 = None
         if m and self.part_temp_c is not None:
-            d20 = diameter_at_reference(m.diameter_mm, self.part_temp_c,
-                                        self.settings.temperature.alpha_per_k)
+            d20 = diameter_at_reference(m.diameter_mm, self.part_temp_c, self.alpha_per_k)
         nominal = self.channel.controller.settings.nominal_mm
         dev = ((d20 if d20 is not None else m.diameter_mm) - nominal
                if m and nominal is not None else None)
         s = self.channel.controller.settings
         record = MeasurementRecord(
-            seq=self._seq, time=time.time(), frame_id=frame.frame_id, method=m.method.value,
+            seq=seq, time=time.time(), frame_id=frame.frame_id, method=m.method.value,
             status=m.status.value, diameter_mm=m.diameter_mm if m else None,
             raw_diameter_mm=raw_diameter if m else None,
             uncertainty_mm=m.uncertainty_mm if m else None, diameter_20c_mm=d20,
@@ -379,14 +486,14 @@ class Gauge:
             in_tolerance=None if dev is None else bool(s.tol_lower_mm <= dev <= s.tol_upper_mm),
             arc_deg=float(m.arc_deg or 0.0), n_points=m.n_points,
             rms_residual_mm=m.rms_residual_mm, latency_ms=(now_ns - frame.received_ns) / 1e6,
-            reason=m.reason, note=m.note)
+            reason=m.reason, note=m.note, calibration_id=in_use.info.id)
         self.latest, self.latest_measurement = record, m
         self.history.append(record)
         self._times.append(time.monotonic())
         self.bank.set_many({
             "diameter": mm_to_units(record.diameter_mm),
             "uncertainty": mm_to_units(record.uncertainty_mm),
-            "measurement_seq": self._seq & 0xFFFFFFFF,
+            "measurement_seq": seq & 0xFFFFFFFF,
             "measurement_age": 0,
         })
         self.latency_ms.append((time.monotonic_ns() - frame.received_ns) / 1e6)
@@ -395,23 +502,11 @@ class Gauge:
             if self._comp_queue.full():
                 self._comp_queue.get_nowait()
                 self.counters["compensation_dropped"] += 1
+            hold = self._hold if self.offset_hold() else None
             self._comp_queue.put_nowait(MeasurementIn(
-                self._seq, frame.received_ns / 1e9,
-                "held_for_calibration" if self.offset_hold() else m.status.value,
-                d20 if d20 is not None else m.diameter_mm, m.uncertainty_mm))
-
-    async def _watch_plc(self) -> None:
-        """Ask the CNC every few seconds, so its connection state is known before an offset
-        has to be written (the writer serialises this with its writes)."""
-        assert self.writer is not None
-        while True:
-            try:
-                await self.writer.check()
-            except asyncio.CancelledError:
-                raise
-            except Exception:
-                log.exception("PLC check")
-            await asyncio.sleep(PLC_CHECK_S)
+                seq, frame.received_ns / 1e9,
+                ("held_for_" + hold[3]) if hold else m.status.value,
+                d20 if d20 is not None else m.diameter_mm, m.uncertainty_mm, in_use.info.id))
 
     async def _compensate(self) -> None:
         assert self._comp_queue is not None
@@ -438,28 +533,44 @@ class Gauge:
 
     def _on_register_write(self, name: str, value: int) -> None:
         """A CNC wrote a register (called inside the Modbus server, on the event loop)."""
-        loop = asyncio.get_running_loop()
         if name == "command":
-            task = loop.create_task(self.run_command(Command(value), source="modbus"))
-            self._command_tasks.add(task)
-            task.add_done_callback(self._command_tasks.discard)
+            self._spawn(self.run_command(Command(value), source="modbus"))
         elif name in ("nominal", "tol_upper", "tol_lower"):
-            s = self.channel.controller.settings
-            changes = {"nominal": {"nominal_mm": units_to_mm(value)},
-                       "tol_upper": {"tol_upper_mm": units_to_mm(value)},
-                       "tol_lower": {"tol_lower_mm": units_to_mm(value)}}[name]
-            try:
-                self.update_compensation(replace(s, **changes))
-            except ValueError as err:  # consistent only once all three are written
-                log.info("feature from the CNC not taken yet: %s", err)
+            self._spawn(self._feature_from_cnc(name, value))
 
-    async def run_command(self, command: Command, source: str) -> Decision | None:
-        """Carry out a command (from the CNC or the API) and acknowledge it in the registers."""
+    def _spawn(self, coro) -> None:
+        task = asyncio.get_running_loop().create_task(coro)
+        self._command_tasks.add(task)
+        task.add_done_callback(self._command_tasks.discard)
+
+    async def _feature_from_cnc(self, name: str, value: int) -> None:
+        s = self.channel.controller.settings
+        changes = {"nominal": {"nominal_mm": units_to_mm(value)},
+                   "tol_upper": {"tol_upper_mm": units_to_mm(value)},
+                   "tol_lower": {"tol_lower_mm": units_to_mm(value)}}[name]
+        try:
+            await self.update_compensation(replace(s, **changes), who="modbus")
+        except ValueError as err:  # consistent only once all three are written
+            log.info("feature from the CNC not taken yet: %s", err)
+
+    async def run_command(self, command: Command, source: str,
+                          who: str | None = None) -> Decision | None:
+        """Carry out a command (from the CNC or the API) and acknowledge it in the registers.
+
+        A reset from the CNC's command register is refused (and logged) unless
+        ``modbus.reset_command`` allows it; a reset moves the reference of the cumulative
+        limit to where the CNC's total stands."""
         decision = None
+        who = who or source
         if command is Command.RESET_COMPENSATION:
-            decision = await self.channel.command("reset")
+            if source == "modbus" and not self.settings.modbus.reset_command:
+                decision = await self.channel.refuse_reset(
+                    who, "resets from the CNC's command register are off "
+                    "(modbus.reset_command); a technician resets over the API")
+            else:
+                decision = await self.channel.command("reset", who)
         elif command is Command.ACKNOWLEDGE_ALARM:
-            decision = await self.channel.command("acknowledge")
+            decision = await self.channel.command("acknowledge", who)
         elif command is Command.MEASURE_NOW and self.camera.status().state is \
                 CameraState.STREAMING:
             with contextlib.suppress(Exception):  # a free-running camera measures anyway
@@ -469,14 +580,29 @@ class Gauge:
         log.info("command %s from %s", command.name.lower(), source)
         return decision
 
-    def update_compensation(self, settings: CompensationSettings) -> Decision:
-        """New compensation settings (raises ValueError naming the bad setting)."""
-        d = self.channel.controller.update_settings(settings, self.channel.clock())
-        self.channel._record(d)
+    async def update_compensation(self, settings: CompensationSettings, who: str) -> Decision:
+        """New compensation settings (raises ValueError naming the bad setting), logged with
+        who changed what and kept across restarts."""
+        d = await self.channel.update_settings(settings, who)
+        self._feature_registers(settings)
+        await self._save_runtime_settings()
+        return d
+
+    async def set_temperature(self, part_temp_c: float | None, alpha_per_k: float | None,
+                              who: str) -> None:
+        """The part temperature (and expansion coefficient) for the diameter at 20 C; logged
+        and kept across restarts."""
+        self.part_temp_c = part_temp_c
+        if alpha_per_k is not None:
+            self.alpha_per_k = alpha_per_k
+        await self.channel.note_settings(f"temperature changed (part_temp_c={part_temp_c!r}, "
+                                         f"alpha_per_k={self.alpha_per_k!r})", who)
+        await self._save_runtime_settings()
+
+    def _feature_registers(self, settings: CompensationSettings) -> None:
         self.bank.set_many({"nominal": mm_to_units(settings.nominal_mm),
                             "tol_upper": mm_to_units(settings.tol_upper_mm),
                             "tol_lower": mm_to_units(settings.tol_lower_mm)})
-        return d
 
     # ---- health and status -------------------------------------------------------------
 
@@ -566,12 +692,12 @@ class Gauge:
         cid = self.calibration[0].id if self.calibration else None
         self.store.add_master_check(cid, certified_mm, measured_mm, error_mm, limit_mm,
                                     passed, by)
-        self._last_master_check = self.store.last_master_check()
+        self._last_master_check = self.store.last_master_check(cid)
 
     async def _refresh_registers(self) -> None:
         while True:
             await asyncio.sleep(0.2)
-            self.channel.controller.writes_blocked = self.master_status()["blocking"] or ""
+            self.channel.set_writes_blocked(self.master_status()["blocking"] or "")
             self._set_status_registers()
 
     def _set_status_registers(self) -> None:
@@ -664,13 +790,26 @@ class Gauge:
                        "requests": self.modbus.requests, "exceptions": self.modbus.exceptions},
             "compensation": {"state": c.state.value, "shadow": c.settings.shadow,
                              "cumulative_offset_mm": c.cumulative_mm,
+                             "cnc_total_mm": c.persisted.cnc_total_mm,
+                             "baseline_mm": c.persisted.baseline_mm,
+                             "cnc_offset_from_baseline_mm": c.cnc_offset_mm(),
+                             "max_total_mm": c.settings.max_total_mm,
                              "offset_seq": c.persisted.offset_seq,
                              "pending_seq": c.persisted.pending_seq,
-                             "held": self.offset_hold()},
+                             "held": self.offset_hold(),
+                             "log_rows": None if self.comp_log is None else
+                             self.comp_log.rows_written},
             "master": self.master_status(),
             "temperature": {"part_temp_c": self.part_temp_c,
-                            "alpha_per_k": self.settings.temperature.alpha_per_k},
+                            "alpha_per_k": self.alpha_per_k},
         }
+
+
+def _settings_doc(comp: CompensationSettings, part_temp_c: float | None,
+                  alpha_per_k: float) -> dict[str, Any]:
+    """The runtime-changeable settings as stored (JSON-ready, compared after a round trip)."""
+    return json.loads(json.dumps({"compensation": asdict(comp), "part_temp_c": part_temp_c,
+                                  "alpha_per_k": alpha_per_k}))
 
 
 def finite_or_none(x: float | None) -> float | None:

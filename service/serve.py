@@ -153,7 +153,8 @@ async def serve(settings: Settings) -> int:
         raise
     app = create_app(gauge)
     server = uvicorn.Server(uvicorn.Config(app, host=settings.api.host, port=settings.api.port,
-                                           log_level=settings.log_level, access_log=False))
+                                           log_level=settings.log_level, access_log=False,
+                                           limit_concurrency=settings.api.max_connections))
 
     async def announce() -> None:
         while not server.started:

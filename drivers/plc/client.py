@@ -20,7 +20,8 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from drivers.plc.offsets import PlcOffsetMap
-from drivers.plc.registers import Kind, from_words, mm_to_units, to_words
+from drivers.plc.registers import UM_PER_UNIT, Kind, from_words, mm_to_units, to_words
+from service.compensation import CncReading
 
 log = logging.getLogger("shaftgauge.plc")
 
@@ -151,6 +152,31 @@ class OffsetWriter:
             except (TimeoutError, ModbusException, OSError) as err:
                 self._mark_down(f"reading the acknowledgement failed: {err}")
                 return None
+
+    async def read_cnc(self) -> CncReading | None:
+        """The CNC's side of the exchange (request sequence, acknowledgement, total wear
+        offset), or None when it cannot be read now."""
+        m = self.map
+        async with self._lock:
+            if not await self._connect():
+                return None
+            try:
+                assert self._client is not None
+                rr = await self._client.read_holding_registers(m.offset_address + 2, count=2,
+                                                               device_id=m.unit_id)
+                if rr.isError():
+                    raise ModbusException(f"read of {m.offset_address + 2} refused: {rr}")
+                request = from_words(rr.registers, Kind.U32, m.word_order)
+                ack = await self._read_u32(m.ack_address)
+                rr = await self._client.read_holding_registers(m.total_address, count=2,
+                                                               device_id=m.unit_id)
+                if rr.isError():
+                    raise ModbusException(f"read of {m.total_address} refused: {rr}")
+                total = from_words(rr.registers, Kind.I32, m.word_order)
+            except (TimeoutError, ModbusException, OSError) as err:
+                self._mark_down(f"reading the CNC's offset registers failed: {err}")
+                return None
+        return CncReading(ack, request, total * UM_PER_UNIT / 1000.0)
 
     async def check(self) -> bool:
         """Whether the CNC answers now (a read of its acknowledgement register)."""

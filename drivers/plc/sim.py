@@ -1,8 +1,12 @@
 """A simulated CNC/PLC: the offset registers a real CNC exposes, over real Modbus TCP.
 
 On a write of offset and sequence (FC16 over both pairs) it applies the offset, after an
-optional delay, if the sequence is new, and echoes the sequence into its acknowledgement
-register. Every write received and every offset applied goes into a log (in memory and, when
+optional delay, if the sequence is new and still in its request registers, and echoes the
+sequence into its acknowledgement register. A write of sequence 0 clears the request (what a
+CNC does with a request it will not apply; see deploy/modbus-register-map.md); with
+``never_ack`` it keeps every request and applies none (a CNC that stopped its part of the
+exchange). The request registers are volatile, as a PLC's exchange area is: after a restart
+they read 0. Every write received and every offset applied goes into a log (in memory and, when
 given, a JSON-lines file) so tests can prove that nothing was applied twice. Its applied total
 and last sequence persist in a state file, as a real CNC keeps its offsets across power cycles.
 """
@@ -39,14 +43,19 @@ class SimPlc:
         Time between receiving an offset and applying plus acknowledging it.
     log_path, state_path : Path, optional
         JSON-lines log of writes and applications; JSON state kept across restarts.
+    never_ack : bool
+        Keep requests, apply and acknowledge none.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 5021,
                  offsets: PlcOffsetMap | None = None, ack_delay_s: float = 0.0,
-                 log_path: Path | None = None, state_path: Path | None = None) -> None:
+                 log_path: Path | None = None, state_path: Path | None = None,
+                 never_ack: bool = False) -> None:
         self.host, self.port = host, port
         self.map = offsets or PlcOffsetMap()
         self.ack_delay_s = ack_delay_s
+        self.never_ack = never_ack
+        self.request_seq = 0
         self.log_path, self.state_path = log_path, state_path
         self.events: list[dict[str, Any]] = []
         self.total_units = 0
@@ -91,7 +100,13 @@ class SimPlc:
         words = [int(v) for v in values]
         value = from_words(words[:2], Kind.I32, m.word_order)
         seq = from_words(words[2:], Kind.U32, m.word_order)
+        self.request_seq = seq
+        if seq == 0:
+            self._record({"event": "cleared", "seq": seq, "value_units": value})
+            return None
         self._record({"event": "write", "seq": seq, "value_units": value})
+        if self.never_ack:
+            return None
         task = asyncio.get_running_loop().create_task(self._apply(seq, value, start))
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
@@ -100,6 +115,9 @@ class SimPlc:
     async def _apply(self, seq: int, value: int, start: int) -> None:
         if self.ack_delay_s:
             await asyncio.sleep(self.ack_delay_s)
+        if self.request_seq != seq:
+            self._record({"event": "cancelled", "seq": seq, "value_units": value})
+            return
         if seq == self.last_seq:
             self._record({"event": "duplicate", "seq": seq, "value_units": value})
         else:

@@ -15,6 +15,7 @@ from fastapi.staticfiles import StaticFiles
 
 from service.api import calibrations, compensation, master, measurements, sessions
 from service.api.auth import reader
+from service.api.limits import BodyLimit
 from service.api.models import ERRORS
 from service.runtime import Gauge
 
@@ -79,6 +80,11 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     app = FastAPI(title="shaftgauge", version="0.1.0", lifespan=lifespan,
                   description="Lathe-side shaft diameter measurement. Reading is open on the "
                   "plant network; changes need an X-API-Key with a role.")
+
+    # Bodies are bounded before anything reads them, before routing and access checks.
+    app.add_middleware(BodyLimit, default_bytes=gauge.settings.api.max_body_bytes,
+                       larger=[(r"/api/v1/calibration-sessions/[^/]+/images/",
+                                gauge.settings.api.max_image_bytes)])
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_: Request, exc: RequestValidationError) -> JSONResponse:

@@ -7,6 +7,7 @@ from dataclasses import asdict, replace
 
 from fastapi import APIRouter, Depends, HTTPException, Query
 
+from calib_store.compensation_log import as_kind
 from drivers.plc.registers import Command
 from service.api.auth import requires
 from service.api.models import CommandIn, CompensationIn, FeatureIn, ShadowIn, TemperatureIn
@@ -20,9 +21,9 @@ def router(gauge: Gauge) -> APIRouter:
 
     # The endpoints that change the controller are async: they run on the event loop, in turn
     # with the compensation task and the CNC's register writes, never beside them in a thread.
-    def apply(settings) -> dict:
+    async def apply(settings, role: str) -> dict:
         try:
-            d = gauge.update_compensation(settings)
+            d = await gauge.update_compensation(settings, who=f"api:{role}")
         except ValueError as err:
             raise HTTPException(422, str(err)) from None
         return {"settings": asdict(gauge.channel.controller.settings), "decision": d.as_dict()}
@@ -34,30 +35,32 @@ def router(gauge: Gauge) -> APIRouter:
                 "tol_lower_mm": s.tol_lower_mm}
 
     @r.put("/feature", summary="Set the feature (technician)")
-    async def set_feature(body: FeatureIn, _: str = technician) -> dict:
-        return apply(replace(gauge.channel.controller.settings, **body.model_dump()))
+    async def set_feature(body: FeatureIn, role: str = technician) -> dict:
+        return await apply(replace(gauge.channel.controller.settings, **body.model_dump()),
+                           role)
 
     @r.get("/compensation", summary="Compensation settings and state")
     def compensation() -> dict:
         c = gauge.channel.controller
         return {"settings": asdict(c.settings), "state": c.state.value,
                 "cumulative_offset_mm": c.cumulative_mm,
+                "cnc_total_mm": c.persisted.cnc_total_mm, "baseline_mm": c.persisted.baseline_mm,
                 "offset_seq": c.persisted.offset_seq, "pending_seq": c.persisted.pending_seq}
 
     @r.put("/compensation", summary="Tune compensation (admin)")
-    async def tune(body: CompensationIn, _: str = admin) -> dict:
+    async def tune(body: CompensationIn, role: str = admin) -> dict:
         changes = {k: v for k, v in body.model_dump().items() if v is not None}
-        return apply(replace(gauge.channel.controller.settings, **changes))
+        return await apply(replace(gauge.channel.controller.settings, **changes), role)
 
     @r.put("/compensation/shadow", summary="Shadow mode on or off (technician)")
-    async def shadow(body: ShadowIn, _: str = technician) -> dict:
-        return apply(replace(gauge.channel.controller.settings, shadow=body.shadow))
+    async def shadow(body: ShadowIn, role: str = technician) -> dict:
+        return await apply(replace(gauge.channel.controller.settings, shadow=body.shadow), role)
 
     @r.post("/compensation/command", summary="Reset compensation or acknowledge an alarm")
-    async def command(body: CommandIn, _: str = technician) -> dict:
+    async def command(body: CommandIn, role: str = technician) -> dict:
         code = Command.RESET_COMPENSATION if body.command == "reset" \
             else Command.ACKNOWLEDGE_ALARM
-        d = await gauge.run_command(code, source="api")
+        d = await gauge.run_command(code, source="api", who=f"api:{role}")
         return {"decision": None if d is None else d.as_dict(),
                 "state": gauge.channel.controller.state.value}
 
@@ -69,21 +72,22 @@ def router(gauge: Gauge) -> APIRouter:
         if gauge.comp_log is None:
             raise HTTPException(503, "the compensation log cannot be used: "
                                 f"{gauge.store_error}")
-        items = gauge.comp_log.decisions(limit, before_id,
-                                         tuple(kinds.split(",")) if kinds else None)
+        try:
+            wanted = tuple(as_kind(k.strip()).value for k in kinds.split(",")) if kinds \
+                else None
+        except ValueError as err:
+            raise HTTPException(422, f"kinds: {err}") from None
+        items = gauge.comp_log.decisions(limit, before_id, wanted)
         return {"items": items, "next_before_id": items[-1]["id"] if len(items) == limit
                 else None}
 
     @r.get("/temperature", summary="Part temperature for the diameter at 20 C")
     def temperature() -> dict:
-        return {"part_temp_c": gauge.part_temp_c,
-                "alpha_per_k": gauge.settings.temperature.alpha_per_k}
+        return {"part_temp_c": gauge.part_temp_c, "alpha_per_k": gauge.alpha_per_k}
 
     @r.put("/temperature", summary="Set the part temperature (technician)")
-    def set_temperature(body: TemperatureIn, _: str = technician) -> dict:
-        gauge.part_temp_c = body.part_temp_c
-        if body.alpha_per_k is not None:
-            gauge.settings.temperature.alpha_per_k = body.alpha_per_k
+    async def set_temperature(body: TemperatureIn, role: str = technician) -> dict:
+        await gauge.set_temperature(body.part_temp_c, body.alpha_per_k, who=f"api:{role}")
         return temperature()
 
     return r

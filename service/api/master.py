@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import uuid
 from dataclasses import asdict
 
 from fastapi import APIRouter, Depends, HTTPException
@@ -49,13 +50,18 @@ def router(gauge: Gauge) -> APIRouter:
     async def measure(body: MasterMeasureIn, role: str = technician) -> dict:
         if gauge.calibration is None or gauge.store is None:
             raise HTTPException(409, "no active calibration: activate one first")
+        calibration_id = gauge.calibration[0].id
+        # The camera looks at the master, not at the part: no offset from what it measures.
+        owner = f"master-{uuid.uuid4().hex[:8]}"
+        gauge.hold_offsets(body.timeout_s + 5.0, "the master is being measured", owner=owner,
+                           code="master")
         q = gauge.subscribers.add()
         raw, corrected = [], []
         try:
             async with asyncio.timeout(body.timeout_s):
                 while len(raw) < body.frames:
                     rec = await q.get()
-                    if rec.status == "ok":
+                    if rec.status == "ok" and rec.calibration_id == calibration_id:
                         raw.append(Measurement(Status.OK, Method(rec.method),
                                                rec.raw_diameter_mm, uncertainty_mm=None))
                         corrected.append(Measurement(Status.OK, Method(rec.method),
@@ -65,6 +71,7 @@ def router(gauge: Gauge) -> APIRouter:
                                 "is the master in view and the camera streaming?") from None
         finally:
             gauge.subscribers.remove(q)
+            gauge.release_hold(owner)
         f_raw, f_cor = fuse(raw), fuse(corrected)
         check = check_master(body.certified_mm, f_cor.diameter_mm,
                              gauge.settings.measurement.master_limit_mm)
@@ -83,9 +90,18 @@ def router(gauge: Gauge) -> APIRouter:
                                             for m in body.masters])
         except ValueError as err:
             raise HTTPException(422, str(err)) from None
+        ms = gauge.settings.measurement
+        if abs(corr.offset_mm) > ms.max_correction_offset_mm or \
+                abs(corr.scale - 1.0) > ms.max_correction_scale_error:
+            raise HTTPException(422, f"correction refused: offset {corr.offset_mm * 1000:+.1f} um"
+                                f", scale {corr.scale:.6f} (limits "
+                                f"{ms.max_correction_offset_mm * 1000:.0f} um and "
+                                f"{ms.max_correction_scale_error:g}, "
+                                "measurement.max_correction_*): calibrate again, or check the "
+                                "master's certificate")
         gauge.store.add_correction(gauge.calibration[0].id, corr.offset_mm, corr.scale,
                                    [m.model_dump() for m in body.masters], by=role)
-        gauge.correction = DiameterCorrection(corr.offset_mm, corr.scale, corr.created)
+        gauge.set_correction(DiameterCorrection(corr.offset_mm, corr.scale, corr.created))
         return gauge.master_status()
 
     return r

@@ -22,6 +22,7 @@ def _event(kind: str, data: dict) -> str:
 
 def router(gauge: Gauge) -> APIRouter:
     r = APIRouter(tags=["measurements"])
+    open_streams = 0  # changed on the event loop only
 
     @r.get("/measurements/latest", summary="The latest measurement")
     def latest() -> dict:
@@ -77,7 +78,17 @@ def router(gauge: Gauge) -> APIRouter:
 
     @r.get("/stream", summary="Live measurements and compensation decisions (SSE)")
     async def stream(request: Request) -> StreamingResponse:
+        nonlocal open_streams
+        cap = gauge.settings.api.max_streams
+        if open_streams >= cap:
+            raise HTTPException(503, f"{open_streams} live streams are open, the most this "
+                                "service serves (api.max_streams); poll "
+                                "/api/v1/measurements/latest instead", headers={
+                                    "Retry-After": "10"})
+        open_streams += 1
+
         async def events() -> AsyncIterator[str]:
+            nonlocal open_streams
             q = gauge.subscribers.add()
             dq = gauge.decisions.add()
             try:
@@ -99,6 +110,7 @@ def router(gauge: Gauge) -> APIRouter:
                     if get_d in done:
                         yield _event("decision", get_d.result().as_dict())
             finally:
+                open_streams -= 1
                 gauge.subscribers.remove(q)
                 gauge.decisions.remove(dq)
 

@@ -4,6 +4,7 @@ camera), run each step in the background with its progress, review the report, a
 from __future__ import annotations
 
 import asyncio
+import shutil
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -17,13 +18,14 @@ from pydantic import Field
 
 from calib_store.model import Calibration
 from service.api.auth import requires
+from service.api.limits import check_image_size, png_size
 from service.api.models import _Strict
 from service.calibrate import commands
 from service.runtime import Gauge
 
 Kind = Literal["view", "plane_off", "plane_on", "axis"]
 Step = Literal["intrinsics", "plane", "axis", "build"]
-MAX_IMAGE_BYTES = 32 * 1024 * 1024
+MAX_PIXELS = 8192 * 8192  # with no camera size known yet
 CAPTURE_TIMEOUT_S = 5.0
 CAPTURE_HOLD_S = 600.0   # offsets held this long after the last capture
 
@@ -51,6 +53,7 @@ class Session:
     by: str
     dir: Path
     created: float = field(default_factory=time.time)
+    touched: float = field(default_factory=time.monotonic)
     images: dict[str, list[str]] = field(default_factory=lambda: {
         "view": [], "plane_off": [], "plane_on": [], "axis": []})
     results: dict[str, Any] = field(default_factory=dict)
@@ -76,19 +79,51 @@ def router(gauge: Gauge) -> APIRouter:
     root = gauge.settings.store.path.parent / "calibration-sessions"
     tasks: set[asyncio.Task] = set()
 
+    api = gauge.settings.api
+
+    def expire() -> None:
+        """Delete sessions untouched for ``api.session_expiry_h`` (not while a step runs)."""
+        now = time.monotonic()
+        for sid, s in list(sessions.items()):
+            if now - s.touched > api.session_expiry_h * 3600.0 and \
+                    s.progress["state"] != "running":
+                del sessions[sid]
+                shutil.rmtree(s.dir, ignore_errors=True)
+
     def find(sid: str) -> Session:
+        expire()
         if sid not in sessions:
             raise HTTPException(404, f"no calibration session {sid}")
+        sessions[sid].touched = time.monotonic()
         return sessions[sid]
 
-    def save(s: Session, kind: Kind, image: np.ndarray) -> dict[str, Any]:
+    def room_for_image(s: Session) -> None:
+        held = sum(len(v) for v in s.images.values())
+        if held >= api.max_session_images:
+            raise HTTPException(409, f"session {s.id} holds {held} images, the most one "
+                                f"session may (api.max_session_images)")
+
+    async def save(s: Session, kind: Kind, image: np.ndarray) -> dict[str, Any]:
+        room_for_image(s)
         h, w = image.shape[:2]
         path = s.dir / f"{kind}_{len(s.images[kind]):03d}.png"
-        if not cv2.imwrite(str(path), image):
-            raise HTTPException(500, "could not store the image")
-        s.images[kind].append(str(path))
+        s.images[kind].append(str(path))  # the slot is taken before the write yields
+        if not await asyncio.to_thread(cv2.imwrite, str(path), image):
+            s.images[kind].remove(str(path))
+            raise HTTPException(507, "could not store the image (is the disk full?)")
         return {"kind": kind, "index": len(s.images[kind]) - 1, "size": [w, h],
                 **s.as_dict()}
+
+    def camera_size() -> tuple[int, int] | None:
+        """(width, height) of the camera's images: the latest frame's, else the active
+        calibration's."""
+        frame = gauge.latest_frame
+        if frame is not None:
+            return frame.image.shape[1], frame.image.shape[0]
+        if gauge.calibration is not None:
+            w, h = gauge.calibration[1].image_size
+            return int(w), int(h)
+        return None
 
     @r.post("/calibration-sessions", status_code=201, summary="Start a calibration session")
     def start(body: SessionIn, role: str = technician) -> dict:
@@ -96,6 +131,11 @@ def router(gauge: Gauge) -> APIRouter:
             commands.parse_board(body.board)
         except commands.StepError as err:
             raise HTTPException(422, str(err)) from None
+        expire()
+        if len(sessions) >= api.max_calibration_sessions:
+            raise HTTPException(409, f"{len(sessions)} calibration sessions are open, the most "
+                                "allowed (api.max_calibration_sessions); finish one, or wait "
+                                f"for it to expire after {api.session_expiry_h:g} h")
         sid = uuid.uuid4().hex[:12]
         d = root / sid
         d.mkdir(parents=True, exist_ok=True)
@@ -110,15 +150,17 @@ def router(gauge: Gauge) -> APIRouter:
             summary="Upload one image (PNG body)")
     async def upload(sid: str, kind: Kind, request: Request, _: str = technician) -> dict:
         s = find(sid)
-        data = await request.body()
-        if not data or len(data) > MAX_IMAGE_BYTES:
-            raise HTTPException(422, "send one PNG image (at most 32 MiB) as the request body")
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        room_for_image(s)
+        data = await request.body()  # bounded by api.max_image_bytes before it is read
+        if not data:
+            raise HTTPException(422, "send one PNG image as the request body")
+        # The header is checked before a pixel is decoded: a small file can declare a
+        # gigapixel image.
+        check_image_size(png_size(data), camera_size(), MAX_PIXELS)
+        image = await asyncio.to_thread(_decode_gray, data)
         if image is None:
-            raise HTTPException(422, "the body is not an image this service can read")
-        if image.ndim == 3:
-            image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-        return save(s, kind, image)
+            raise HTTPException(422, "the PNG could not be decoded (damaged data)")
+        return await save(s, kind, image)
 
     @r.post("/calibration-sessions/{sid}/capture/{kind}", status_code=201,
             summary="Capture the next frame from the camera (offsets are held meanwhile)")
@@ -132,7 +174,7 @@ def router(gauge: Gauge) -> APIRouter:
         while True:  # a frame taken after the request, never one from before it
             frame = gauge.latest_frame
             if frame is not None and frame.received_ns > asked:
-                return save(s, kind, frame.image)
+                return await save(s, kind, frame.image)
             if time.monotonic() > deadline:
                 raise HTTPException(409, "no new frame from the camera within "
                                     f"{CAPTURE_TIMEOUT_S:g} s: " + "; ".join(gauge.problems()))
@@ -214,3 +256,11 @@ def router(gauge: Gauge) -> APIRouter:
         return s.as_dict()
 
     return r
+
+
+def _decode_gray(data: bytes) -> np.ndarray | None:
+    """A PNG's pixels as one grey channel (None when damaged)."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is not None and image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return image

@@ -64,6 +64,7 @@ async def test_plc_killed_mid_write_and_restarted(sim_plc_factory, tmp_path) -> 
                           reconnect_initial_s=0.1, reconnect_max_s=0.3)
     store = CompensationLog(tmp_path / "comp.db")
     channel = OffsetChannel(CompensationController(LIVE), writer, store)
+    assert (await channel.refresh()).kind is Kind.BASELINE  # the CNC's total, read first
     seq = 0
 
     async def measure(d: float) -> list:
@@ -116,6 +117,7 @@ async def test_cumulative_offset_survives_a_restart(sim_plc_factory, tmp_path) -
     writer = OffsetWriter("127.0.0.1", plc.port)
     store = CompensationLog(tmp_path / "comp.db")
     channel = OffsetChannel(CompensationController(LIVE), writer, store)
+    assert (await channel.refresh()).kind is Kind.BASELINE  # the CNC's total, read first
     for i in range(3):
         await channel.on_measurement(MeasurementIn(i, channel.clock(), "ok", 30.008, 0.001))
     cum = channel.controller.cumulative_mm
@@ -136,6 +138,7 @@ async def test_an_offset_that_cannot_be_logged_is_not_written(sim_plc_factory, s
     writer = OffsetWriter("127.0.0.1", plc.port)
     store = CompensationLog(small_disk.path / "comp.db")
     channel = OffsetChannel(CompensationController(LIVE), writer, store)
+    assert (await channel.refresh()).kind is Kind.BASELINE  # the CNC's total, read first
     small_disk.fill()
     seq, out = 0, []
     for _ in range(4):

@@ -22,6 +22,14 @@ LIVE = CompensationSettings(nominal_mm=30.0, shadow=False, window=3,
                             dead_time_measurements=2, dead_time_s=0.0)
 
 
+def live(settings_: CompensationSettings = LIVE, cnc_total_mm: float = 0.0,
+         **kw) -> CompensationController:
+    """A controller that has read the CNC's total wear offset (its baseline)."""
+    c = CompensationController(settings_, **kw)
+    c.observe_cnc_total(cnc_total_mm, 0.0)
+    return c
+
+
 def feed(ctrl, diameters, start_seq=0, t0=100.0, unc=0.001):
     out = []
     for i, d in enumerate(diameters):
@@ -31,7 +39,7 @@ def feed(ctrl, diameters, start_seq=0, t0=100.0, unc=0.001):
 
 
 def test_oversize_part_gives_a_negative_offset_once_the_window_is_full() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     d = feed(c, [30.008, 30.008, 30.008])
     assert [x.kind for x in d] == [Kind.HELD, Kind.HELD, Kind.WRITE]
     w = d[-1]
@@ -48,12 +56,12 @@ def test_oversize_part_gives_a_negative_offset_once_the_window_is_full() -> None
                          [("diameter", 1, -0.0056), ("radius", 1, -0.0028),
                           ("diameter", -1, 0.0056), ("radius", -1, 0.0028)])
 def test_programming_and_sign_convention(programming, sign, expected) -> None:
-    c = CompensationController(replace(LIVE, programming=programming, offset_sign=sign))
+    c = live(replace(LIVE, programming=programming, offset_sign=sign))
     assert feed(c, [30.008] * 3)[-1].offset_mm == pytest.approx(expected)
 
 
 def test_mean_filter_weights_by_uncertainty() -> None:
-    c = CompensationController(replace(LIVE, filter="mean"))
+    c = live(replace(LIVE, filter="mean"))
     t = 100.0
     for i, (d, u) in enumerate([(30.010, 0.001), (30.010, 0.001), (30.040, 0.010)]):
         dec = c.on_measurement(MeasurementIn(i, t + i, "ok", d, u), t + i)
@@ -62,7 +70,7 @@ def test_mean_filter_weights_by_uncertainty() -> None:
 
 
 def test_deadband_holds() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     d = feed(c, [30.002] * 3)
     assert d[-1].kind is Kind.HELD and "deadband" in d[-1].reason
 
@@ -70,7 +78,7 @@ def test_deadband_holds() -> None:
 def test_step_is_clipped_and_cumulative_limit_refuses() -> None:
     s = replace(LIVE, max_step_mm=0.004, max_total_mm=0.006, tol_upper_mm=0.05,
                 dead_time_measurements=0)
-    c = CompensationController(s)
+    c = live(s)
     w = feed(c, [30.03] * 3)[-1]
     assert w.offset_mm == pytest.approx(-0.004) and "clipped" in w.reason
     c.on_write_outcome(w.offset_seq, True, 200)
@@ -83,7 +91,7 @@ def test_step_is_clipped_and_cumulative_limit_refuses() -> None:
 
 
 def test_out_of_tolerance_alarms_writes_nothing_until_acknowledged() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     d = feed(c, [30.03] * 3)
     assert d[-1].kind is Kind.ALARM and c.state is State.ALARM
     assert feed(c, [30.001], start_seq=5, t0=200)[0].kind is Kind.HELD
@@ -91,7 +99,7 @@ def test_out_of_tolerance_alarms_writes_nothing_until_acknowledged() -> None:
 
 
 def test_beyond_the_safe_area_stops_until_reset() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     d = feed(c, [30.8])
     assert d[0].kind is Kind.STOPPED and c.state is State.STOPPED and "person" in d[0].reason
     assert all(x.kind is Kind.HELD for x in feed(c, [30.008] * 5, start_seq=1, t0=200))
@@ -108,26 +116,26 @@ def test_beyond_the_safe_area_stops_until_reset() -> None:
     (MeasurementIn(1, 150, "ok", 30.0, 0.001), "future"),
 ])
 def test_doubtful_measurements_are_refused_with_reason(m, words) -> None:
-    d = CompensationController(LIVE).on_measurement(m, 100.0)
+    d = live(LIVE).on_measurement(m, 100.0)
     assert d.kind is Kind.REFUSED and words in d.reason
 
 
 def test_out_of_order_is_refused() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     feed(c, [30.0], start_seq=5)
     d = c.on_measurement(MeasurementIn(4, 101, "ok", 30.0, 0.001), 101)
     assert d.kind is Kind.REFUSED and "out of order" in d.reason
 
 
 def test_shadow_mode_proposes_and_never_writes() -> None:
-    c = CompensationController(replace(LIVE, shadow=True))
+    c = live(replace(LIVE, shadow=True))
     d = feed(c, [30.008] * 3)
     assert d[-1].kind is Kind.PROPOSED and d[-1].offset_mm == pytest.approx(-0.0056)
     assert c.state is State.ACTIVE and c.cumulative_mm == 0
 
 
 def test_blocked_writes_are_only_proposed() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     c.writes_blocked = "master check failed"
     d = feed(c, [30.008] * 3)[-1]
     assert d.kind is Kind.PROPOSED and "master check failed" in d.reason
@@ -136,7 +144,7 @@ def test_blocked_writes_are_only_proposed() -> None:
 
 
 def test_unknown_outcome_blocks_until_reconciled_and_is_never_resent() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     w = feed(c, [30.008] * 3)[-1]
     u = c.on_write_outcome(w.offset_seq, None, 103, "PLC did not answer")
     assert u.kind is Kind.UNCERTAIN and c.state is State.UNCERTAIN
@@ -151,7 +159,7 @@ def test_unknown_outcome_blocks_until_reconciled_and_is_never_resent() -> None:
 
 
 def test_state_survives_a_restart_and_a_pending_write_becomes_uncertain() -> None:
-    c = CompensationController(LIVE)
+    c = live(LIVE)
     w = feed(c, [30.008] * 3)[-1]
     c.on_write_outcome(w.offset_seq, True, 103)
     kinds = [d.kind for d in feed(c, [30.008] * 6, start_seq=10, t0=110)]
@@ -196,7 +204,7 @@ tunings = st.builds(
 
 
 def run(settings_, evts):
-    c = CompensationController(settings_)
+    c = live(settings_)
     seq, now, log = 0, 1000.0, []
     for status, dia, unc, step, age, outcome in evts:
         seq += step

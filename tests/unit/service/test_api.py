@@ -156,16 +156,21 @@ def test_reading_needs_a_key_when_reading_is_not_open(tmp_path) -> None:
 
 def test_master_correction_and_a_failed_check_block_offsets(client) -> None:
     before = client.get("/api/v1/measurements/latest").json()
+    # A correction beyond measurement.max_correction_offset_mm (20 um) is refused.
+    big = client.post("/api/v1/master/correction", headers={H: TECHNICIAN},
+                      json={"masters": [{"certified_mm": 30.0, "measured_mm": 29.9}]})
+    assert big.status_code == 422 and "max_correction" in big.json()["detail"], big.text
+    assert client.get("/api/v1/master").json()["correction"] is None
     r = client.post("/api/v1/master/correction", headers={H: TECHNICIAN},
-                    json={"masters": [{"certified_mm": 30.0, "measured_mm": 29.9}]})
-    assert r.status_code == 200 and abs(r.json()["correction"]["offset_mm"] - 0.1) < 1e-9
+                    json={"masters": [{"certified_mm": 30.0, "measured_mm": 29.99}]})
+    assert r.status_code == 200 and abs(r.json()["correction"]["offset_mm"] - 0.01) < 1e-9
     import time
 
     time.sleep(0.5)
     after = client.get("/api/v1/measurements/latest").json()
     assert after["seq"] > before["seq"]
-    assert abs(after["diameter_mm"] - after["raw_diameter_mm"] - 0.1) < 1e-9
-    # the correction is now wrong by 0.1 mm: a master check fails, and offsets are blocked
+    assert abs(after["diameter_mm"] - after["raw_diameter_mm"] - 0.01) < 1e-9
+    # the correction is now wrong by 10 um: a master check fails, and offsets are blocked
     r = client.post("/api/v1/master/measure", headers={H: TECHNICIAN},
                     json={"certified_mm": 30.0, "frames": 5})
     assert r.status_code == 200 and r.json()["check"]["passed"] is False

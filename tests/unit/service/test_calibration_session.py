@@ -62,7 +62,7 @@ def test_bad_sessions_are_refused(client, calibration_images) -> None:
                        json={"board": "banana"}).status_code == 422
     r = client.post(f"/api/v1/calibration-sessions/{sid}/images/view", headers=H,
                     content=b"not a picture")
-    assert r.status_code == 422 and "image" in r.json()["detail"]
+    assert r.status_code == 415 and "PNG" in r.json()["detail"]  # not a PNG at all
     assert client.post(f"/api/v1/calibration-sessions/{sid}/images/colour", headers=H,
                        content=b"x").status_code == 422
     for p in sorted((calibration_images / "views").glob("*.png"))[:2]:
