@@ -327,6 +327,10 @@ class CompensationController:
         if problems:
             raise ValueError("; ".join(problems))
         old = self.settings
+        if old.shadow and not settings.shadow and self.state in (State.PENDING,
+                                                                 State.UNCERTAIN):
+            raise ValueError(f"offset {self.persisted.pending_seq} is unsettled: enable "
+                             "compensation once the CNC's registers settle it")
         changed = {k: v for k, v in asdict(settings).items() if asdict(old)[k] != v}
         self.settings = settings
         self._window = collections.deque(maxlen=settings.window)
