@@ -272,8 +272,12 @@ class CompensationLog:
                 if state_json is not None:
                     self._db.execute("INSERT OR REPLACE INTO compensation_state (id, state) "
                                      "VALUES (1, ?)", (state_json,))
-                if self._prune():
-                    runs.clear()
+                if self._prune() and runs:  # forget the runs whose rows were pruned
+                    ids = list(runs.values())
+                    alive = {r[0] for r in self._db.execute(
+                        f"SELECT id FROM compensation_decisions WHERE id IN "
+                        f"({','.join('?' * len(ids))})", ids)}
+                    runs = {k: v for k, v in runs.items() if v in alive}
         except sqlite3.Error as err:
             if not self.problem:
                 log.error("the compensation log cannot be written: %s", err)

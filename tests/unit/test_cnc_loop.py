@@ -186,7 +186,7 @@ def run_loop(evts, write_plans, start_total_mm: float = 0.0, deviation_mm: float
 @given(events, plans, st.floats(-0.2, 0.2), deviations)
 def test_the_cnc_total_stays_within_the_limit_of_its_reference(evts, write_plans,
                                                                 start_total, dev) -> None:
-    cnc, loop, excursions = run_loop(evts, write_plans, start_total, dev)
+    _, _, excursions = run_loop(evts, write_plans, start_total, dev)
     for x in excursions:
         assert abs(x) <= LIVE.max_total_mm + 1e-9, excursions
 

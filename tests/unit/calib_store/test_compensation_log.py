@@ -1,0 +1,139 @@
+"""The decision log: runs of quiet decisions are one row, writes are durable before they are
+carried out, retention by age and rows, queries on an index, a failing disk loses nothing."""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+
+import pytest
+
+from calib_store.compensation_log import CompensationLog, LogRetention
+from service.compensation import ControllerState, Decision, Kind
+from tests.integration.conftest import small_disk  # noqa: F401  (a real full disk)
+
+
+def held(code: str = "no_nominal", seq: int = 1, shadow: bool = False) -> Decision:
+    return Decision(Kind.HELD, f"held ({code})", 0.0, measurement_seq=seq, code=code,
+                    shadow=shadow)
+
+
+def test_a_run_of_identical_quiet_decisions_is_one_row(tmp_path) -> None:
+    log = CompensationLog(tmp_path / "g.db")
+    t0 = time.time()
+    for i in range(1000):
+        log.submit(held(seq=i), t0 + i * 0.1, ControllerState(last_measurement_seq=i))
+    rows = log.decisions(limit=10)
+    assert len(rows) == 1
+    r = rows[0]
+    assert r["count"] == 1000 and r["code"] == "no_nominal"
+    assert r["measurement_seq"] == 0 and r["last_measurement_seq"] == 999
+    assert r["wall_time"] == pytest.approx(t0) and r["last_time"] == pytest.approx(t0 + 99.9)
+    assert log.load_state().last_measurement_seq == 999
+    log.close()
+
+
+def test_a_significant_decision_ends_the_runs(tmp_path) -> None:
+    log = CompensationLog(tmp_path / "g.db")
+    st = ControllerState()
+    for _ in range(3):
+        log.submit(held("filling_window"), time.time(), st)
+        log.submit(held("deadband"), time.time(), st)
+        log.submit(held("filling_window"), time.time(), st)   # joins its own run
+    log.record(Decision(Kind.APPLIED, "applied", 0.0, offset_seq=1, offset_mm=-0.001,
+                        code="applied"), time.time(), st)
+    log.submit(held("deadband"), time.time(), st)
+    rows = log.decisions(limit=10)
+    assert [(r["kind"], r["code"], r["count"]) for r in reversed(rows)] == [
+        ("held", "filling_window", 6), ("held", "deadband", 3), ("applied", "applied", 1),
+        ("held", "deadband", 1)]
+    assert [r["kind"] for r in log.decisions(kinds=("applied",))] == ["applied"]
+    log.close()
+
+
+def test_the_kind_query_uses_an_index(tmp_path) -> None:
+    log = CompensationLog(tmp_path / "g.db")
+    db = sqlite3.connect(tmp_path / "g.db")
+    plan = " ".join(str(r) for r in db.execute(
+        "EXPLAIN QUERY PLAN SELECT * FROM compensation_decisions WHERE kind IN ('write') "
+        "ORDER BY id DESC LIMIT 10"))
+    assert "compensation_decisions_kind" in plan, plan
+    db.close()
+    log.close()
+
+
+def test_retention_by_rows_and_age(tmp_path) -> None:
+    log = CompensationLog(tmp_path / "g.db", retention=LogRetention(
+        max_age_days=1.0, max_rows=50, prune_every_s=0.0))
+    st = ControllerState()
+    old = time.time() - 3 * 86400.0
+    for i in range(20):  # three days old: beyond the age
+        log.record(Decision(Kind.RESET, "reset", 0.0, code="reset"), old + i, st)
+    for i in range(120):
+        log.record(Decision(Kind.APPLIED, "applied", 0.0, offset_seq=i, code="applied"),
+                   time.time(), st)
+    rows = log.decisions(limit=5000)
+    assert len(rows) == 50 and all(r["kind"] == "applied" for r in rows)
+    assert rows[0]["offset_seq"] == 119  # the newest kept
+    log.close()
+
+
+def test_a_durable_decision_is_committed_before_its_future_resolves(tmp_path) -> None:
+    log = CompensationLog(tmp_path / "g.db")
+    fut = log.submit(Decision(Kind.WRITE, "write", 0.0, offset_seq=3, code="write"),
+                     time.time(), ControllerState(offset_seq=3, pending_seq=3,
+                                                  state="pending"), durable=True)
+    fut.result(5)
+    other = sqlite3.connect(tmp_path / "g.db")  # another reader sees it at once
+    assert other.execute("SELECT kind, offset_seq FROM compensation_decisions").fetchall() == [
+        ("write", 3)]
+    other.close()
+    log.close()
+
+
+def test_values_survive_a_reopen(tmp_path) -> None:
+    log = CompensationLog(tmp_path / "g.db")
+    log.put_value("measurement_seq_reserved", 20000)
+    log.close()
+    again = CompensationLog(tmp_path / "g.db")
+    assert again.get_value("measurement_seq_reserved") == 20000
+    assert again.get_value("nothing", 7) == 7
+    again.close()
+
+
+def test_an_old_log_gains_the_new_columns(tmp_path) -> None:
+    db = sqlite3.connect(tmp_path / "g.db")
+    db.executescript("""
+        CREATE TABLE compensation_decisions (id INTEGER PRIMARY KEY AUTOINCREMENT,
+            wall_time REAL NOT NULL, kind TEXT NOT NULL, reason TEXT NOT NULL,
+            measurement_seq INTEGER, deviation_mm REAL, filtered_mm REAL, offset_mm REAL,
+            offset_seq INTEGER, before_mm REAL NOT NULL, after_mm REAL NOT NULL,
+            shadow INTEGER NOT NULL);
+        INSERT INTO compensation_decisions (wall_time, kind, reason, before_mm, after_mm,
+            shadow) VALUES (1.8e9, 'applied', 'old row', 0, 0.001, 0);""")
+    db.close()
+    log = CompensationLog(tmp_path / "g.db")
+    [row] = log.decisions()
+    assert row["reason"] == "old row" and row["count"] == 1 and row["last_time"] == 1.8e9
+    log.close()
+
+
+def test_a_full_disk_keeps_the_rows_and_writes_them_later(tmp_path, small_disk) -> None:  # noqa: F811
+    log = CompensationLog(small_disk.path / "g.db")
+    st = ControllerState()
+    small_disk.fill()
+    fut = log.submit(Decision(Kind.WRITE, "write", 0.0, offset_seq=1, code="write"),
+                     time.time(), st, durable=True)
+    with pytest.raises(sqlite3.Error):
+        fut.result(10)
+    assert "cannot be written" in log.problem
+    for _ in range(50):
+        log.submit(held(), time.time(), st)
+    small_disk.free()
+    deadline = time.monotonic() + 10
+    while log.problem and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert log.problem == ""
+    kinds = [(r["kind"], r["count"]) for r in reversed(log.decisions(limit=10))]
+    assert kinds == [("write", 1), ("held", 50)], kinds
+    log.close()
