@@ -159,21 +159,27 @@ class OffsetChannel:
             return None if d is None else self._note(d)
 
     async def run_settler(self, period_s: float = 1.0) -> None:
-        """Settle unknown offsets as soon as the CNC's registers tell, and read the CNC now
-        and then (every second while no baseline is known); runs until cancelled."""
+        """Settle unknown offsets as soon as the CNC's registers tell, and read the CNC every
+        ``CNC_REFRESH_S`` (every ``period_s`` while compensation waits for its baseline);
+        runs until cancelled."""
         while True:
             try:
                 if self.controller.state is State.UNCERTAIN:
                     await self.settle()
-                elif (self.controller.persisted.baseline_mm is None
-                      or self.controller.persisted.cnc_total_mm is None
-                      or self.clock() - self._last_refresh >= CNC_REFRESH_S):
+                elif self._baseline_wanted() or \
+                        self.clock() - self._last_refresh >= CNC_REFRESH_S:
                     await self.refresh()
             except asyncio.CancelledError:
                 raise
             except Exception:  # keep settling: a bug here must not end the task silently
                 log.exception("settling an offset failed")
             await asyncio.sleep(period_s)
+
+    def _baseline_wanted(self) -> bool:
+        """Compensation is on and its reference (or the CNC's total) is not known yet."""
+        p = self.controller.persisted
+        return p.cnc_total_mm is None or (p.baseline_mm is None
+                                          and not self.controller.settings.shadow)
 
     async def command(self, action: str, who: str = "", rebaseline: bool = True) -> Decision:
         """A command: ``reset`` (``rebaseline``: a person's reset moves the limit's reference
