@@ -140,6 +140,11 @@ class StoreSettings(_Section):
 
     path: Path = Path("shaftgauge-data/shaftgauge.db")
     create_if_missing: bool = True
+    log_max_age_days: float = Field(365.0, gt=0)
+    """Compensation decisions older than this are deleted."""
+    log_max_rows: int = Field(1_000_000, ge=1000)
+    """At most this many rows of compensation decisions are kept (the oldest go first; a run
+    of identical quiet decisions is one row)."""
 
 
 class MeasurementSettings(_Section):

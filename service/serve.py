@@ -21,7 +21,7 @@ from pathlib import Path
 
 import uvicorn
 
-from calib_store.compensation_log import CompensationLog
+from calib_store.compensation_log import CompensationLog, LogRetention
 from calib_store.model import load_calibration
 from calib_store.store import CalibrationStore, StoreError
 from drivers.camera.base import Camera, CameraConfig
@@ -84,7 +84,8 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     store, comp_log, store_error = None, None, ""
     try:
         store = CalibrationStore(settings.store.path, settings.store.create_if_missing)
-        comp_log = CompensationLog(settings.store.path)
+        comp_log = CompensationLog(settings.store.path, retention=LogRetention(
+            settings.store.log_max_age_days, settings.store.log_max_rows))
     except StoreError as err:
         store_error = str(err)
         log.error("%s", err)

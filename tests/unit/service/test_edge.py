@@ -5,6 +5,7 @@ runtime settings that survive a restart."""
 from __future__ import annotations
 
 import struct
+import time
 import zlib
 
 import cv2
@@ -25,6 +26,17 @@ def png_header(width: int, height: int) -> bytes:
     chunk = b"IHDR" + ihdr
     return (PNG_SIGNATURE + struct.pack(">I", len(ihdr)) + chunk
             + struct.pack(">I", zlib.crc32(chunk)) + b"\0" * 64)
+
+
+def latest_seq(c: TestClient, timeout_s: float = 20.0) -> int:
+    """The latest measurement's sequence number, once there is one."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        r = c.get("/api/v1/measurements/latest")
+        if r.status_code == 200:
+            return r.json()["seq"]
+        time.sleep(0.05)
+    raise AssertionError("no measurement")
 
 
 def test_png_size_reads_the_header_only() -> None:
@@ -98,8 +110,6 @@ def test_sessions_expire_with_their_images(tmp_path) -> None:
                      json={}).json()["id"]
         folder = tmp_path / "data" / "calibration-sessions" / sid
         assert folder.is_dir()
-        import time
-
         time.sleep(0.5)
         r = c.post("/api/v1/calibration-sessions", headers={H: TECHNICIAN}, json={})
         assert r.status_code == 201  # the expired one made room
@@ -125,6 +135,7 @@ def test_runtime_settings_survive_a_restart_and_are_audited(tmp_path) -> None:
             "nominal_mm": 25.0, "tol_upper_mm": 0.01, "tol_lower_mm": -0.01}).status_code == 200
         assert c.put("/api/v1/temperature", headers={H: TECHNICIAN},
                      json={"part_temp_c": 31.5}).status_code == 200
+        seq_before = latest_seq(c)
         log = c.get("/api/v1/compensation/log", params={"kinds": "settings"}).json()["items"]
         assert all(r["who"] == "api:technician" for r in log) and len(log) == 3
         assert "nominal_mm=25.0" in log[1]["reason"]
@@ -133,6 +144,7 @@ def test_runtime_settings_survive_a_restart_and_are_audited(tmp_path) -> None:
         comp = c.get("/api/v1/compensation").json()
         assert comp["settings"]["shadow"] is True and comp["settings"]["nominal_mm"] == 25.0
         assert c.get("/api/v1/temperature").json()["part_temp_c"] == 31.5
+        assert latest_seq(c) > seq_before  # the sequence goes on, never back
     # An edited config file wins over the changes made at run time (and says so in the log).
     edited = make_settings(tmp_path, compensation={"nominal_mm": 40.0})
     third, _ = build(edited, Children())
