@@ -117,6 +117,9 @@ class CompensationSettings:
         +1 when a positive wear offset makes the part larger, -1 when it makes it smaller.
     shadow : bool
         Compute and show offsets, write none.
+    offset_resolution_mm : float
+        The CNC's offset resolution (the register's unit, 0.1 um): offsets are whole
+        multiples of it, so the log adds up to the CNC's total exactly.
     """
 
     nominal_mm: float | None = None
@@ -136,6 +139,7 @@ class CompensationSettings:
     programming: Literal["diameter", "radius"] = "diameter"
     offset_sign: int = 1
     shadow: bool = True
+    offset_resolution_mm: float = 0.0001
 
     def problems(self) -> list[str]:
         """What is inconsistent, each naming the setting (empty when fine)."""
@@ -143,7 +147,7 @@ class CompensationSettings:
         finite = all(math.isfinite(v) for v in (
             self.tol_upper_mm, self.tol_lower_mm, self.deadband_mm, self.gain,
             self.max_step_mm, self.max_total_mm, self.dead_time_s, self.safe_area_mm,
-            self.max_uncertainty_fraction, self.max_age_s))
+            self.max_uncertainty_fraction, self.max_age_s, self.offset_resolution_mm))
         if not finite:
             return ["settings: every number must be finite"]
         if self.nominal_mm is not None and not (math.isfinite(self.nominal_mm)
@@ -172,6 +176,8 @@ class CompensationSettings:
             p.append("max_age_s must be > 0")
         if self.programming not in ("diameter", "radius"):
             p.append("programming must be 'diameter' or 'radius'")
+        if not 0 < self.offset_resolution_mm <= self.max_step_mm:
+            p.append("offset_resolution_mm must be > 0 and <= max_step_mm")
         if self.offset_sign not in (1, -1):
             p.append("offset_sign must be +1 or -1")
         return p
@@ -461,13 +467,20 @@ class CompensationController:
                                   "cumulative limit is checked against it)", now, **kw)
         cum = cnc if writing else self.persisted.cumulative_mm
         target = max(-s.max_total_mm, min(s.max_total_mm, cum + step))
-        step = target - cum
+        limited = abs(target - (cum + step)) > 1e-12
+        # In the CNC's resolution, rounded toward zero: what is logged is what is applied,
+        # and rounding never takes the total past the limit.
+        step = _toward_zero(target - cum, s.offset_resolution_mm)
         self._window.clear()
-        if abs(step) < 1e-7:  # already at the cumulative limit in this direction
-            return self._decision(
-                Kind.LIMIT, "limit", f"the cumulative offset {cum * 1000:+.1f} um is at its "
-                f"limit of {s.max_total_mm * 1000:.0f} um: change or re-measure the tool, then "
-                "reset", now, **kw)
+        if step == 0.0:
+            if limited:  # already at the cumulative limit in this direction
+                return self._decision(
+                    Kind.LIMIT, "limit", f"the cumulative offset {cum * 1000:+.1f} um is at "
+                    f"its limit of {s.max_total_mm * 1000:.0f} um: change or re-measure the "
+                    "tool, then reset", now, **kw)
+            return self._decision(Kind.HELD, "below_resolution", f"offset "
+                                  f"{wanted * 1000:+.3f} um is below the CNC's resolution of "
+                                  f"{s.offset_resolution_mm * 1000:g} um", now, **kw)
         note = "" if abs(step - wanted) < 1e-12 else \
             f" (clipped from {wanted * 1000:+.2f} um)"
         own = self.persisted.cumulative_mm
@@ -629,6 +642,14 @@ class CompensationController:
         """Record a reset that was asked for and not carried out."""
         return self._decision(Kind.REFUSED, "reset_refused", f"reset refused: {why}", now,
                               who=who)
+
+
+def _toward_zero(value_mm: float, resolution_mm: float) -> float:
+    """``value_mm`` as a whole number of ``resolution_mm``, rounded toward zero (a hair of
+    float error is forgiven: 0.30000000000000004 units is 0.3)."""
+    units = value_mm / resolution_mm
+    whole = math.floor(abs(units) + 1e-6)
+    return math.copysign(whole * resolution_mm, units) if whole else 0.0
 
 
 def _colon(detail: str) -> str:

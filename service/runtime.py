@@ -733,8 +733,10 @@ class Gauge:
         if self.writer is not None:
             if self.writer.connected:
                 status |= StatusBit.PLC_CONNECTED
-            elif self.writer.outage_since is not None or c.state is State.UNCERTAIN:
+            elif self.writer.outage_since is not None:
                 faults |= FaultBit.OFFSET_WRITE_FAILED
+        if c.state is State.UNCERTAIN:  # an offset the CNC has not settled: nothing moves
+            faults |= FaultBit.OFFSET_WRITE_FAILED
         if self.geometry is not None:
             status |= StatusBit.CALIBRATED
         else:

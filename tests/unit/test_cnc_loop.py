@@ -200,6 +200,10 @@ def test_no_offset_twice_and_the_log_adds_up_to_the_cnc(evts, write_plans, dev) 
     assert sorted(d.offset_seq for d in applied_log) == sorted(s for s, _ in cnc.applied)
     assert sum(d.offset_mm for d in applied_log) == pytest.approx(cnc.total_mm, abs=1e-9)
     assert loop.channel.controller.state is not State.UNCERTAIN  # all settled in the end
+    for d in loop.decisions:  # in the CNC's resolution (0.1 um), so the books agree exactly
+        if d.kind is Kind.WRITE:
+            units = d.offset_mm / LIVE.offset_resolution_mm
+            assert abs(units - round(units)) < 1e-6, d
 
 
 def test_a_late_acknowledgement_is_applied_not_lost() -> None:
