@@ -3,9 +3,11 @@
 One acquisition thread per camera: it opens and configures the camera, pre-allocates a pool of
 stream buffers, pops them with a timeout, hands only complete frames on (copied, the buffer
 pushed back at once) to a bounded drop-oldest queue, and watches for the camera going away
-(Aravis's ``control-lost`` signal, or a stalled stream whose camera no longer answers). Then it
-tears everything down and reconnects with exponential backoff: re-discover, re-open,
-re-configure, resume. Nothing raised inside the thread escapes it; what happened is in
+(Aravis's ``control-lost`` signal, a stalled stream whose camera no longer answers, or one that
+stays stalled though the camera answers). Then it tears everything down and reconnects with
+exponential backoff: re-discover, re-open, re-configure, resume. Opening stops any acquisition
+a predecessor left running (a service killed while streaming leaves the camera sending to a
+dead address). Nothing raised inside the thread escapes it; what happened is in
 ``status()``.
 """
 
@@ -34,6 +36,9 @@ log = logging.getLogger("shaftgauge.camera")
 _POP_TIMEOUT_US = 100_000
 # A free-running stream that delivers nothing for this long gets its camera probed.
 _STALL_S = 2.0
+# One that still delivers nothing this long, though its camera answers, is opened afresh: the
+# camera streams elsewhere (its previous controller died without closing: a killed service).
+_RESTART_S = 3.0
 
 
 def _aravis() -> Any:
@@ -186,6 +191,10 @@ class AravisCamera(ThreadedCamera):
         lost = threading.Event()
         handler_id = device.connect("control-lost", lambda *_: lost.set())
         try:
+            # An acquisition left running by a predecessor that died without closing (a killed
+            # service) streams to its old destination: stop it before setting ours.
+            with contextlib.suppress(GLibError):
+                camera.stop_acquisition()
             packet_size = self._configure(camera, Aravis)
             stream = camera.create_stream(None, None)
             if stream is None:
@@ -264,9 +273,13 @@ class AravisCamera(ThreadedCamera):
             buf = stream.timeout_pop_buffer(_POP_TIMEOUT_US)
             self._update_stream_counters(session)
             if buf is None:
-                if (self.config.trigger == "free_run" and time.monotonic() - last_ok > _STALL_S
-                        and not self._answers(session)):
-                    return f"camera {self.device_id} lost (stream stalled, camera silent)"
+                quiet_s = time.monotonic() - last_ok
+                if self.config.trigger == "free_run" and quiet_s > _STALL_S:
+                    if not self._answers(session):
+                        return f"camera {self.device_id} lost (stream stalled, camera silent)"
+                    if quiet_s > _RESTART_S:
+                        return (f"camera {self.device_id} answers but sent no frame for "
+                                f"{quiet_s:.0f} s (stream stalled)")
                 continue
             if buf.get_status() != success:
                 stream.push_buffer(buf)

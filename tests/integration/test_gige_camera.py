@@ -157,3 +157,29 @@ def test_camera_list_and_grab_commands(sim_camera_factory, tmp_path) -> None:
                               "--output", str(tmp_path / "n"), "--timeout", "2"],
                              capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "Nobody-0" in missing.stderr
+
+
+def test_a_client_killed_while_streaming_leaves_the_camera_usable(sim_camera_factory,
+                                                                   tmp_path) -> None:
+    """A service killed (-9) while it streams leaves the camera acquiring towards its dead
+    address: the next client stops that acquisition before setting its own, and streams
+    within seconds, with no reconnect (it used to wait forever on a silent stream)."""
+    cam = sim_camera_factory("KILLED1")
+    grab = subprocess.Popen([SHAFTGAUGE, "camera", "grab", cam.device_id, "--count", "100000",
+                             "--output", str(tmp_path / "frames"), "--timeout", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert wait_for(lambda: len(list((tmp_path / "frames").glob("*.png"))) >= 3, 30)
+    finally:
+        grab.kill()
+        grab.wait(10)
+    camera = AravisCamera(cam.device_id, CameraConfig(frame_rate_hz=10.0))
+    camera.start()
+    try:
+        t0 = time.monotonic()
+        frames = take_frames(camera, 3, timeout_s=15.0)
+        assert len(frames) == 3, camera.status()
+        assert time.monotonic() - t0 < 8.0
+        assert camera.status().counters.reconnects == 0, camera.status()
+    finally:
+        camera.stop()
