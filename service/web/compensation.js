@@ -3,9 +3,16 @@ import { $, api, clock, say, um } from "./api.js";
 
 let switching = false;  // a shadow-mode change is on its way: leave the switch alone
 
+const QUIET = ["held", "refused", "proposed"];  // a run of these is one row (with a count)
+
+function kindText(kind, count) {
+  return count > 1 ? `${kind} \u00d7${count}` : kind;
+}
+
 function row(d) {
   const tr = document.createElement("tr");
-  const cells = [clock(d.wall_time ?? d.time ?? d.time_s), d.kind,
+  const count = d.count ?? 1;
+  const cells = [clock(d.last_time ?? d.wall_time ?? d.time ?? d.time_s), kindText(d.kind, count),
                  d.offset_mm == null ? "" : (d.offset_mm * 1000).toFixed(1),
                  d.deviation_mm == null ? "" : (d.deviation_mm * 1000).toFixed(1), d.reason];
   cells.forEach((c, i) => {
@@ -15,6 +22,8 @@ function row(d) {
     tr.append(td);
   });
   tr.dataset.kind = d.kind;
+  tr.dataset.code = d.code ?? "";
+  tr.dataset.count = count;
   return tr;
 }
 
@@ -22,6 +31,8 @@ export async function loadCompensation() {
   const c = await api("/compensation");
   $("comp-state").textContent = c.state;
   $("comp-cumulative").textContent = um(c.cumulative_offset_mm);
+  $("comp-cnc").textContent = c.cnc_total_mm == null || c.baseline_mm == null ? "not read yet"
+    : `${um(c.cnc_total_mm - c.baseline_mm)} of ±${um(c.settings.max_total_mm)}`;
   if (!switching) $("shadow").checked = c.settings.shadow;
   const kinds = $("comp-filter").value;
   const log = await api("/compensation/log?limit=100" + (kinds ? "&kinds=" + kinds : ""));
@@ -33,6 +44,13 @@ export function onDecision(d) {
   const kinds = $("comp-filter").value;
   if (kinds && !kinds.split(",").includes(d.kind)) return;
   const body = $("decisions");
+  const top = body.firstElementChild;
+  if (top && QUIET.includes(d.kind) && top.dataset.kind === d.kind &&
+      top.dataset.code === (d.code ?? "")) {  // the run goes on: count it, show the latest
+    top.replaceWith(row({ ...d, count: Number(top.dataset.count) + 1,
+                          wall_time: Date.now() / 1000 }));
+    return;
+  }
   body.prepend(row({ ...d, wall_time: Date.now() / 1000 }));
   while (body.children.length > 100) body.lastChild.remove();
   $("comp-cumulative").textContent = um(d.after_mm);

@@ -106,10 +106,16 @@ def test_killed_at_random_moments(tmp_path, sim_plc_factory) -> None:
             if life == 0:
                 activate(svc, camera)
             # Compensation judges again, measurements newer than any before the kill.
-            until(lambda s=svc, w=wall0: any(
-                r["last_time"] >= w and r["kind"] in WORKING and r["code"] not in NOT_YET
-                for r in log_items(s.url)), 10.0,
-                f"compensation deciding within 10 s of start {life}")
+            try:
+                until(lambda s=svc, w=wall0: any(
+                    r["last_time"] >= w and r["kind"] in WORKING and r["code"] not in NOT_YET
+                    for r in log_items(s.url)), 10.0,
+                    f"compensation deciding within 10 s of start {life}")
+            except AssertionError as err:
+                st = svc.get("/api/v1/status").json()
+                raise AssertionError(f"{err}: problems {st['problems']}, compensation "
+                                     f"{st['compensation']}, log {log_items(svc.url)[:8]}"
+                                     ) from None
             starts_s.append(time.monotonic() - t0)
             since = [r for r in log_items(svc.url) if r["last_time"] >= wall0]
             assert not [r for r in since if r["code"] == "out_of_order"], since
