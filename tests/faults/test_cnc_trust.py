@@ -22,7 +22,7 @@ import httpx
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from drivers.plc.registers import BY_NAME, FaultBit, from_words
+from drivers.plc.registers import BY_NAME, FaultBit, WordOrder, from_words
 from drivers.sim.control import control
 from tests.e2e.conftest import TECH_KEY, start_service, stop_service
 from tests.faults.test_service_faults import H, applied_in, until
@@ -55,7 +55,7 @@ def read_register(port: int, name: str) -> int:
     with ModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0) as c:
         rr = c.read_holding_registers(reg.address, count=reg.kind.words, device_id=1)
         assert not rr.isError(), rr
-        return from_words(rr.registers, reg.kind, "big")
+        return from_words(rr.registers, reg.kind, WordOrder.BIG)
 
 
 def activate(svc, camera) -> None:
