@@ -174,6 +174,10 @@ def test_master_correction_and_a_failed_check_block_offsets(client) -> None:
     r = client.post("/api/v1/master/measure", headers={H: TECHNICIAN},
                     json={"certified_mm": 30.0, "frames": 5})
     assert r.status_code == 200 and r.json()["check"]["passed"] is False
+    # While the master was measured no measurement counted for compensation.
+    held = client.get("/api/v1/compensation/log", params={"kinds": "refused"}).json()["items"]
+    assert any(x["code"] == "status_held_for_master" for x in held), held
+    assert client.get("/api/v1/status").json()["compensation"]["held"] is None  # released
     status = client.get("/api/v1/master").json()
     assert status["blocking"] and "failed" in status["blocking"]
     time.sleep(0.5)
