@@ -206,22 +206,22 @@ class OffsetChannel:
         """New settings (ValueError naming the bad one); committed to the log before the
         call returns, so a restart keeps them."""
         async with self._lock:
-            d = self.controller.update_settings(settings, self.clock(), who)
-            try:
-                return await self._note_durable(d)
-            except LogUnavailableError as err:
-                log.error("settings changed but not stored: %s", err)
-                return d
+            return await self._settings_logged(
+                self.controller.update_settings(settings, self.clock(), who))
 
     async def note_settings(self, what: str, who: str) -> Decision:
         """Log a change of a setting the controller does not own (the part temperature)."""
         async with self._lock:
-            d = self.controller.note_settings(what, self.clock(), who)
-            try:
-                return await self._note_durable(d)
-            except LogUnavailableError as err:
-                log.error("settings changed but not logged: %s", err)
-                return d
+            return await self._settings_logged(
+                self.controller.note_settings(what, self.clock(), who))
+
+    async def _settings_logged(self, d: Decision) -> Decision:
+        """A settings change is in force whether or not it could be logged (say so)."""
+        try:
+            return await self._note_durable(d)
+        except LogUnavailableError as err:
+            log.error("settings changed but not logged: %s", err)
+            return d
 
     def set_calibration(self, calibration_id: int | None) -> None:
         """Measurements from another calibration than this one are refused from now on."""
