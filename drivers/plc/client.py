@@ -20,7 +20,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from drivers.plc.offsets import PlcOffsetMap
-from drivers.plc.registers import UM_PER_UNIT, Kind, from_words, mm_to_units, to_words
+from drivers.plc.registers import UM_PER_UNIT, RegisterType, from_words, mm_to_units, to_words
 from service.compensation import CncReading
 
 log = logging.getLogger("shaftgauge.plc")
@@ -138,7 +138,7 @@ class OffsetWriter:
                                                        device_id=self.map.unit_id)
         if rr.isError():
             raise ModbusException(f"read of {address} refused: {rr}")
-        return from_words(rr.registers, Kind.U32, self.map.word_order)
+        return from_words(rr.registers, RegisterType.U32, self.map.word_order)
 
     # ---- the exchange ------------------------------------------------------------------
 
@@ -166,13 +166,13 @@ class OffsetWriter:
                                                                device_id=m.unit_id)
                 if rr.isError():
                     raise ModbusException(f"read of {m.offset_address + 2} refused: {rr}")
-                request = from_words(rr.registers, Kind.U32, m.word_order)
+                request = from_words(rr.registers, RegisterType.U32, m.word_order)
                 ack = await self._read_u32(m.ack_address)
                 rr = await self._client.read_holding_registers(m.total_address, count=2,
                                                                device_id=m.unit_id)
                 if rr.isError():
                     raise ModbusException(f"read of {m.total_address} refused: {rr}")
-                total = from_words(rr.registers, Kind.I32, m.word_order)
+                total = from_words(rr.registers, RegisterType.I32, m.word_order)
             except (TimeoutError, ModbusException, OSError) as err:
                 self._mark_down(f"reading the CNC's offset registers failed: {err}")
                 return None
@@ -199,8 +199,8 @@ class OffsetWriter:
         async with self._lock:
             if not await self._connect():
                 return result(Outcome.NOT_APPLIED, f"CNC unreachable: {self.last_error}")
-            words = to_words(units, Kind.I32, m.word_order) + to_words(seq, Kind.U32,
-                                                                       m.word_order)
+            words = (to_words(units, RegisterType.I32, m.word_order)
+                     + to_words(seq, RegisterType.U32, m.word_order))
             try:
                 wr = await self._client.write_registers(m.offset_address, words,
                                                         device_id=m.unit_id)

@@ -26,7 +26,7 @@ class WordOrder(enum.StrEnum):
     LITTLE = "little"  # low word first (some PLCs)
 
 
-class Kind(enum.StrEnum):
+class RegisterType(enum.StrEnum):
     """Data type of a register entry."""
 
     U16 = "uint16"
@@ -36,7 +36,7 @@ class Kind(enum.StrEnum):
     @property
     def words(self) -> int:
         """Registers it takes."""
-        return 1 if self is Kind.U16 else 2
+        return 1 if self is RegisterType.U16 else 2
 
 
 @dataclass(frozen=True)
@@ -45,44 +45,46 @@ class Register:
 
     name: str
     address: int
-    kind: Kind
+    kind: RegisterType
     unit: str
     writable: bool
     description: str
 
 
-def _r(name: str, address: int, kind: Kind, unit: str, description: str,
+def _r(name: str, address: int, kind: RegisterType, unit: str, description: str,
        writable: bool = False) -> Register:
     return Register(name, address, kind, unit, writable, description)
 
 
+U16, I32, U32 = RegisterType.U16, RegisterType.I32, RegisterType.U32
+
 REGISTERS: tuple[Register, ...] = (
-    _r("test_pattern", 0, Kind.U32, "-", "always 0x12345678: reads 0x1234, 0x5678 with "
+    _r("test_pattern", 0, U32, "-", "always 0x12345678: reads 0x1234, 0x5678 with "
        "big-endian words; check your word order with it"),
-    _r("map_version", 2, Kind.U16, "-", "version of this map (1)"),
-    _r("heartbeat", 3, Kind.U16, "count", "counts up once a second while the service is "
+    _r("map_version", 2, U16, "-", "version of this map (1)"),
+    _r("heartbeat", 3, U16, "count", "counts up once a second while the service is "
        "healthy (wraps at 65535); stands still when it is not"),
-    _r("status", 4, Kind.U16, "bits", "status bits, see below"),
-    _r("faults", 5, Kind.U16, "bits", "fault bits, see below"),
-    _r("diameter", 6, Kind.I32, "0.1 um", "latest measured diameter"),
-    _r("uncertainty", 8, Kind.I32, "0.1 um", "standard uncertainty of the latest diameter"),
-    _r("measurement_seq", 10, Kind.U32, "count", "sequence number of the latest measurement"),
-    _r("measurement_age", 12, Kind.U16, "ms", "age of the latest measurement (65535: older)"),
-    _r("command_seq", 13, Kind.U16, "count", "counts commands carried out (wraps)"),
-    _r("nominal", 14, Kind.I32, "0.1 um", "nominal diameter of the current feature",
+    _r("status", 4, U16, "bits", "status bits, see below"),
+    _r("faults", 5, U16, "bits", "fault bits, see below"),
+    _r("diameter", 6, I32, "0.1 um", "latest measured diameter"),
+    _r("uncertainty", 8, I32, "0.1 um", "standard uncertainty of the latest diameter"),
+    _r("measurement_seq", 10, U32, "count", "sequence number of the latest measurement"),
+    _r("measurement_age", 12, U16, "ms", "age of the latest measurement (65535: older)"),
+    _r("command_seq", 13, U16, "count", "counts commands carried out (wraps)"),
+    _r("nominal", 14, I32, "0.1 um", "nominal diameter of the current feature",
        writable=True),
-    _r("tol_upper", 16, Kind.I32, "0.1 um", "upper tolerance, deviation above nominal "
+    _r("tol_upper", 16, I32, "0.1 um", "upper tolerance, deviation above nominal "
        "(>= 0)", writable=True),
-    _r("tol_lower", 18, Kind.I32, "0.1 um", "lower tolerance, deviation below nominal "
+    _r("tol_lower", 18, I32, "0.1 um", "lower tolerance, deviation below nominal "
        "(<= 0)", writable=True),
-    _r("command", 20, Kind.U16, "code", "write 1 measure now, 2 reset compensation, "
+    _r("command", 20, U16, "code", "write 1 measure now, 2 reset compensation, "
        "3 acknowledge alarm; reads 0 once carried out", writable=True),
-    _r("last_command", 21, Kind.U16, "code", "code of the last command carried out"),
-    _r("proposed_offset", 22, Kind.I32, "0.1 um", "latest tool-wear offset the controller "
+    _r("last_command", 21, U16, "code", "code of the last command carried out"),
+    _r("proposed_offset", 22, I32, "0.1 um", "latest tool-wear offset the controller "
        "proposed (also in shadow mode)"),
-    _r("offset_seq", 24, Kind.U32, "count", "sequence number of the latest offset sent"),
-    _r("offset_ack", 26, Kind.U32, "count", "acknowledgement the CNC echoed for it"),
-    _r("cumulative_offset", 28, Kind.I32, "0.1 um", "sum of the offsets the CNC "
+    _r("offset_seq", 24, U32, "count", "sequence number of the latest offset sent"),
+    _r("offset_ack", 26, U32, "count", "acknowledgement the CNC echoed for it"),
+    _r("cumulative_offset", 28, I32, "0.1 um", "sum of the offsets the CNC "
        "acknowledged since the last reset"),
 )
 
@@ -136,13 +138,13 @@ class Command(enum.IntEnum):
     ACKNOWLEDGE_ALARM = 3
 
 
-def to_words(value: int, kind: Kind, order: WordOrder) -> list[int]:
+def to_words(value: int, kind: RegisterType, order: WordOrder) -> list[int]:
     """Register words of a value (two's complement for int32)."""
-    if kind is Kind.U16:
+    if kind is RegisterType.U16:
         if not 0 <= value <= 0xFFFF:
             raise ValueError(f"{value} does not fit uint16")
         return [value]
-    lo_lim, hi_lim = (-(1 << 31), (1 << 31) - 1) if kind is Kind.I32 else (0, (1 << 32) - 1)
+    lo_lim, hi_lim = (-(1 << 31), (1 << 31) - 1) if kind is RegisterType.I32 else (0, (1 << 32) - 1)
     if not lo_lim <= value <= hi_lim:
         raise ValueError(f"{value} does not fit {kind.value}")
     raw = value & 0xFFFFFFFF
@@ -150,13 +152,13 @@ def to_words(value: int, kind: Kind, order: WordOrder) -> list[int]:
     return [hi, lo] if order is WordOrder.BIG else [lo, hi]
 
 
-def from_words(words: list[int], kind: Kind, order: WordOrder) -> int:
+def from_words(words: list[int], kind: RegisterType, order: WordOrder) -> int:
     """The value of register words."""
-    if kind is Kind.U16:
+    if kind is RegisterType.U16:
         return words[0]
     hi, lo = (words[0], words[1]) if order is WordOrder.BIG else (words[1], words[0])
     raw = (hi << 16) | lo
-    if kind is Kind.I32 and raw & 0x80000000:
+    if kind is RegisterType.I32 and raw & 0x80000000:
         raw -= 1 << 32
     return raw
 

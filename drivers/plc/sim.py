@@ -25,7 +25,7 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.plc.offsets import PlcOffsetMap
-from drivers.plc.registers import Kind, from_words, to_words
+from drivers.plc.registers import RegisterType, from_words, to_words
 
 log = logging.getLogger("shaftgauge.sim.plc")
 
@@ -67,16 +67,16 @@ class SimPlc:
         self._server: ModbusTcpServer | None = None
         self._tasks: set[asyncio.Task] = set()
 
-    def _words(self, value: int, kind: Kind) -> list[int]:
+    def _words(self, value: int, kind: RegisterType) -> list[int]:
         return to_words(value, kind, self.map.word_order)
 
     def _device(self) -> SimDevice:
         m = self.map
         blocks = [
             SimData(m.offset_address, count=4, values=0, datatype=DataType.REGISTERS),
-            SimData(m.ack_address, values=self._words(self.last_seq, Kind.U32),
+            SimData(m.ack_address, values=self._words(self.last_seq, RegisterType.U32),
                     datatype=DataType.REGISTERS, readonly=True),
-            SimData(m.total_address, values=self._words(self.total_units, Kind.I32),
+            SimData(m.total_address, values=self._words(self.total_units, RegisterType.I32),
                     datatype=DataType.REGISTERS, readonly=True),
         ]
         return SimDevice(id=m.unit_id, simdata=blocks, action=self._action)
@@ -98,8 +98,8 @@ class SimPlc:
         if address != m.offset_address or count != 4:
             return ExcCodes.ILLEGAL_ADDRESS  # value and sequence go together, in one write
         words = [int(v) for v in values]
-        value = from_words(words[:2], Kind.I32, m.word_order)
-        seq = from_words(words[2:], Kind.U32, m.word_order)
+        value = from_words(words[:2], RegisterType.I32, m.word_order)
+        seq = from_words(words[2:], RegisterType.U32, m.word_order)
         self.request_seq = seq
         if seq == 0:
             self._record({"event": "cleared", "seq": seq, "value_units": value})
@@ -136,8 +136,8 @@ class SimPlc:
         if self._regs is None:
             return
         m = self.map
-        ack = self._words(self.last_seq, Kind.U32)
-        total = self._words(self.total_units, Kind.I32)
+        ack = self._words(self.last_seq, RegisterType.U32)
+        total = self._words(self.total_units, RegisterType.I32)
         self._regs[m.ack_address - start:m.ack_address - start + 2] = ack
         self._regs[m.total_address - start:m.total_address - start + 2] = total
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import httpx
 from pymodbus.client import ModbusTcpClient
 
-from drivers.plc.registers import REGISTERS, Kind, WordOrder, from_words
+from drivers.plc.registers import REGISTERS, RegisterType, WordOrder, from_words
 from drivers.sim.control import control
 from tests.e2e.conftest import start_service, stop_service
 
@@ -48,7 +48,8 @@ def poll_modbus(port: int, seen: dict[int, float], stop: threading.Event) -> Non
         while not stop.is_set():
             rr = client.read_holding_registers(SEQ.address, count=2, device_id=1)
             if not rr.isError():
-                seen.setdefault(from_words(rr.registers, Kind.U32, WordOrder.BIG), time.time())
+                seen.setdefault(from_words(rr.registers, RegisterType.U32, WordOrder.BIG),
+                                time.time())
             time.sleep(POLL_S)
     finally:
         client.close()

@@ -9,7 +9,7 @@ import time
 import httpx
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.plc.registers import Kind, WordOrder, from_words, mm_to_units, units_to_mm
+from drivers.plc.registers import RegisterType, WordOrder, from_words, mm_to_units, units_to_mm
 from drivers.sim.control import control
 from tests.e2e.conftest import TECH_KEY
 
@@ -58,8 +58,8 @@ def test_modbus_registers_agree_with_rest(service) -> None:
         rr = await c.read_holding_registers(0, count=30, device_id=1)
         c.close()
         regs = rr.registers
-        return (from_words(regs[6:8], Kind.I32, WordOrder.BIG),
-                from_words(regs[10:12], Kind.U32, WordOrder.BIG))
+        return (from_words(regs[6:8], RegisterType.I32, WordOrder.BIG),
+                from_words(regs[10:12], RegisterType.U32, WordOrder.BIG))
 
     for _ in range(20):
         diameter_units, seq = asyncio.run(read())

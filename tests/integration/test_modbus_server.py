@@ -9,7 +9,7 @@ import subprocess
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.plc.registers import Kind, RegisterBank, WordOrder, from_words
+from drivers.plc.registers import RegisterBank, RegisterType, WordOrder, from_words
 from drivers.plc.server import GaugeModbusServer, run_heartbeat
 
 
@@ -33,8 +33,8 @@ async def test_client_reads_the_map_with_fc3_and_fc4(served) -> None:
         rr = await read(0, count=30, device_id=1)
         assert not rr.isError()
         assert rr.registers[:2] == [0x1234, 0x5678]
-        assert from_words(rr.registers[6:8], Kind.I32, WordOrder.BIG) == 300_123
-        assert from_words(rr.registers[10:12], Kind.U32, WordOrder.BIG) == 42
+        assert from_words(rr.registers[6:8], RegisterType.I32, WordOrder.BIG) == 300_123
+        assert from_words(rr.registers[10:12], RegisterType.U32, WordOrder.BIG) == 42
 
 
 async def test_writes_reach_the_bank_and_the_service(served) -> None:

@@ -13,8 +13,8 @@ from drivers.plc.registers import (
     NO_VALUE,
     REGISTERS,
     SIZE,
-    Kind,
     RegisterBank,
+    RegisterType,
     WordOrder,
     from_words,
     mm_to_units,
@@ -26,19 +26,19 @@ from drivers.plc.server import check_write
 
 @given(st.integers(-(1 << 31), (1 << 31) - 1), st.sampled_from(list(WordOrder)))
 def test_int32_round_trip(value, order) -> None:
-    words = to_words(value, Kind.I32, order)
+    words = to_words(value, RegisterType.I32, order)
     assert all(0 <= w <= 0xFFFF for w in words)
-    assert from_words(words, Kind.I32, order) == value
+    assert from_words(words, RegisterType.I32, order) == value
 
 
 def test_word_order_of_the_test_pattern() -> None:
-    assert to_words(0x12345678, Kind.U32, WordOrder.BIG) == [0x1234, 0x5678]
-    assert to_words(0x12345678, Kind.U32, WordOrder.LITTLE) == [0x5678, 0x1234]
-    assert to_words(NO_VALUE, Kind.I32, WordOrder.BIG) == [0x8000, 0x0000]
+    assert to_words(0x12345678, RegisterType.U32, WordOrder.BIG) == [0x1234, 0x5678]
+    assert to_words(0x12345678, RegisterType.U32, WordOrder.LITTLE) == [0x5678, 0x1234]
+    assert to_words(NO_VALUE, RegisterType.I32, WordOrder.BIG) == [0x8000, 0x0000]
 
 
-@pytest.mark.parametrize(("kind", "value"), [(Kind.U16, 70000), (Kind.U16, -1),
-                                             (Kind.I32, 1 << 31), (Kind.U32, -1)])
+@pytest.mark.parametrize(("kind", "value"), [(RegisterType.U16, 70000), (RegisterType.U16, -1),
+                                             (RegisterType.I32, 1 << 31), (RegisterType.U32, -1)])
 def test_out_of_range_values_are_refused(kind, value) -> None:
     with pytest.raises(ValueError, match="fit"):
         to_words(value, kind, WordOrder.BIG)
