@@ -25,8 +25,6 @@ from pydantic import (
     model_validator,
 )
 
-from service.measure.geometry import RigGeometry
-
 SCHEMA = "shaftgauge.calibration/1"
 UNIT_TOLERANCE = 1e-6
 MIN_PLANE_OFFSET_MM = 1e-3
@@ -126,18 +124,6 @@ class Calibration(_Strict):
         return self
 
     # ---- conversions -----------------------------------------------------------------------
-
-    def to_geometry(self) -> RigGeometry:
-        """The numeric form the measurement core uses."""
-        return RigGeometry(
-            image_size=(int(self.image_size[0]), int(self.image_size[1])),
-            camera_matrix=np.array(self.camera_matrix, np.float64),
-            dist_coeffs=np.array(self.dist_coeffs, np.float64),
-            plane_normal=np.array(self.light_plane.normal, np.float64),
-            plane_d=float(self.light_plane.d),
-            axis_direction=np.array(self.axis.direction, np.float64),
-            axis_point=None if self.axis.point is None else np.array(self.axis.point, np.float64),
-        )
 
     def to_document(self) -> dict[str, Any]:
         """The interchange document as a JSON-ready dict (round-trips unchanged)."""

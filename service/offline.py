@@ -12,6 +12,7 @@ import numpy as np
 from calib_store.model import Calibration
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.fuse import fuse
+from service.measure.geometry import geometry_of
 from service.measure.result import Measurement, Method
 from service.measure.thermal import diameter_at_reference
 
@@ -86,7 +87,7 @@ def measure_images(
     """
     for p in paths:
         check_image_file(p, calibration)
-    geometry = calibration.to_geometry()
+    geometry = geometry_of(calibration)
     for p in paths:
         yield p, measure_frame(read_grey_image(p), geometry, method, params)
 

@@ -52,7 +52,7 @@ from service.config import Settings
 from service.measure.axis_track import AxisTracker
 from service.measure.diameter import MeasureParams, axis_center, measure_frame
 from service.measure.fuse import fuse
-from service.measure.geometry import RigGeometry
+from service.measure.geometry import RigGeometry, geometry_of
 from service.measure.result import Measurement, Method
 from service.measure.stripe import StripeParams
 from service.measure.thermal import diameter_at_reference
@@ -309,7 +309,7 @@ class Gauge:
     def set_calibration(self, info: CalibrationInfo, calibration: Calibration) -> None:
         """Measure with this calibration from the next frame on; compensation takes only
         measurements made with it from now on."""
-        geometry = calibration.to_geometry()
+        geometry = geometry_of(calibration)
         corr = self.store.correction(info.id) if self.store is not None else None
         c0 = axis_center(geometry)
         tracker = (AxisTracker(c0, self.settings.measurement.axis_sigma_mm)

@@ -21,6 +21,7 @@ from service.calibrate.plane import PlaneResult, calibrate_plane
 from service.calibrate.report import QualityReport, assess
 from service.measure.diameter import measure_frame
 from service.measure.fuse import fuse
+from service.measure.geometry import geometry_of
 from service.measure.result import Method
 from service.offline import read_grey_image
 
@@ -161,7 +162,7 @@ def build_step(intrinsics: str, plane: str, axis: str) -> tuple[Calibration | No
 def master_step(calibration: Calibration, masters: list[tuple[float, list[str]]],
                 method: Method = Method.AXIS) -> dict[str, Any]:
     """Measure each master's images (fused) and derive the diameter correction."""
-    geometry = calibration.to_geometry()
+    geometry = geometry_of(calibration)
     pairs, measured = [], []
     for certified, paths in masters:
         f = fuse([measure_frame(im, geometry, method) for im in _read_all(paths)])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -36,3 +37,20 @@ class RigGeometry:
     plane_d: float
     axis_direction: np.ndarray
     axis_point: np.ndarray | None = None
+
+
+def geometry_of(calibration: Any) -> RigGeometry:
+    """The numeric form of a calibration document (``calib_store.model.Calibration``, or
+    anything with its fields: ``image_size``, ``camera_matrix``, ``dist_coeffs``,
+    ``light_plane.normal``/``.d``, ``axis.direction``/``.point``). Read by attribute, so the
+    core needs nothing from the store."""
+    axis = calibration.axis
+    return RigGeometry(
+        image_size=(int(calibration.image_size[0]), int(calibration.image_size[1])),
+        camera_matrix=np.array(calibration.camera_matrix, np.float64),
+        dist_coeffs=np.array(calibration.dist_coeffs, np.float64),
+        plane_normal=np.array(calibration.light_plane.normal, np.float64),
+        plane_d=float(calibration.light_plane.d),
+        axis_direction=np.array(axis.direction, np.float64),
+        axis_point=None if axis.point is None else np.array(axis.point, np.float64),
+    )

@@ -22,6 +22,7 @@ import numpy as np
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import measure_frame
 from service.measure.fuse import fuse
+from service.measure.geometry import geometry_of
 from service.measure.result import Method
 
 AZIMUTHS = (20.0, 33.0, 47.0, 60.0)
@@ -39,7 +40,7 @@ def run(frames: int, seed: int) -> dict:
         for sp in SPECKLE:
             r = ShaftRenderer(RigConfig(laser_azimuth_deg=az, speckle_contrast=sp),
                               seed=int(seed + az * 10 + sp * 100))
-            geo = r.calibration.to_geometry()
+            geo = geometry_of(r.calibration)
             d = float(rng.uniform(20.0, 47.0))
             axis_frames = []
             for i in range(frames):

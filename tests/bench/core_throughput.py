@@ -35,6 +35,7 @@ from service.measure.diameter import (
     measure_frame,
     section_points,
 )
+from service.measure.geometry import geometry_of
 from service.measure.result import Method
 from service.measure.stripe import (
     StripeParams,
@@ -90,7 +91,7 @@ def main() -> None:
     args = ap.parse_args()
     cv2.setNumThreads(1)
     data, rig = frames(args.frames, args.seed)
-    geometry = rig.calibration.to_geometry()
+    geometry = geometry_of(rig.calibration)
     params = MeasureParams()
     core_fps = []
     for _ in range(args.runs):

@@ -23,6 +23,7 @@ import numpy as np
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import measure_frame
+from service.measure.geometry import geometry_of
 from service.measure.result import Method
 
 SHAFTS = {
@@ -36,7 +37,7 @@ def run_condition(config: RigConfig, frames: int, seed: int, added_noise_dn: flo
                   ) -> dict:
     """Measure every shaft diameter ``frames`` times by every method."""
     renderer = ShaftRenderer(config, seed=seed)
-    geometry = renderer.calibration.to_geometry()
+    geometry = geometry_of(renderer.calibration)
     rng = np.random.default_rng(seed + 1000)
     out: dict = {"per_diameter": [], "timing_ms": {m.value: [] for m in Method}}
     frame_no = 0

@@ -17,6 +17,7 @@ from drivers.camera.base import CameraConfig, CameraState
 from drivers.sim.control import control
 from drivers.sim.gige import check_stamp
 from service.measure.diameter import measure_frame
+from service.measure.geometry import geometry_of
 from tests.integration.conftest import SHAFTGAUGE, take_frames
 
 
@@ -37,7 +38,7 @@ def native_threads() -> int:
 def test_streamed_frames_measure_to_the_simulated_diameter(sim_camera_factory,
                                                            packet_socket) -> None:
     sim = sim_camera_factory("MEAS01", diameter=34.924, fps=15.0)
-    geometry = load_calibration(sim.calibration).to_geometry()
+    geometry = geometry_of(load_calibration(sim.calibration))
     cam = AravisCamera(sim.device_id, CameraConfig(packet_size=8192, frame_rate_hz=15.0,
                                                    packet_socket=packet_socket))
     cam.start()
@@ -58,7 +59,7 @@ def test_streamed_frames_measure_to_the_simulated_diameter(sim_camera_factory,
 
 def test_diameter_change_and_drift_reach_the_frames(sim_camera_factory) -> None:
     sim = sim_camera_factory("DRIFT1", diameter=25.0, fps=15.0)
-    geometry = load_calibration(sim.calibration).to_geometry()
+    geometry = geometry_of(load_calibration(sim.calibration))
     cam = AravisCamera(sim.device_id, CameraConfig(packet_size=8192))
     cam.start()
     try:

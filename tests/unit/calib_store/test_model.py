@@ -15,6 +15,7 @@ from calib_store.model import (
     parse_calibration,
     save_calibration,
 )
+from service.measure.geometry import geometry_of
 
 # The example of shared/calibration-format.md, made exactly unit-length.
 _n = [0.93, -0.05, -0.36]
@@ -58,16 +59,16 @@ def test_axis_point_is_optional_and_stays_absent() -> None:
     doc = with_change("axis.point", ...)
     cal = parse_calibration(doc)
     assert cal.to_document() == doc
-    assert cal.to_geometry().axis_point is None
+    assert geometry_of(cal).axis_point is None
 
 
 def test_integers_are_accepted_where_numbers_are_expected() -> None:
     doc = with_change("camera_matrix", [[3875, 0, 694], [0, 3876, 508], [0, 0, 1]])
-    assert parse_calibration(doc).to_geometry().camera_matrix[0, 0] == 3875.0
+    assert geometry_of(parse_calibration(doc)).camera_matrix[0, 0] == 3875.0
 
 
 def test_geometry_conversion() -> None:
-    geo = parse_calibration(EXAMPLE).to_geometry()
+    geo = geometry_of(parse_calibration(EXAMPLE))
     assert geo.image_size == (1376, 1024)
     assert geo.camera_matrix.shape == (3, 3)
     assert geo.plane_d == -41.8

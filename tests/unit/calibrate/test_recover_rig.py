@@ -14,6 +14,7 @@ from service.calibrate.axis import calibrate_axis
 from service.calibrate.intrinsics import calibrate_intrinsics
 from service.calibrate.plane import calibrate_plane
 from service.measure.diameter import measure_frame
+from service.measure.geometry import geometry_of
 from service.measure.result import Method
 
 BOARD = Board(cols=11, rows=8, square_mm=8.0)
@@ -62,7 +63,7 @@ def test_intrinsics(session, recovered) -> None:
 def test_light_plane(session, recovered) -> None:
     rig, *_ = session
     _, plane, _ = recovered
-    geo = rig.calibration.to_geometry()
+    geo = geometry_of(rig.calibration)
     assert deg(plane.normal, geo.plane_normal) < 0.05
     assert abs(plane.d - geo.plane_d) < 0.1 and plane.rms_mm < 0.05
 
@@ -70,7 +71,7 @@ def test_light_plane(session, recovered) -> None:
 def test_spindle_axis_direction(session, recovered) -> None:
     rig, *_ = session
     _, _, axis = recovered
-    geo = rig.calibration.to_geometry()
+    geo = geometry_of(rig.calibration)
     assert deg(axis.direction, geo.axis_direction) < 0.05
 
 
@@ -96,7 +97,7 @@ def test_spindle_axis_position_relative_to_the_rig(session, recovered) -> None:
     measurement uses (a rotation of the whole camera frame does not show here)."""
     rig, *_ = session
     _, plane, axis = recovered
-    geo = rig.calibration.to_geometry()
+    geo = geometry_of(rig.calibration)
     truth = in_rig_frame(geo.plane_normal, geo.axis_direction, geo.axis_point)
     got = in_rig_frame(plane.normal, axis.direction, axis.point)
     assert np.linalg.norm(got - truth) < 0.05, got - truth
@@ -107,7 +108,7 @@ def test_spindle_axis_point_in_the_camera_frame(session, recovered) -> None:
     turns the whole frame: on this session 0.044 mm, seeds 4 and 5 0.034 and 0.028)."""
     rig, *_ = session
     _, _, axis = recovered
-    geo = rig.calibration.to_geometry()
+    geo = geometry_of(rig.calibration)
     assert off_axis_mm(axis.point, geo.axis_direction, geo.axis_point) < 0.05
 
 
@@ -115,13 +116,13 @@ def test_diameters_with_the_recovered_calibration(session, recovered) -> None:
     rig, *_ = session
     intr, plane, axis = recovered
     a = axis.direction / np.linalg.norm(axis.direction)
-    cal = parse_calibration({
+    cal = geometry_of(parse_calibration({
         "schema": SCHEMA, "units": "mm", "image_size": list(rig.config.image_size),
         "camera_matrix": intr.camera_matrix.tolist(),
         "dist_coeffs": [float(x) for x in intr.dist_coeffs],
         "light_plane": {"normal": [float(x) for x in plane.normal], "d": float(plane.d)},
         "axis": {"direction": [float(x) for x in a], "point": [float(x) for x in axis.point]},
-    }).to_geometry()
+    }))
     errors = []
     for i, d in enumerate((20.113, 29.8, 39.76, 47.062)):
         m = measure_frame(rig.render(d, i), cal, Method.GEOMETRIC)

@@ -13,6 +13,7 @@ from service.measure import fit as F  # noqa: N812
 from service.measure.axis_track import AxisTracker
 from service.measure.diameter import measure_frame
 from service.measure.fuse import fuse, master_offset
+from service.measure.geometry import geometry_of
 from service.measure.result import Measurement, Method, Status
 from service.measure.thermal import diameter_at_reference
 
@@ -137,12 +138,12 @@ def test_temperature() -> None:
 
 def test_axis_without_an_axis_point_falls_back_and_says_so() -> None:
     r = ShaftRenderer(RigConfig(), seed=4)
-    geo = replace(r.calibration.to_geometry(), axis_point=None)
+    geo = replace(geometry_of(r.calibration), axis_point=None)
     res = measure_frame(r.render(30.0), geo, Method.AXIS)
     assert res and res.method is Method.GEOMETRIC and "axis point" in res.note
 
 
 @pytest.mark.parametrize("method", list(Method))
 def test_every_method_reports_an_uncertainty(renderer, method) -> None:
-    res = measure_frame(renderer.render(30.0, 1), renderer.calibration.to_geometry(), method)
+    res = measure_frame(renderer.render(30.0, 1), geometry_of(renderer.calibration), method)
     assert res and 0 < res.uncertainty_mm < 1.0

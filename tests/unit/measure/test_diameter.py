@@ -7,13 +7,14 @@ import pytest
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import MeasureParams, measure_frame
+from service.measure.geometry import geometry_of
 from service.measure.result import Method, Status
 
 
 @pytest.mark.parametrize("diameter", [20.113, 34.924, 47.062])
 @pytest.mark.parametrize("method", list(Method))
 def test_every_method_measures_rendered_frames(renderer, diameter: float, method: Method) -> None:
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     m = measure_frame(renderer.render(diameter, 1), geo, method)
     assert m.status is Status.OK, m.reason
     assert m.n_points > 100
@@ -26,14 +27,14 @@ def test_every_method_measures_rendered_frames(renderer, diameter: float, method
 
 
 def test_geometric_is_within_15_um_on_average(renderer) -> None:
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     errs = [measure_frame(renderer.render(d, i), geo).diameter_mm - d
             for i, d in enumerate([21.687, 27.492, 39.76])]
     assert np.mean(np.abs(errs)) < 0.015, errs
 
 
 def test_sixteen_bit_frame_measures_the_same(renderer) -> None:
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     img = renderer.render(30.0, 2)
     m8 = measure_frame(img, geo)
     m16 = measure_frame(img.astype(np.uint16) * 257, geo)
@@ -41,7 +42,7 @@ def test_sixteen_bit_frame_measures_the_same(renderer) -> None:
 
 
 def test_blank_frame_is_no_stripe(renderer) -> None:
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     img = np.random.default_rng(0).integers(0, 12, (1024, 1376)).astype(np.uint8)
     m = measure_frame(img, geo)
     assert m.status is Status.NO_STRIPE and not m and m.diameter_mm is None
@@ -50,7 +51,7 @@ def test_blank_frame_is_no_stripe(renderer) -> None:
 
 
 def test_wrong_size_and_colour_are_bad_image(renderer) -> None:
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     m = measure_frame(np.zeros((480, 640), np.uint8), geo)
     assert m.status is Status.BAD_IMAGE and "640x480" in m.reason and "1376x1024" in m.reason
     m = measure_frame(np.zeros((1024, 1376, 3), np.uint8), geo)
@@ -60,7 +61,7 @@ def test_wrong_size_and_colour_are_bad_image(renderer) -> None:
 def test_laser_far_round_the_shaft_leaves_an_arc_too_short() -> None:
     # Laser 115 degrees round the shaft from the camera: they share only ~38 degrees of arc.
     r = ShaftRenderer(RigConfig(laser_azimuth_deg=115.0), seed=1)
-    m = measure_frame(r.render(40.0), r.calibration.to_geometry(),
+    m = measure_frame(r.render(40.0), geometry_of(r.calibration),
                       params=MeasureParams(min_arc_deg=45.0))
     assert m.status is Status.ARC_TOO_SHORT, (m.status, m.reason)
     assert m.diameter_mm is None and "need 45" in m.reason
@@ -68,7 +69,7 @@ def test_laser_far_round_the_shaft_leaves_an_arc_too_short() -> None:
 
 
 def test_fewer_points_than_required_is_too_few_points(renderer) -> None:
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     m = measure_frame(renderer.render(20.0, 3), geo, params=MeasureParams(min_points=5000))
     assert m.status is Status.TOO_FEW_POINTS, (m.status, m.reason)
     assert m.diameter_mm is None and "need 5000" in m.reason
@@ -76,7 +77,7 @@ def test_fewer_points_than_required_is_too_few_points(renderer) -> None:
 
 def test_a_blob_is_not_a_shaft(renderer) -> None:
     """Scattered bright specks must never come out as a diameter."""
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     rng = np.random.default_rng(9)
     img = np.full((1024, 1376), 4, np.uint8)
     for _ in range(60):
@@ -87,7 +88,7 @@ def test_a_blob_is_not_a_shaft(renderer) -> None:
 
 
 def test_gross_reflections_are_rejected_by_the_geometric_fit(renderer) -> None:
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     img = renderer.render(30.0, 4).copy()
     ys, xs = np.nonzero(img > 80)
     # A bright glint line beside the stripe, as a stray reflection would make.
@@ -99,5 +100,5 @@ def test_gross_reflections_are_rejected_by_the_geometric_fit(renderer) -> None:
 
 def test_low_contrast_stripe_still_measures() -> None:
     r = ShaftRenderer(RigConfig(peak_dn=45.0), seed=2)
-    m = measure_frame(r.render(25.0), r.calibration.to_geometry())
+    m = measure_frame(r.render(25.0), geometry_of(r.calibration))
     assert m and abs(m.diameter_mm - 25.0) < 0.05

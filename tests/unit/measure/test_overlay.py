@@ -7,6 +7,7 @@ import numpy as np
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import measure_frame
+from service.measure.geometry import geometry_of
 from service.measure.overlay import SECTION_BGR, STRIPE_BGR, draw_overlay
 from service.measure.result import Measurement, Method, Status
 from service.measure.section import project_to_section, section_circle_on_plane
@@ -14,7 +15,7 @@ from service.measure.section import project_to_section, section_circle_on_plane
 
 def test_section_circle_lies_on_the_plane_and_projects_back_to_the_circle() -> None:
     rig = ShaftRenderer(RigConfig(), seed=1)
-    g = rig.calibration.to_geometry()
+    g = geometry_of(rig.calibration)
     pts = section_circle_on_plane((3.0, -2.0), 15.0, g.axis_direction, g.plane_normal,
                                   g.plane_d, n=90)
     assert pts.shape == (90, 3)
@@ -25,7 +26,7 @@ def test_section_circle_lies_on_the_plane_and_projects_back_to_the_circle() -> N
 
 def test_overlay_section_passes_through_the_stripe_points() -> None:
     rig = ShaftRenderer(RigConfig(), seed=2)
-    g = rig.calibration.to_geometry()
+    g = geometry_of(rig.calibration)
     image = rig.render(30.0, 0)
     m = measure_frame(image, g, Method.GEOMETRIC)
     assert m, m.reason

@@ -10,6 +10,7 @@ import pytest
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import MeasureParams, axis_center, measure_frame
+from service.measure.geometry import geometry_of
 from service.measure.result import Method
 from service.measure.section import orthonormal_basis
 from service.measure.sheet import (
@@ -31,7 +32,7 @@ def radial_bias(center, radius: float, angles, geometry, sigma_mm: float) -> np.
 @pytest.fixture(scope="module")
 def rig():
     r = ShaftRenderer(RigConfig(laser_azimuth_deg=20.0, speckle_contrast=0.0), seed=1)
-    return r, r.calibration.to_geometry()
+    return r, geometry_of(r.calibration)
 
 
 def arc(geometry, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +111,7 @@ def test_the_correction_takes_out_most_of_the_error(az: float, diameter: float) 
     """Noise-free images of the simulated rig, centre held on the axis: the systematic error
     of the stripe centres, with and without the model."""
     r = ShaftRenderer(RigConfig(laser_azimuth_deg=az, speckle_contrast=0.0), seed=1)
-    geo = r.calibration.to_geometry()
+    geo = geometry_of(r.calibration)
     img = r.render_clean(diameter) + 3.0
     held = dict(axis_sigma_mm=1e-5)
     off = measure_frame(img, geo, Method.AXIS, MeasureParams(sheet_correction=False, **held))

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from service.measure.geometry import geometry_of
 from service.measure.stripe import StripeParams, extract_stripe, steger_centres
 
 
@@ -121,7 +122,7 @@ def test_height_over_curvature_summed_is_not_inflated_by_noise() -> None:
 
 def test_rendered_shaft_stripe_lies_on_the_projected_section(renderer) -> None:
     """Centres of a clean rendered stripe lie on the exact image of the plane-cylinder curve."""
-    geo = renderer.calibration.to_geometry()
+    geo = geometry_of(renderer.calibration)
     d = 30.0
     img = renderer.render_clean(d)
     pts = extract_stripe(img * 1.0, StripeParams()).xy

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from drivers.sim.rig import RigConfig, ShaftRenderer, rig_calibration
+from service.measure.geometry import geometry_of
 
 
 def test_calibration_is_valid_and_matches_the_config() -> None:
     cfg = RigConfig(triangulation_deg=40.0)
     cal = rig_calibration(cfg)
-    geo = cal.to_geometry()
+    geo = geometry_of(cal)
     assert geo.camera_matrix[0, 0] == pytest.approx(25.0 / 6.45e-3)
     assert geo.image_size == (1376, 1024)
     # The light plane makes the triangulation angle with the camera's viewing direction, up to
@@ -49,7 +50,7 @@ def test_laser_azimuth_sets_the_visible_arc() -> None:
     arcs = []
     for az in (40.0, 75.0):
         r = ShaftRenderer(RigConfig(laser_azimuth_deg=az), seed=1)
-        m = measure_frame(r.render(30.0), r.calibration.to_geometry())
+        m = measure_frame(r.render(30.0), geometry_of(r.calibration))
         assert m, m.reason
         arcs.append(m.arc_deg)
     assert arcs[0] > arcs[1] + 20
