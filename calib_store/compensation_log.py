@@ -24,12 +24,11 @@ import queue
 import sqlite3
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from calib_store.store import open_database, transaction
-from service.compensation import QUIET_KINDS, ControllerState, Decision, Kind
 
 log = logging.getLogger("shaftgauge.compensation_log")
 
@@ -134,17 +133,22 @@ class CompensationLog:
 
     # ---- submitting ----------------------------------------------------------------------
 
-    def submit(self, decision: Decision, wall_time: float, state: ControllerState,
-               durable: bool = False) -> concurrent.futures.Future | None:
-        """Queue a decision and the state after it. With ``durable`` the returned future
-        resolves once both are committed (or raises the ``sqlite3.Error`` that stopped it)."""
+    def submit(self, decision: dict[str, Any], wall_time: float, state: dict[str, Any],
+               quiet: bool = False, durable: bool = False
+               ) -> concurrent.futures.Future | None:
+        """Queue a decision (a dict with the columns of ``_COLUMNS``: ``kind``, ``code``,
+        ``reason``, ``who``, its figures) and the controller's state after it (JSON-ready).
+        A ``quiet`` decision joins the open run of its kind and code. With ``durable`` the
+        returned future resolves once both are committed (or raises the ``sqlite3.Error``
+        that stopped it)."""
         fut: concurrent.futures.Future | None = concurrent.futures.Future() if durable else None
-        self._put(_Item("decision", (decision, wall_time, json.dumps(asdict(state))), fut))
+        self._put(_Item("decision", (dict(decision), wall_time, json.dumps(state), quiet), fut))
         return fut
 
-    def record(self, decision: Decision, wall_time: float, state: ControllerState) -> None:
+    def record(self, decision: dict[str, Any], wall_time: float, state: dict[str, Any],
+               quiet: bool = False) -> None:
         """Store a decision and the state after it, and wait until they are committed."""
-        fut = self.submit(decision, wall_time, state, durable=True)
+        fut = self.submit(decision, wall_time, state, quiet, durable=True)
         assert fut is not None
         fut.result()
 
@@ -182,15 +186,12 @@ class CompensationLog:
                                      (key,)).fetchone()
         return json.loads(row[0]) if row else default
 
-    def load_state(self) -> ControllerState:
-        """The last saved state, or a fresh one (fields added since are defaulted)."""
+    def load_state(self) -> dict[str, Any] | None:
+        """The controller's last saved state, or None."""
         with self._read_lock:
             row = self._read.execute("SELECT state FROM compensation_state WHERE id = 1"
                                      ).fetchone()
-        if not row:
-            return ControllerState()
-        known = ControllerState.__dataclass_fields__
-        return ControllerState(**{k: v for k, v in json.loads(row[0]).items() if k in known})
+        return json.loads(row[0]) if row else None
 
     def decisions(self, limit: int = 100, before_id: int | None = None,
                   kinds: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
@@ -264,8 +265,8 @@ class CompensationLog:
                 runs = dict(self._open_runs)
                 for item in batch:
                     if item.kind == "decision":
-                        decision, wall_time, state_json = item.payload
-                        self._insert(decision, wall_time, runs)
+                        decision, wall_time, state_json, quiet = item.payload
+                        self._insert(decision, wall_time, quiet, runs)
                     elif item.kind == "value":
                         self._db.execute("INSERT OR REPLACE INTO gauge_values (key, value) "
                                          "VALUES (?, ?)", item.payload)
@@ -289,8 +290,7 @@ class CompensationLog:
                 if item.kind != "barrier":
                     keep.append(_Item(item.kind, item.payload, None))
             if len(keep) > MAX_BACKLOG:  # keep the significant ones, drop the oldest quiet
-                quiet = [i for i in keep if i.kind == "decision"
-                         and i.payload[0].kind in QUIET_KINDS]
+                quiet = [i for i in keep if i.kind == "decision" and i.payload[3]]
                 excess = quiet[:len(keep) - MAX_BACKLOG]
                 self.dropped += len(excess)
                 drop = {id(i) for i in excess}
@@ -305,28 +305,29 @@ class CompensationLog:
             if item.future is not None and not item.future.done():
                 item.future.set_result(None)
 
-    def _insert(self, decision: Decision, wall_time: float,
+    def _insert(self, d: dict[str, Any], wall_time: float, quiet: bool,
                 runs: dict[tuple[str, str, bool], int]) -> None:
-        d = decision.as_dict()
-        key = (d["kind"], d["code"], bool(d["shadow"]))
-        if decision.kind in QUIET_KINDS and key in runs:
+        key = (d["kind"], d.get("code", ""), bool(d.get("shadow")))
+        if quiet and key in runs:
             self._db.execute(
                 "UPDATE compensation_decisions SET count = count + 1, last_time = ?, "
                 "reason = ?, last_measurement_seq = ?, deviation_mm = ?, filtered_mm = ?, "
                 "offset_mm = ?, before_mm = ?, after_mm = ? WHERE id = ?",
-                (wall_time, d["reason"], d["measurement_seq"], d["deviation_mm"],
-                 d["filtered_mm"], d["offset_mm"], d["before_mm"], d["after_mm"], runs[key]))
+                (wall_time, d["reason"], d.get("measurement_seq"), d.get("deviation_mm"),
+                 d.get("filtered_mm"), d.get("offset_mm"), d.get("before_mm", 0.0),
+                 d.get("after_mm", 0.0), runs[key]))
             return
         cur = self._db.execute(
             "INSERT INTO compensation_decisions (wall_time, last_time, count, kind, code, "
             "reason, who, measurement_seq, last_measurement_seq, deviation_mm, filtered_mm, "
             "offset_mm, offset_seq, before_mm, after_mm, shadow) "
             "VALUES (?,?,1,?,?,?,?,?,?,?,?,?,?,?,?,?)",
-            (wall_time, wall_time, d["kind"], d["code"], d["reason"], d["who"],
-             d["measurement_seq"], d["measurement_seq"], d["deviation_mm"], d["filtered_mm"],
-             d["offset_mm"], d["offset_seq"], d["before_mm"], d["after_mm"], int(d["shadow"])))
+            (wall_time, wall_time, d["kind"], d.get("code", ""), d["reason"], d.get("who", ""),
+             d.get("measurement_seq"), d.get("measurement_seq"), d.get("deviation_mm"),
+             d.get("filtered_mm"), d.get("offset_mm"), d.get("offset_seq"),
+             d.get("before_mm", 0.0), d.get("after_mm", 0.0), int(bool(d.get("shadow")))))
         self.rows_written += 1
-        if decision.kind in QUIET_KINDS:
+        if quiet:
             runs[key] = int(cur.lastrowid)
         else:  # a significant decision ends every run
             runs.clear()
@@ -344,12 +345,3 @@ class CompensationLog:
                          "compensation_decisions ORDER BY id DESC LIMIT 1 OFFSET ?)",
                          (r.max_rows,))
         return True
-
-
-def as_kind(value: str) -> Kind:
-    """A decision kind by name (ValueError naming the known ones)."""
-    try:
-        return Kind(value)
-    except ValueError:
-        raise ValueError(f"unknown decision kind {value!r} (one of "
-                         f"{', '.join(k.value for k in Kind)})") from None

@@ -245,6 +245,12 @@ class ControllerState:
     pending_total_before_mm: float | None = None
     """The CNC's total read just before the pending offset was written."""
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> ControllerState:
+        """From what was saved (fields added since are defaulted; None: a fresh state)."""
+        known = cls.__dataclass_fields__
+        return cls(**{k: v for k, v in (d or {}).items() if k in known})
+
 
 @dataclass(frozen=True)
 class CncReading:

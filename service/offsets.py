@@ -15,10 +15,12 @@ import logging
 import sqlite3
 import time
 from collections.abc import Callable
+from dataclasses import asdict
 from typing import Protocol
 
 from calib_store.compensation_log import CompensationLog
 from service.compensation import (
+    QUIET_KINDS,
     CncReading,
     CompensationController,
     CompensationSettings,
@@ -74,11 +76,17 @@ class OffsetChannel:
         """Why the decision log cannot be written now (empty: it can)."""
         return self.store.problem if self.store is not None else ""
 
+    def _submit(self, decision: Decision, durable: bool = False):
+        assert self.store is not None
+        return self.store.submit(decision.as_dict(), time.time(),
+                                 asdict(self.controller.persisted),
+                                 quiet=decision.kind in QUIET_KINDS, durable=durable)
+
     def _note(self, decision: Decision) -> Decision:
         """Hand a decision to the log (without waiting), the log file and the listeners."""
         if self.store is not None:
             try:
-                self.store.submit(decision, time.time(), self.controller.persisted)
+                self._submit(decision)
             except sqlite3.Error as err:  # closed while stopping
                 log.warning("decision not logged: %s", err)
         level = logging.WARNING if decision.kind in (Kind.ALARM, Kind.STOPPED, Kind.UNCERTAIN,
@@ -93,8 +101,7 @@ class OffsetChannel:
         """Log a decision and wait until it is committed (LogUnavailableError if it cannot
         be)."""
         if self.store is not None:
-            fut = self.store.submit(decision, time.time(), self.controller.persisted,
-                                    durable=True)
+            fut = self._submit(decision, durable=True)
             try:
                 await asyncio.wrap_future(fut)
             except sqlite3.Error as err:

@@ -44,6 +44,7 @@ from service.calibrate.master import DiameterCorrection
 from service.compensation import (
     CompensationController,
     CompensationSettings,
+    ControllerState,
     Decision,
     MeasurementIn,
     State,
@@ -173,7 +174,7 @@ class Gauge:
         self.bank = RegisterBank(settings.modbus.word_order)
         self.modbus = GaugeModbusServer(self.bank, settings.modbus.host, settings.modbus.port,
                                         settings.modbus.unit_id, on_write=self._on_register_write)
-        state = comp_log.load_state() if comp_log else None
+        state = ControllerState.from_dict(comp_log.load_state()) if comp_log else None
         comp_settings, self.part_temp_c, self.alpha_per_k = self._runtime_settings()
         controller = CompensationController(comp_settings, state or
                                             CompensationController().persisted)

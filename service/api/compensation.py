@@ -7,10 +7,10 @@ from dataclasses import asdict, replace
 
 from fastapi import APIRouter, Depends, HTTPException, Query
 
-from calib_store.compensation_log import as_kind
 from drivers.plc.registers import Command
 from service.api.auth import requires
 from service.api.models import CommandIn, CompensationIn, FeatureIn, ShadowIn, TemperatureIn
+from service.compensation import Kind
 from service.runtime import Gauge
 
 
@@ -73,10 +73,11 @@ def router(gauge: Gauge) -> APIRouter:
             raise HTTPException(503, "the compensation log cannot be used: "
                                 f"{gauge.store_error}")
         try:
-            wanted = tuple(as_kind(k.strip()).value for k in kinds.split(",")) if kinds \
+            wanted = tuple(Kind(k.strip()).value for k in kinds.split(",")) if kinds \
                 else None
-        except ValueError as err:
-            raise HTTPException(422, f"kinds: {err}") from None
+        except ValueError:
+            raise HTTPException(422, f"kinds: {kinds!r} holds an unknown kind (known: "
+                                f"{', '.join(k.value for k in Kind)})") from None
         items = gauge.comp_log.decisions(limit, before_id, wanted)
         return {"items": items, "next_before_id": items[-1]["id"] if len(items) == limit
                 else None}

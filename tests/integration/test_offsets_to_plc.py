@@ -11,6 +11,7 @@ from drivers.plc.client import OffsetWriter, Outcome
 from service.compensation import (
     CompensationController,
     CompensationSettings,
+    ControllerState,
     Kind,
     MeasurementIn,
     State,
@@ -107,7 +108,7 @@ async def test_plc_killed_mid_write_and_restarted(sim_plc_factory, tmp_path) -> 
     assert applied_seqs(sim_plc_factory.log) == [2]  # 1 died with the PLC, 2 applied once
     kinds = [d["kind"] for d in store.decisions(limit=100)]
     assert {"uncertain", "not_applied", "applied"} <= set(kinds)  # all on record
-    assert store.load_state().cumulative_mm == channel.controller.cumulative_mm
+    assert store.load_state()["cumulative_mm"] == channel.controller.cumulative_mm
     await writer.close()
     store.close()
 
@@ -124,7 +125,8 @@ async def test_cumulative_offset_survives_a_restart(sim_plc_factory, tmp_path) -
     assert cum < 0
     store.close()
     again = CompensationLog(tmp_path / "comp.db")
-    restored = CompensationController(replace(LIVE), again.load_state())
+    restored = CompensationController(replace(LIVE),
+                                      ControllerState.from_dict(again.load_state()))
     assert restored.cumulative_mm == cum and restored.persisted.offset_seq == 1
     again.close()
     await writer.close()

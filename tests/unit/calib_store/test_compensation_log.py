@@ -5,12 +5,24 @@ from __future__ import annotations
 
 import sqlite3
 import time
+from dataclasses import asdict
 
 import pytest
 
 from calib_store.compensation_log import CompensationLog, LogRetention
-from service.compensation import ControllerState, Decision, Kind
+from service.compensation import QUIET_KINDS, ControllerState, Decision, Kind
 from tests.integration.conftest import small_disk  # noqa: F401  (a real full disk)
+
+
+class Log(CompensationLog):
+    """The log as the offset channel feeds it: decisions and states from the controller."""
+
+    def submit(self, decision, wall_time, state, durable=False):  # type: ignore[override]
+        return super().submit(decision.as_dict(), wall_time, asdict(state),
+                              quiet=decision.kind in QUIET_KINDS, durable=durable)
+
+    def record(self, decision, wall_time, state):  # type: ignore[override]
+        self.submit(decision, wall_time, state, durable=True).result()
 
 
 def held(code: str = "no_nominal", seq: int = 1, shadow: bool = False) -> Decision:
@@ -19,7 +31,7 @@ def held(code: str = "no_nominal", seq: int = 1, shadow: bool = False) -> Decisi
 
 
 def test_a_run_of_identical_quiet_decisions_is_one_row(tmp_path) -> None:
-    log = CompensationLog(tmp_path / "g.db")
+    log = Log(tmp_path / "g.db")
     t0 = time.time()
     for i in range(1000):
         log.submit(held(seq=i), t0 + i * 0.1, ControllerState(last_measurement_seq=i))
@@ -29,12 +41,12 @@ def test_a_run_of_identical_quiet_decisions_is_one_row(tmp_path) -> None:
     assert r["count"] == 1000 and r["code"] == "no_nominal"
     assert r["measurement_seq"] == 0 and r["last_measurement_seq"] == 999
     assert r["wall_time"] == pytest.approx(t0) and r["last_time"] == pytest.approx(t0 + 99.9)
-    assert log.load_state().last_measurement_seq == 999
+    assert log.load_state()["last_measurement_seq"] == 999
     log.close()
 
 
 def test_a_significant_decision_ends_the_runs(tmp_path) -> None:
-    log = CompensationLog(tmp_path / "g.db")
+    log = Log(tmp_path / "g.db")
     st = ControllerState()
     for _ in range(3):
         log.submit(held("filling_window"), time.time(), st)
@@ -52,7 +64,7 @@ def test_a_significant_decision_ends_the_runs(tmp_path) -> None:
 
 
 def test_the_kind_query_uses_an_index(tmp_path) -> None:
-    log = CompensationLog(tmp_path / "g.db")
+    log = Log(tmp_path / "g.db")
     db = sqlite3.connect(tmp_path / "g.db")
     plan = " ".join(str(r) for r in db.execute(
         "EXPLAIN QUERY PLAN SELECT * FROM compensation_decisions WHERE kind IN ('write') "
@@ -63,7 +75,7 @@ def test_the_kind_query_uses_an_index(tmp_path) -> None:
 
 
 def test_retention_by_rows_and_age(tmp_path) -> None:
-    log = CompensationLog(tmp_path / "g.db", retention=LogRetention(
+    log = Log(tmp_path / "g.db", retention=LogRetention(
         max_age_days=1.0, max_rows=50, prune_every_s=0.0))
     st = ControllerState()
     old = time.time() - 3 * 86400.0
@@ -79,7 +91,7 @@ def test_retention_by_rows_and_age(tmp_path) -> None:
 
 
 def test_a_durable_decision_is_committed_before_its_future_resolves(tmp_path) -> None:
-    log = CompensationLog(tmp_path / "g.db")
+    log = Log(tmp_path / "g.db")
     fut = log.submit(Decision(Kind.WRITE, "write", 0.0, offset_seq=3, code="write"),
                      time.time(), ControllerState(offset_seq=3, pending_seq=3,
                                                   state="pending"), durable=True)
@@ -92,10 +104,10 @@ def test_a_durable_decision_is_committed_before_its_future_resolves(tmp_path) ->
 
 
 def test_values_survive_a_reopen(tmp_path) -> None:
-    log = CompensationLog(tmp_path / "g.db")
+    log = Log(tmp_path / "g.db")
     log.put_value("measurement_seq_reserved", 20000)
     log.close()
-    again = CompensationLog(tmp_path / "g.db")
+    again = Log(tmp_path / "g.db")
     assert again.get_value("measurement_seq_reserved") == 20000
     assert again.get_value("nothing", 7) == 7
     again.close()
@@ -112,14 +124,14 @@ def test_an_old_log_gains_the_new_columns(tmp_path) -> None:
         INSERT INTO compensation_decisions (wall_time, kind, reason, before_mm, after_mm,
             shadow) VALUES (1.8e9, 'applied', 'old row', 0, 0.001, 0);""")
     db.close()
-    log = CompensationLog(tmp_path / "g.db")
+    log = Log(tmp_path / "g.db")
     [row] = log.decisions()
     assert row["reason"] == "old row" and row["count"] == 1 and row["last_time"] == 1.8e9
     log.close()
 
 
 def test_a_full_disk_keeps_the_rows_and_writes_them_later(tmp_path, small_disk) -> None:  # noqa: F811
-    log = CompensationLog(small_disk.path / "g.db")
+    log = Log(small_disk.path / "g.db")
     st = ControllerState()
     small_disk.fill()
     fut = log.submit(Decision(Kind.WRITE, "write", 0.0, offset_seq=1, code="write"),
