@@ -186,7 +186,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     try:
         if args.step == "render":
-            print(json.dumps(c.render_set(args.output, args.seed)))
+            from drivers.sim.board import render_set
+
+            print(json.dumps(render_set(args.output, args.seed)))
             return EXIT_OK
         if args.step == "master":
             cal = load_calibration(args.calibration)

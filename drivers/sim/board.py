@@ -13,33 +13,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from drivers.sim.rig import RigConfig, ShaftRenderer, _rotation
-
-
-@dataclass(frozen=True)
-class Board:
-    """A printed chessboard."""
-
-    cols: int = 9          # inner corners along x
-    rows: int = 6          # inner corners along y
-    square_mm: float = 6.0
-    margin_squares: float = 1.0
-
-    def object_points(self) -> np.ndarray:
-        """Inner corners in the board frame, mm, OpenCV's order (row by row)."""
-        xs, ys = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
-        pts = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
-        return pts * self.square_mm
-
-    @property
-    def size_mm(self) -> tuple[float, float]:
-        """Outer size of the printed area, mm."""
-        return ((self.cols + 1 + 2 * self.margin_squares) * self.square_mm,
-                (self.rows + 1 + 2 * self.margin_squares) * self.square_mm)
+from service.calibrate.board import DEFAULT_BOARD, Board, parse_board
 
 
 @dataclass(frozen=True)
@@ -239,3 +219,24 @@ def session_shots() -> list[Shot]:
     for i, a in enumerate((-45, -30, -15, 0, 15, 30, 45)):
         shots.append(Shot("axis", f"rot_{a:+03d}", 300 + i, rotation_deg=a))
     return shots
+
+
+def render_set(output: str, seed: int = 0, board: Board | None = None) -> dict:
+    """A simulated calibration session written as image files (``shaftgauge calibrate
+    render``): board views, laser pairs, spindle rotations, masters (30 and 40 mm), and the
+    rig's true calibration to compare with."""
+    out = Path(output)
+    for sub in ("views", "plane", "axis", "master30", "master40"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    rig = ShaftRenderer(RigConfig(), seed=seed)
+    br = BoardRenderer(rig, board or parse_board(DEFAULT_BOARD))
+    folder = {"view": "views", "plane_off": "plane", "plane_on": "plane", "axis": "axis"}
+    for shot in session_shots():
+        cv2.imwrite(str(out / folder[shot.kind] / f"{shot.name}.png"),
+                    br.render(shot.pose(br), laser=shot.laser, frame_index=shot.frame_index))
+    for d, sub in ((30.0, "master30"), (40.0, "master40")):
+        for i in range(10):
+            cv2.imwrite(str(out / sub / f"frame_{i:02d}.png"), rig.render(d, 1000 + i))
+    (out / "truth.json").write_text(rig.calibration.to_json() + "\n")
+    return {"output": str(out), "board": f"{br.board.cols}x{br.board.rows}x"
+            f"{br.board.square_mm:g}"}

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.sim.board import Board
+from service.calibrate.board import Board
 from service.calibrate.plane import board_plane
 
 

@@ -4,17 +4,15 @@ result and figures; ``build`` assembles a calibration document and its quality r
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from calib_store.model import SCHEMA, Calibration, parse_calibration
-from drivers.sim.board import Board, BoardRenderer, session_shots
-from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.calibrate import board
 from service.calibrate.axis import AxisResult, calibrate_axis
+from service.calibrate.board import Board
 from service.calibrate.intrinsics import IntrinsicsResult, calibrate_intrinsics
 from service.calibrate.master import correction_from_masters
 from service.calibrate.plane import PlaneResult, calibrate_plane
@@ -25,8 +23,6 @@ from service.measure.geometry import geometry_of
 from service.measure.result import Method
 from service.offline import read_grey_image
 
-DEFAULT_BOARD = "11x8x8"
-
 
 class StepError(ValueError):
     """A step that cannot run (bad input files); the message says what to do."""
@@ -34,13 +30,10 @@ class StepError(ValueError):
 
 def parse_board(text: str) -> Board:
     """``COLSxROWSxSQUARE_MM`` (inner corners, square size), e.g. ``11x8x8``."""
-    m = re.fullmatch(r"(\d+)x(\d+)x(\d+(?:\.\d+)?)", text.strip())
-    if not m:
-        raise StepError(f"--board {text!r}: write COLSxROWSxMM, e.g. 11x8x8 (inner corners)")
-    cols, rows, sq = int(m[1]), int(m[2]), float(m[3])
-    if cols < 3 or rows < 3 or sq <= 0:
-        raise StepError(f"--board {text!r}: at least 3x3 inner corners and a positive size")
-    return Board(cols=cols, rows=rows, square_mm=sq)
+    try:
+        return board.parse_board(text)
+    except ValueError as err:
+        raise StepError(str(err)) from None
 
 
 def _read_all(paths: list[str]) -> list[np.ndarray]:
@@ -177,23 +170,3 @@ def master_step(calibration: Calibration, masters: list[tuple[float, list[str]]]
         raise StepError(str(err)) from None
     return {"step": "master", "offset_mm": corr.offset_mm, "scale": corr.scale,
             "created": corr.created, "masters": measured}
-
-
-def render_set(output: str, seed: int = 0, board: Board | None = None) -> dict[str, Any]:
-    """A simulated calibration session: board views, laser pairs, spindle rotations, masters
-    (30 and 40 mm), and the rig's true calibration to compare with."""
-    out = Path(output)
-    for sub in ("views", "plane", "axis", "master30", "master40"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
-    rig = ShaftRenderer(RigConfig(), seed=seed)
-    br = BoardRenderer(rig, board or parse_board(DEFAULT_BOARD))
-    folder = {"view": "views", "plane_off": "plane", "plane_on": "plane", "axis": "axis"}
-    for shot in session_shots():
-        cv2.imwrite(str(out / folder[shot.kind] / f"{shot.name}.png"),
-                    br.render(shot.pose(br), laser=shot.laser, frame_index=shot.frame_index))
-    for d, sub in ((30.0, "master30"), (40.0, "master40")):
-        for i in range(10):
-            cv2.imwrite(str(out / sub / f"frame_{i:02d}.png"), rig.render(d, 1000 + i))
-    (out / "truth.json").write_text(rig.calibration.to_json() + "\n")
-    return {"output": str(out), "board": f"{br.board.cols}x{br.board.rows}x"
-            f"{br.board.square_mm:g}"}

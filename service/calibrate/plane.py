@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from drivers.sim.board import Board
+from service.calibrate.board import Board
 from service.calibrate.intrinsics import find_corners
 from service.measure.stripe import StripeParams, extract_stripe
 from service.measure.triangulate import undistort_to_rays
