@@ -29,8 +29,19 @@ from drivers.plc.client import OffsetWriter
 from drivers.plc.offsets import PlcOffsetMap
 from drivers.plc.registers import WordOrder
 from service.api.app import create_app
+from service.calibrate.session import CalibrationSessions
 from service.config import Settings
-from service.runtime import Gauge
+from service.measure.diameter import MeasureParams
+from service.measure.result import Method
+from service.measure.stripe import StripeParams
+from service.runtime.calibration import CalibrationContext, MasterPolicy
+from service.runtime.compensating import CompensationService, RuntimeSettings
+from service.runtime.feed import MeasurementFeed, SequenceCounter
+from service.runtime.gauge import Gauge
+from service.runtime.health import HealthReport
+from service.runtime.modbus import ModbusFacade
+from service.runtime.pipeline import FramePipeline
+from service.runtime.publish import Publisher
 
 log = logging.getLogger("shaftgauge.serve")
 _PR_SET_PDEATHSIG = 1
@@ -115,7 +126,6 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
                  "--drift-um-per-min", str(cam_cfg.sim_drift_um_per_min), "--seed",
                  str(cam_cfg.sim_seed), "--calibration-out", str(cal_path)], "camera")
             device_id = ready["device_id"]
-            settings.camera.device_id = device_id
             extras["sim_camera_control_port"] = ready["control_port"]
             sim_cal = load_calibration(cal_path)
         if not device_id:
@@ -141,7 +151,46 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     if store is not None and sim_cal is not None and not store.list():
         store.add(sim_cal, by="shaftgauge", note="simulated rig (embedded default)",
                   activate=True)
-    return Gauge(settings, camera, store, comp_log, writer, store_error), extras
+    extras["camera"] = device_id if cam_cfg.source != "rig" else "rig"
+    return wire(settings, camera, store, comp_log, writer, store_error), extras
+
+
+def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
+         comp_log: CompensationLog | None, writer: OffsetWriter | None,
+         store_error: str = "") -> Gauge:
+    """The one place where the gauge's parts are made and connected."""
+    ms, ts = settings.measurement, settings.temperature
+    context = CalibrationContext(store, MasterPolicy(ms.master_interval_h, ms.axis_sigma_mm,
+                                                     ms.track_axis), store_error)
+    compensation = CompensationService(
+        RuntimeSettings(settings.compensation, ts.part_temp_c, ts.alpha_per_k), writer,
+        comp_log, reset_command=settings.modbus.reset_command)
+    feed = MeasurementFeed(ms.history, ms.fuse_frames)
+    compensation.on_decision(feed.decisions.publish)
+    context.on_change(compensation.set_calibration)
+    context.on_change(lambda _: feed.restart_fusion())
+    params = MeasureParams(stripe=StripeParams(optics_blur_px=ms.optics_blur_px),
+                           axis_sigma_mm=ms.axis_sigma_mm, free_fit=ms.track_axis,
+                           sheet_correction=ms.sheet_correction,
+                           sheet_sigma_mm=ms.sheet_sigma_mm)
+    health_ref: list[HealthReport] = []
+    modbus = ModbusFacade(settings.modbus, compensation, snapshot=lambda: health_ref[0]
+                          .snapshot(), healthy=lambda: health_ref[0].healthy(),
+                          trigger=camera.software_trigger)
+    sequence = SequenceCounter(comp_log, compensation.controller.persisted
+                               .last_measurement_seq + 1)
+    publisher = Publisher(sequence, feed, modbus, compensation)
+    pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher)
+    health = HealthReport(settings, camera, context, pipeline, feed, compensation, writer,
+                          modbus)
+    health_ref.append(health)
+    context.load_active()
+    api = settings.api
+    sessions = CalibrationSessions(settings.store.path.parent / "calibration-sessions",
+                                   api.max_calibration_sessions, api.max_session_images,
+                                   api.session_expiry_h)
+    return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
+                 sessions, writer, comp_log)
 
 
 async def serve(settings: Settings) -> int:
@@ -166,8 +215,7 @@ async def serve(settings: Settings) -> int:
         base = f"http://{host}:{port}"
         print(json.dumps({"event": "ready", "url": base, "api_port": port,
                           "modbus_port": gauge.modbus.port if settings.modbus.enabled
-                          else None, "camera": settings.camera.device_id, **extras}),
-              flush=True)
+                          else None, **extras}), flush=True)
         print(f"shaftgauge is up. Dashboard: {base}/ui/  API docs: {base}/docs  "
               f"Modbus TCP: {settings.modbus.host}:{gauge.modbus.port}", file=sys.stderr,
               flush=True)

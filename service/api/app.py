@@ -16,52 +16,11 @@ from fastapi.staticfiles import StaticFiles
 from service.api import calibrations, compensation, master, measurements, sessions
 from service.api.auth import reader
 from service.api.limits import BodyLimit
+from service.api.metrics import metrics_text
 from service.api.models import ERRORS
 from service.runtime import Gauge
 
 WEB = Path(__file__).resolve().parent.parent / "web"
-
-
-def metrics_text(gauge: Gauge) -> str:
-    """Prometheus text exposition of the gauge's figures."""
-    st = gauge.status()
-    p = st["pipeline"]
-    cam = st["camera"]["counters"]
-    latest = gauge.latest
-    lines: list[str] = []
-
-    def metric(name: str, kind: str, help_: str, value: float | None, labels: str = "") -> None:
-        if value is None:
-            return
-        lines.append(f"# HELP shaftgauge_{name} {help_}")
-        lines.append(f"# TYPE shaftgauge_{name} {kind}")
-        lines.append(f"shaftgauge_{name}{labels} {float(value):.9g}")
-
-    metric("healthy", "gauge", "1 when camera, calibration and measurement are fine",
-           int(st["healthy"]))
-    metric("diameter_mm", "gauge", "Latest measured diameter",
-           latest.diameter_mm if latest else None)
-    metric("diameter_uncertainty_mm", "gauge", "Standard uncertainty of the latest diameter",
-           latest.uncertainty_mm if latest else None)
-    metric("measurement_rate_hz", "gauge", "Measurements per second (10 s)", p["rate_hz"])
-    metric("frames_total", "counter", "Frames taken from the camera", p["frames_in"])
-    metric("measurements_total", "counter", "Frames measured", p["measured"])
-    metric("measurements_failed_total", "counter", "Frames without a diameter", p["failed"])
-    metric("camera_frames_dropped_total", "counter", "Frames dropped for a slow consumer",
-           cam["dropped"])
-    metric("camera_frames_failed_total", "counter", "Incomplete frames", cam["failed"])
-    metric("camera_missing_packets_total", "counter", "Missing GVSP packets",
-           cam["missing_packets"])
-    metric("camera_reconnects_total", "counter", "Camera reconnections", cam["reconnects"])
-    metric("latency_median_ms", "gauge", "Frame to registers, median",
-           p["latency"]["median_ms"])
-    metric("latency_p99_ms", "gauge", "Frame to registers, 99th percentile",
-           p["latency"]["p99_ms"])
-    metric("cumulative_offset_mm", "gauge", "Acknowledged tool-wear offset since reset",
-           st["compensation"]["cumulative_offset_mm"])
-    metric("modbus_requests_total", "counter", "Modbus requests served",
-           st["modbus"]["requests"])
-    return "\n".join(lines) + "\n"
 
 
 def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
@@ -94,16 +53,20 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
 
     api = APIRouter(prefix="/api/v1", dependencies=[Depends(reader(gauge.settings.api))],
                     responses=ERRORS)
-    api.include_router(measurements.router(gauge))
-    api.include_router(calibrations.router(gauge))
-    api.include_router(compensation.router(gauge))
-    api.include_router(master.router(gauge))
-    api.include_router(sessions.router(gauge))
+    g, keys = gauge, gauge.settings.api
+    api.include_router(measurements.router(g.feed, g.health, keys))
+    api.include_router(calibrations.router(g.context, keys))
+    api.include_router(compensation.router(g.compensation, g.log, g.modbus.run_command, keys,
+                                           g.context.store_error))
+    api.include_router(master.router(g.context, g.compensation, g.feed,
+                                     g.settings.measurement, keys))
+    api.include_router(sessions.router(g.sessions, g.context, g.compensation, g.pipeline,
+                                       keys))
 
     @api.get("/status", tags=["system"], summary="Camera, PLC, pipeline, calibration, "
              "compensation")
     def status() -> dict:
-        return gauge.status()
+        return g.health.status()
 
     app.include_router(api)
 
@@ -113,14 +76,15 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
 
     @app.get("/readyz", tags=["system"], summary="Measuring: 200, otherwise 503 with reasons")
     def readyz() -> JSONResponse:
-        ok = gauge.healthy()
-        return JSONResponse({"ready": ok, "problems": gauge.problems()},
+        ok = g.health.healthy()
+        return JSONResponse({"ready": ok, "problems": [p.as_dict()
+                                                        for p in g.health.problems()]},
                             status_code=200 if ok else 503)
 
     @app.get("/metrics", tags=["system"], response_class=PlainTextResponse,
              dependencies=[Depends(reader(gauge.settings.api))])
     def metrics() -> PlainTextResponse:
-        return PlainTextResponse(metrics_text(gauge),
+        return PlainTextResponse(metrics_text(g.health, g.feed),
                                  media_type="text/plain; version=0.0.4")
 
     @app.get("/", include_in_schema=False)

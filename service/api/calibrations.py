@@ -11,20 +11,23 @@ from calib_store.model import CalibrationError, parse_calibration
 from calib_store.store import StoreError
 from service.api.auth import requires
 from service.api.models import CalibrationImportIn
-from service.runtime import Gauge
+from service.config import ApiSettings
+from service.runtime.calibration import CalibrationContext
 
 # SQLite integers are 64-bit: a larger id is a malformed request, not a server error.
 CalibrationId = Annotated[int, Path(ge=1, le=2**63 - 1, description="calibration id")]
 
 
-def router(gauge: Gauge) -> APIRouter:
+def router(context: CalibrationContext, api: ApiSettings) -> APIRouter:
+    """Reads the store; activates through the calibration context."""
     r = APIRouter(tags=["calibrations"])
-    technician = Depends(requires(gauge.settings.api, "technician"))
+    technician = Depends(requires(api, "technician"))
 
     def store():
-        if gauge.store is None:
-            raise HTTPException(503, f"the calibration store cannot be used: {gauge.store_error}")
-        return gauge.store
+        if context.store is None:
+            raise HTTPException(503, "the calibration store cannot be used: "
+                                f"{context.store_error}")
+        return context.store
 
     def find(cid: int):
         try:
@@ -61,7 +64,7 @@ def router(gauge: Gauge) -> APIRouter:
             raise HTTPException(422, f"document: {err}") from None
         cid = store().add(cal, by=role, note=body.note, activate=body.activate)
         if body.activate:
-            gauge.set_calibration(*store().get(cid))
+            context.set_calibration(*store().get(cid))
         info, _ = store().get(cid)
         return info.as_dict()
 
@@ -73,7 +76,7 @@ def router(gauge: Gauge) -> APIRouter:
         except StoreError as err:
             raise HTTPException(409, str(err)) from None
         info, cal = store().get(cid)
-        gauge.set_calibration(info, cal)
+        context.set_calibration(info, cal)
         return info.as_dict()
 
     return r

@@ -3,45 +3,52 @@ and the part temperature."""
 
 from __future__ import annotations
 
+from collections.abc import Awaitable, Callable
 from dataclasses import asdict, replace
 
 from fastapi import APIRouter, Depends, HTTPException, Query
 
+from calib_store.compensation_log import CompensationLog
 from drivers.plc.registers import Command
 from service.api.auth import requires
 from service.api.models import CommandIn, CompensationIn, FeatureIn, ShadowIn, TemperatureIn
-from service.compensation import Kind
-from service.runtime import Gauge
+from service.compensation import CompensationSettings, Decision, Kind
+from service.config import ApiSettings
+from service.runtime.compensating import CompensationService
+
+RunCommand = Callable[..., Awaitable[Decision | None]]
 
 
-def router(gauge: Gauge) -> APIRouter:
+def router(comp: CompensationService, log: CompensationLog | None, run_command: RunCommand,
+           api: ApiSettings, store_error: str = "") -> APIRouter:
+    """Changes go through the compensation service (``run_command`` also acknowledges the
+    command in the registers); the decision log is read from the store."""
     r = APIRouter(tags=["compensation"])
-    technician = Depends(requires(gauge.settings.api, "technician"))
-    admin = Depends(requires(gauge.settings.api, "admin"))
+    technician = Depends(requires(api, "technician"))
+    admin = Depends(requires(api, "admin"))
 
     # The endpoints that change the controller are async: they run on the event loop, in turn
     # with the compensation task and the CNC's register writes, never beside them in a thread.
-    async def apply(settings, role: str) -> dict:
+    async def apply(settings: CompensationSettings, role: str) -> dict:
         try:
-            d = await gauge.update_compensation(settings, who=f"api:{role}")
+            d = await comp.update_settings(settings, who=f"api:{role}")
         except ValueError as err:
             raise HTTPException(422, str(err)) from None
-        return {"settings": asdict(gauge.channel.controller.settings), "decision": d.as_dict()}
+        return {"settings": asdict(comp.settings), "decision": d.as_dict()}
 
     @r.get("/feature", summary="Nominal diameter and tolerance of the current feature")
     def feature() -> dict:
-        s = gauge.channel.controller.settings
+        s = comp.settings
         return {"nominal_mm": s.nominal_mm, "tol_upper_mm": s.tol_upper_mm,
                 "tol_lower_mm": s.tol_lower_mm}
 
     @r.put("/feature", summary="Set the feature (technician)")
     async def set_feature(body: FeatureIn, role: str = technician) -> dict:
-        return await apply(replace(gauge.channel.controller.settings, **body.model_dump()),
-                           role)
+        return await apply(replace(comp.settings, **body.model_dump()), role)
 
     @r.get("/compensation", summary="Compensation settings and state")
     def compensation() -> dict:
-        c = gauge.channel.controller
+        c = comp.controller
         return {"settings": asdict(c.settings), "state": c.state.value,
                 "cumulative_offset_mm": c.cumulative_mm,
                 "cnc_total_mm": c.persisted.cnc_total_mm, "baseline_mm": c.persisted.baseline_mm,
@@ -50,45 +57,43 @@ def router(gauge: Gauge) -> APIRouter:
     @r.put("/compensation", summary="Tune compensation (admin)")
     async def tune(body: CompensationIn, role: str = admin) -> dict:
         changes = {k: v for k, v in body.model_dump().items() if v is not None}
-        return await apply(replace(gauge.channel.controller.settings, **changes), role)
+        return await apply(replace(comp.settings, **changes), role)
 
     @r.put("/compensation/shadow", summary="Shadow mode on or off (technician)")
     async def shadow(body: ShadowIn, role: str = technician) -> dict:
-        return await apply(replace(gauge.channel.controller.settings, shadow=body.shadow), role)
+        return await apply(replace(comp.settings, shadow=body.shadow), role)
 
     @r.post("/compensation/command", summary="Reset compensation or acknowledge an alarm")
     async def command(body: CommandIn, role: str = technician) -> dict:
         code = Command.RESET_COMPENSATION if body.command == "reset" \
             else Command.ACKNOWLEDGE_ALARM
-        d = await gauge.run_command(code, source="api", who=f"api:{role}")
-        return {"decision": None if d is None else d.as_dict(),
-                "state": gauge.channel.controller.state.value}
+        d = await run_command(code, source="api", who=f"api:{role}")
+        return {"decision": None if d is None else d.as_dict(), "state": comp.state.value}
 
     @r.get("/compensation/log", summary="Compensation decisions, newest first")
     def offset_log(limit: int = Query(100, ge=1, le=5000),
                    before_id: int | None = Query(None, ge=1, le=2**63 - 1),
                    kinds: str | None = Query(None, description="comma-separated kinds")
                    ) -> dict:
-        if gauge.comp_log is None:
-            raise HTTPException(503, "the compensation log cannot be used: "
-                                f"{gauge.store_error}")
+        if log is None:
+            raise HTTPException(503, f"the compensation log cannot be used: {store_error}")
         try:
             wanted = tuple(Kind(k.strip()).value for k in kinds.split(",")) if kinds \
                 else None
         except ValueError:
             raise HTTPException(422, f"kinds: {kinds!r} holds an unknown kind (known: "
                                 f"{', '.join(k.value for k in Kind)})") from None
-        items = gauge.comp_log.decisions(limit, before_id, wanted)
+        items = log.decisions(limit, before_id, wanted)
         return {"items": items, "next_before_id": items[-1]["id"] if len(items) == limit
                 else None}
 
     @r.get("/temperature", summary="Part temperature for the diameter at 20 C")
     def temperature() -> dict:
-        return {"part_temp_c": gauge.part_temp_c, "alpha_per_k": gauge.alpha_per_k}
+        return {"part_temp_c": comp.part_temp_c, "alpha_per_k": comp.alpha_per_k}
 
     @r.put("/temperature", summary="Set the part temperature (technician)")
     async def set_temperature(body: TemperatureIn, role: str = technician) -> dict:
-        await gauge.set_temperature(body.part_temp_c, body.alpha_per_k, who=f"api:{role}")
+        await comp.set_temperature(body.part_temp_c, body.alpha_per_k, who=f"api:{role}")
         return temperature()
 
     return r

@@ -12,9 +12,12 @@ from pydantic import Field
 from service.api.auth import requires
 from service.api.models import _Strict
 from service.calibrate.master import DiameterCorrection, check_master, correction_from_masters
+from service.config import ApiSettings, MeasurementSettings
 from service.measure.fuse import fuse
 from service.measure.result import Measurement, Method, Status
-from service.runtime import Gauge
+from service.runtime.calibration import CalibrationContext
+from service.runtime.compensating import CompensationService
+from service.runtime.feed import MeasurementFeed
 
 
 class MasterMeasureIn(_Strict):
@@ -38,24 +41,27 @@ class CorrectionIn(_Strict):
     masters: list[MasterPoint] = Field(min_length=1, max_length=2)
 
 
-def router(gauge: Gauge) -> APIRouter:
+def router(context: CalibrationContext, comp: CompensationService, feed: MeasurementFeed,
+           ms: MeasurementSettings, api: ApiSettings) -> APIRouter:
+    """Checks and corrections belong to the calibration context; measuring the master holds
+    offsets (compensation) and reads the live feed."""
     r = APIRouter(tags=["master"])
-    technician = Depends(requires(gauge.settings.api, "technician"))
+    technician = Depends(requires(api, "technician"))
 
     @r.get("/master", summary="Correction in force, last master check, due or not")
     def master() -> dict:
-        return gauge.master_status()
+        return context.master_status()
 
     @r.post("/master/measure", summary="Measure the master in the lathe and record a check")
     async def measure(body: MasterMeasureIn, role: str = technician) -> dict:
-        if gauge.calibration is None or gauge.store is None:
+        calibration_id = context.calibration_id
+        if calibration_id is None or context.store is None:
             raise HTTPException(409, "no active calibration: activate one first")
-        calibration_id = gauge.calibration[0].id
         # The camera looks at the master, not at the part: no offset from what it measures.
         owner = f"master-{uuid.uuid4().hex[:8]}"
-        gauge.hold_offsets(body.timeout_s + 5.0, "the master is being measured", owner=owner,
-                           code="master")
-        q = gauge.subscribers.add()
+        comp.hold_offsets(body.timeout_s + 5.0, "the master is being measured", owner=owner,
+                          code="master")
+        q = feed.subscribers.add()
         raw, corrected = [], []
         try:
             async with asyncio.timeout(body.timeout_s):
@@ -70,12 +76,11 @@ def router(gauge: Gauge) -> APIRouter:
             raise HTTPException(504, f"only {len(raw)} good frames in {body.timeout_s:g} s: "
                                 "is the master in view and the camera streaming?") from None
         finally:
-            gauge.subscribers.remove(q)
-            gauge.release_hold(owner)
+            feed.subscribers.remove(q)
+            comp.release_hold(owner)
         f_raw, f_cor = fuse(raw), fuse(corrected)
-        check = check_master(body.certified_mm, f_cor.diameter_mm,
-                             gauge.settings.measurement.master_limit_mm)
-        gauge.record_master_check(check.certified_mm, check.measured_mm, check.error_mm,
+        check = check_master(body.certified_mm, f_cor.diameter_mm, ms.master_limit_mm)
+        context.record_master_check(check.certified_mm, check.measured_mm, check.error_mm,
                                   check.limit_mm, check.passed, by=role)
         return {"certified_mm": body.certified_mm, "raw_mm": f_raw.diameter_mm,
                 "corrected_mm": f_cor.diameter_mm, "uncertainty_mm": f_cor.uncertainty_mm,
@@ -83,14 +88,14 @@ def router(gauge: Gauge) -> APIRouter:
 
     @r.post("/master/correction", summary="Set the diameter correction from masters")
     def correction(body: CorrectionIn, role: str = technician) -> dict:
-        if gauge.calibration is None or gauge.store is None:
+        calibration_id = context.calibration_id
+        if calibration_id is None or context.store is None:
             raise HTTPException(409, "no active calibration: activate one first")
         try:
             corr = correction_from_masters([(m.certified_mm, m.measured_mm)
                                             for m in body.masters])
         except ValueError as err:
             raise HTTPException(422, str(err)) from None
-        ms = gauge.settings.measurement
         if abs(corr.offset_mm) > ms.max_correction_offset_mm or \
                 abs(corr.scale - 1.0) > ms.max_correction_scale_error:
             raise HTTPException(422, f"correction refused: offset {corr.offset_mm * 1000:+.1f} um"
@@ -99,9 +104,9 @@ def router(gauge: Gauge) -> APIRouter:
                                 f"{ms.max_correction_scale_error:g}, "
                                 "measurement.max_correction_*): calibrate again, or check the "
                                 "master's certificate")
-        gauge.store.add_correction(gauge.calibration[0].id, corr.offset_mm, corr.scale,
-                                   [m.model_dump() for m in body.masters], by=role)
-        gauge.set_correction(DiameterCorrection(corr.offset_mm, corr.scale, corr.created))
-        return gauge.master_status()
+        context.store.add_correction(calibration_id, corr.offset_mm, corr.scale,
+                                     [m.model_dump() for m in body.masters], by=role)
+        context.set_correction(DiameterCorrection(corr.offset_mm, corr.scale, corr.created))
+        return context.master_status()
 
     return r

@@ -10,8 +10,10 @@ import cv2
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
+from service.config import ApiSettings
 from service.measure.overlay import draw_overlay
-from service.runtime import Gauge
+from service.runtime.feed import MeasurementFeed
+from service.runtime.health import HealthReport
 
 SSE_KEEPALIVE_S = 10.0
 
@@ -20,15 +22,20 @@ def _event(kind: str, data: dict) -> str:
     return f"event: {kind}\ndata: {json.dumps(data)}\n\n"
 
 
-def router(gauge: Gauge) -> APIRouter:
+def _why(health: HealthReport) -> str:
+    return "; ".join(p.text for p in health.problems())
+
+
+def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings) -> APIRouter:
+    """Reads the feed; says why there is nothing from the health report."""
     r = APIRouter(tags=["measurements"])
     open_streams = 0  # changed on the event loop only
 
     @r.get("/measurements/latest", summary="The latest measurement")
     def latest() -> dict:
-        if gauge.latest is None:
-            raise HTTPException(404, "no measurement yet: " + "; ".join(gauge.problems()))
-        return {**gauge.latest.as_dict(), "age_s": gauge.measurement_age_s()}
+        if feed.latest is None:
+            raise HTTPException(404, "no measurement yet: " + _why(health))
+        return {**feed.latest.as_dict(), "age_s": feed.measurement_age_s()}
 
     @r.get("/frame/latest.jpg", summary="The latest measured frame, stripe and fitted section "
            "drawn over it", response_class=Response,
@@ -36,9 +43,9 @@ def router(gauge: Gauge) -> APIRouter:
     def latest_frame(width: int = Query(688, ge=64, le=4096, description="picture width, px"),
                      overlay: bool = Query(True, description="draw stripe and section")
                      ) -> Response:
-        measured = gauge.latest_measured
+        measured = feed.latest_measured
         if measured is None:
-            raise HTTPException(404, "no measured frame yet: " + "; ".join(gauge.problems()))
+            raise HTTPException(404, "no measured frame yet: " + _why(health))
         frame, m, geometry = measured
         picture = draw_overlay(frame.image, m if overlay else None, geometry,
                                min(width, frame.image.shape[1]))
@@ -61,7 +68,7 @@ def router(gauge: Gauge) -> APIRouter:
             raise HTTPException(422, "since must not be after until")
         out = []
         # A copy first: this runs in a worker thread while the event loop appends.
-        for rec in reversed(list(gauge.history)):
+        for rec in reversed(list(feed.history)):
             if before_seq is not None and rec.seq >= before_seq:
                 continue
             if until is not None and rec.time > until:
@@ -79,7 +86,7 @@ def router(gauge: Gauge) -> APIRouter:
     @r.get("/stream", summary="Live measurements and compensation decisions (SSE)")
     async def stream(request: Request) -> StreamingResponse:
         nonlocal open_streams
-        cap = gauge.settings.api.max_streams
+        cap = api.max_streams
         if open_streams >= cap:
             raise HTTPException(503, f"{open_streams} live streams are open, the most this "
                                 "service serves (api.max_streams); poll "
@@ -89,12 +96,12 @@ def router(gauge: Gauge) -> APIRouter:
 
         async def events() -> AsyncIterator[str]:
             nonlocal open_streams
-            q = gauge.subscribers.add()
-            dq = gauge.decisions.add()
+            q = feed.subscribers.add()
+            dq = feed.decisions.add()
             try:
                 yield "retry: 2000\n\n"
-                if gauge.latest is not None:
-                    yield _event("measurement", gauge.latest.as_dict())
+                if feed.latest is not None:
+                    yield _event("measurement", feed.latest.as_dict())
                 while not await request.is_disconnected():
                     get_m = asyncio.ensure_future(q.get())
                     get_d = asyncio.ensure_future(dq.get())
@@ -111,8 +118,8 @@ def router(gauge: Gauge) -> APIRouter:
                         yield _event("decision", get_d.result().as_dict())
             finally:
                 open_streams -= 1
-                gauge.subscribers.remove(q)
-                gauge.decisions.remove(dq)
+                feed.subscribers.remove(q)
+                feed.decisions.remove(dq)
 
         return StreamingResponse(events(), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-cache",

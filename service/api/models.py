@@ -77,3 +77,16 @@ class CalibrationImportIn(_Strict):
     document: dict[str, Any]
     note: str = Field("", max_length=2000)
     activate: bool = False
+
+
+class SessionIn(_Strict):
+    """A new session."""
+
+    board: str = Field("11x8x8", description="COLSxROWSxMM: inner corners and square size")
+    note: str = Field("", max_length=2000)
+
+
+class ActivateIn(_Strict):
+    """Import the built calibration and measure with it."""
+
+    note: str = Field("", max_length=2000)

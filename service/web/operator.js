@@ -72,7 +72,8 @@ export function onStatus(st) {
             "bad");
   const ul = $("problems");
   ul.replaceChildren(...st.problems.map((p) => Object.assign(document.createElement("li"),
-                                                             { textContent: p })));
+                                                             { textContent: p.text,
+                                                               title: p.code })));
 }
 
 export function refreshFrame() {

@@ -40,7 +40,7 @@ def test_capture_session_from_the_live_camera(service) -> None:
         assert r.json()["size"] == [1376, 1024]
     status = service.get("/api/v1/status").json()
     assert "capturing" in status["compensation"]["held"]
-    assert any("offsets held" in p for p in service.get("/readyz").json()["problems"])
+    assert "offsets_held" in [p["code"] for p in service.get("/readyz").json()["problems"]]
     assert httpx.post(f"{url}/calibration-sessions/{sid}/run/intrinsics", headers=H,
                       timeout=10).status_code == 202
     deadline = time.monotonic() + 120

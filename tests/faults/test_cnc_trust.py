@@ -223,7 +223,7 @@ def test_a_cnc_that_never_acknowledges(tmp_path, sim_plc_factory) -> None:
         writes = [e for e in plc_events(sim_plc_factory.log) if e["event"] == "write"]
         assert len(writes) == 1, writes
         st = httpx.get(svc.url + "/api/v1/status", timeout=5).json()
-        assert "compensation uncertain" in st["problems"], st["problems"]
+        assert "compensation_uncertain" in [p["code"] for p in st["problems"]], st["problems"]
         faults = read_register(svc.modbus_port, "faults")
         assert faults & FaultBit.OFFSET_WRITE_FAILED, faults
         # The CNC clears the request it will not apply.

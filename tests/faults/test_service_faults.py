@@ -40,7 +40,8 @@ class Rig:
         return self.svc.get("/api/v1/status").json()
 
     def problems(self) -> list[str]:
-        return self.status()["problems"]
+        """The codes of what is wrong now."""
+        return [p["code"] for p in self.status()["problems"]]
 
     def applied(self) -> list[dict]:
         """Offsets the PLC applied (its own log)."""
@@ -112,7 +113,7 @@ def assert_alive_and_nothing_written_from_bad(rig: Rig) -> None:
 
 def test_camera_killed_and_restarted(rig: Rig) -> None:
     rig.camera.kill()
-    until(lambda: any("camera" in p for p in rig.problems()), 20,
+    until(lambda: any(p.startswith("camera_") for p in rig.problems()), 20,
           "the lost camera is reported")
     assert rig.svc.get("/readyz").status_code == 503
     rig.camera.start()  # the same camera comes back
@@ -140,7 +141,7 @@ def test_packet_loss(rig: Rig, ratio: float) -> None:
 def test_plc_stopped_and_restarted(rig: Rig) -> None:
     until(lambda: rig.status()["plc"]["connected"], 15, "the PLC is connected")
     rig.plc.kill()
-    until(lambda: any("PLC" in p for p in rig.problems()), 20, "the PLC outage is reported")
+    until(lambda: "plc_unreachable" in rig.problems(), 20, "the PLC outage is reported")
     # The part wears while the PLC is away: an offset is due but cannot be applied.
     control(rig.camera.control_port, {"set": {"diameter_mm": 30.012}})
     time.sleep(3.0)
@@ -187,14 +188,14 @@ def test_full_disk_under_the_store(tmp_path, sim_plc_factory, small_disk) -> Non
     try:
         small_disk.fill()
         control(r.camera.control_port, {"set": {"diameter_mm": 30.012}})
-        until(lambda: any("cannot be written" in p for p in r.problems()), 30,
+        until(lambda: "log_unwritable" in r.problems(), 30,
               "the full disk is reported")
         time.sleep(2.0)
         assert r.applied() == []  # nothing written that could not be logged
         assert r.svc.get("/api/v1/measurements/latest").json()["status"] == "ok"
         small_disk.free()
         until(lambda: r.applied(), 40, "offsets are written again once there is room")
-        until(lambda: not any("cannot be written" in p for p in r.problems()), 10,
+        until(lambda: "log_unwritable" not in r.problems(), 10,
               "the problem is cleared")
         cals = r.svc.get("/api/v1/calibrations").json()["items"]
         assert [c["note"] for c in cals] == ["fault suite"]  # nothing stored was lost
@@ -216,8 +217,10 @@ def test_corrupt_calibration_database(tmp_path, sim_plc_factory) -> None:
     try:
         ready = until(lambda: svc.get("/readyz"), 30, "the service answers")
         assert ready.status_code == 503
-        problems = " ".join(ready.json()["problems"])
-        assert "gauge.db" in problems and "calibration" in problems, problems
+        problems = ready.json()["problems"]
+        store = [p for p in problems if p["code"] == "store"]
+        assert store and "gauge.db" in store[0]["text"], problems
+        assert "no_calibration" in [p["code"] for p in problems], problems
         r = svc.get("/api/v1/calibrations")
         assert r.status_code == 503 and "gauge.db" in r.json()["detail"]
         assert svc.proc.poll() is None

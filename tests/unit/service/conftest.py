@@ -36,6 +36,6 @@ def client(tmp_path):
     with TestClient(create_app(gauge)) as c:
         c.gauge = gauge
         deadline = time.monotonic() + 20
-        while gauge.latest is None and time.monotonic() < deadline:
+        while gauge.feed.latest is None and time.monotonic() < deadline:
             time.sleep(0.05)
         yield c

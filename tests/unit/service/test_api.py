@@ -114,7 +114,7 @@ def test_feature_reaches_the_controller_and_registers(client) -> None:
                    json={"nominal_mm": 31.5, "tol_upper_mm": 0.03, "tol_lower_mm": -0.01})
     assert r.status_code == 200
     assert client.get("/api/v1/feature").json()["nominal_mm"] == 31.5
-    assert client.gauge.bank.get("nominal") == 315_000
+    assert client.gauge.modbus.bank.get("nominal") == 315_000
     bad = client.put("/api/v1/feature", headers={H: TECHNICIAN},
                      json={"nominal_mm": 31.5, "tol_upper_mm": 0.03, "tol_lower_mm": 0.01})
     assert bad.status_code == 422
@@ -181,8 +181,10 @@ def test_master_correction_and_a_failed_check_block_offsets(client) -> None:
     status = client.get("/api/v1/master").json()
     assert status["blocking"] and "failed" in status["blocking"]
     time.sleep(0.5)
-    assert any("offsets blocked" in p for p in client.get("/api/v1/status").json()["problems"])
-    assert client.gauge.channel.controller.writes_blocked
+    problems = client.get("/api/v1/status").json()["problems"]
+    assert "offsets_blocked" in [p["code"] for p in problems], problems
+    assert any("failed" in p["text"] for p in problems if p["code"] == "offsets_blocked")
+    assert client.gauge.compensation.controller.writes_blocked
     # two masters of equal size cannot give a scale
     bad = client.post("/api/v1/master/correction", headers={H: TECHNICIAN},
                       json={"masters": [{"certified_mm": 30.0, "measured_mm": 30.0},

@@ -1,0 +1,254 @@
+"""A calibration session at the machine: images collected by kind, the steps run on them in
+order (intrinsics, light plane, axis, build), each with a typed result, kept on disk so that
+a restart of the service loses no open session. The API and the CLI are thin wrappers: the
+step dispatch lives here (``run_step``), once."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+import uuid
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal, get_args
+
+import cv2
+import numpy as np
+
+from calib_store.model import Calibration, CalibrationError, load_calibration, save_calibration
+from service.calibrate import commands
+from service.calibrate.board import Board
+
+ImageKind = Literal["view", "plane_off", "plane_on", "axis"]
+Step = Literal["intrinsics", "plane", "axis", "build"]
+STEPS: tuple[str, ...] = get_args(Step)
+SESSION_FILE = "session.json"
+
+
+class SessionLimitError(RuntimeError):
+    """Too many sessions or images; the message names the setting."""
+
+
+@dataclass(frozen=True)
+class StepInputs:
+    """What a step reads: images by kind, the board, and the earlier steps' result files."""
+
+    board: Board
+    images: dict[str, list[str]] = field(default_factory=dict)
+    intrinsics: str = ""
+    plane: str | None = None
+    axis: str = ""
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One step's outcome: ``ok`` and why not, the figures written to its JSON file, and for
+    ``build`` the calibration (None when refused) and its quality report."""
+
+    step: str
+    ok: bool
+    reason: str
+    figures: dict[str, Any]
+    calibration: Calibration | None = None
+    report: dict[str, Any] | None = None
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready, without the calibration itself."""
+        return {"step": self.step, "ok": self.ok, "reason": self.reason,
+                **{k: v for k, v in self.figures.items() if k not in ("step", "ok", "reason",
+                                                                      "report")}}
+
+
+def run_step(step: Step, inputs: StepInputs) -> StepResult:
+    """Run one calibration step (``commands.StepError`` for unusable inputs)."""
+    imgs = inputs.images
+    if step == "intrinsics":
+        # Every image with the board in it constrains the intrinsics (the principal point
+        # most of all: tests/bench/principal_point.py), not only the views.
+        figures, _ = commands.intrinsics_step(
+            imgs.get("view", []) + imgs.get("plane_off", []) + imgs.get("axis", []),
+            inputs.board)
+    elif step == "plane":
+        off, on = imgs.get("plane_off", []), imgs.get("plane_on", [])
+        if len(off) != len(on):
+            raise commands.StepError("plane images come in pairs: as many laser-on as "
+                                     "laser-off images")
+        figures, _ = commands.plane_step(inputs.intrinsics,
+                                         [p for pair in zip(off, on, strict=True) for p in pair])
+    elif step == "axis":
+        figures, _ = commands.axis_step(inputs.intrinsics, inputs.plane, imgs.get("axis", []))
+    else:
+        cal, report = commands.build_step(inputs.intrinsics, str(inputs.plane), inputs.axis)
+        return StepResult("build", cal is not None, "; ".join(report.reasons),
+                          {"verdict": report.verdict}, cal, report.as_dict())
+    return StepResult(step, bool(figures.get("ok")), figures.get("reason") or "", figures)
+
+
+@dataclass
+class CalibrationSession:
+    """One session's images, progress and results, in its own folder."""
+
+    id: str
+    board: str
+    note: str
+    by: str
+    dir: Path
+    created: float = field(default_factory=time.time)
+    touched: float = field(default_factory=time.time)
+    images: dict[str, list[str]] = field(default_factory=lambda: {k: [] for k in
+                                                                   get_args(ImageKind)})
+    results: dict[str, dict[str, Any]] = field(default_factory=dict)
+    progress: dict[str, Any] = field(default_factory=lambda: {
+        "step": None, "state": "idle", "message": ""})
+    report: dict[str, Any] | None = None
+    activated_id: int | None = None
+
+    @property
+    def built(self) -> Path:
+        """Where the built calibration is kept."""
+        return self.dir / "calibration.json"
+
+    def calibration(self) -> Calibration | None:
+        """The built calibration, or None (not built, or refused)."""
+        try:
+            return load_calibration(self.built) if self.built.exists() else None
+        except CalibrationError:
+            return None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready view."""
+        return {"id": self.id, "board": self.board, "note": self.note, "by": self.by,
+                "created": self.created,
+                "images": {k: len(v) for k, v in self.images.items()},
+                "results": self.results, "progress": self.progress, "report": self.report,
+                "built": self.built.exists(), "activated_id": self.activated_id}
+
+    def save(self) -> None:
+        """Write the session's state next to its images (atomically)."""
+        doc = {k: v for k, v in asdict(self).items() if k != "dir"}
+        tmp = self.dir / (SESSION_FILE + ".tmp")
+        tmp.write_text(json.dumps(doc))
+        tmp.replace(self.dir / SESSION_FILE)
+
+    @classmethod
+    def load(cls, folder: Path) -> CalibrationSession:
+        """A session saved in ``folder``; one that was running is marked interrupted."""
+        doc = json.loads((folder / SESSION_FILE).read_text())
+        s = cls(dir=folder, **doc)
+        if s.progress.get("state") == "running":
+            s.progress = {**s.progress, "state": "failed",
+                          "message": f"{s.progress.get('step')}: interrupted by a restart; "
+                                     "run it again"}
+        return s
+
+    def inputs(self) -> StepInputs:
+        """What the next step reads."""
+        plane = self.dir / "plane.json"
+        return StepInputs(commands.parse_board(self.board), self.images,
+                          str(self.dir / "intrinsics.json"),
+                          str(plane) if plane.exists() else None, str(self.dir / "axis.json"))
+
+    def add_image(self, kind: ImageKind, image: np.ndarray, max_images: int) -> dict[str, Any]:
+        """Store an image of ``kind`` (SessionLimitError past ``max_images``; OSError when it
+        cannot be written)."""
+        held = sum(len(v) for v in self.images.values())
+        if held >= max_images:
+            raise SessionLimitError(f"session {self.id} holds {held} images, the most one "
+                                    "session may (api.max_session_images)")
+        path = self.dir / f"{kind}_{len(self.images[kind]):03d}.png"
+        if not cv2.imwrite(str(path), image):
+            raise OSError(f"could not write {path} (is the disk full?)")
+        self.images[kind].append(str(path))
+        self.touched = time.time()
+        self.save()
+        h, w = image.shape[:2]
+        return {"kind": kind, "index": len(self.images[kind]) - 1, "size": [w, h]}
+
+    def run(self, step: Step) -> StepResult:
+        """Run a step on the session's images, record its result (and the calibration, when
+        built); ``commands.StepError`` for unusable inputs is recorded too, then raised."""
+        self.progress = {"step": step, "state": "running", "message": f"{step}: working",
+                         "started": time.time()}
+        self.save()
+        try:
+            result = run_step(step, self.inputs())
+        except commands.StepError as err:
+            self.progress = {"step": step, "state": "failed", "message": str(err)}
+            self.save()
+            raise
+        if step == "build":
+            self.report = result.report
+            if result.calibration is not None:
+                save_calibration(result.calibration, self.built)
+        else:
+            commands.write_json(str(self.dir / f"{step}.json"), result.figures)
+        self.results[step] = result.summary()
+        self.progress = {"step": step, "state": "done" if result.ok else "failed",
+                         "message": result.reason or f"{step}: done",
+                         "finished": time.time()}
+        self.save()
+        return result
+
+
+class CalibrationSessions:
+    """The open sessions under one folder: created, found, capped, expired, and loaded again
+    after a restart.
+
+    Parameters
+    ----------
+    root : Path
+        One sub-folder per session.
+    max_open : int
+        Sessions open at once.
+    max_images : int
+        Images per session.
+    expiry_h : float
+        A session untouched this long is deleted with its images.
+    """
+
+    def __init__(self, root: Path, max_open: int, max_images: int, expiry_h: float) -> None:
+        self.root, self.max_open, self.max_images = root, max_open, max_images
+        self.expiry_s = expiry_h * 3600.0
+        self._open: dict[str, CalibrationSession] = {}
+        if root.is_dir():
+            for folder in sorted(root.iterdir()):
+                if (folder / SESSION_FILE).exists():
+                    try:
+                        s = CalibrationSession.load(folder)
+                    except (OSError, ValueError, TypeError):
+                        continue  # a damaged session file: leave it, do not serve it
+                    self._open[s.id] = s
+
+    def expire(self) -> None:
+        """Delete sessions untouched for the expiry time (not while a step runs)."""
+        now = time.time()
+        for sid, s in list(self._open.items()):
+            if now - s.touched > self.expiry_s and s.progress.get("state") != "running":
+                del self._open[sid]
+                shutil.rmtree(s.dir, ignore_errors=True)
+
+    def create(self, board: str, note: str, by: str) -> CalibrationSession:
+        """A new session (``commands.StepError`` for a bad board, SessionLimitError past
+        ``max_open``)."""
+        commands.parse_board(board)
+        self.expire()
+        if len(self._open) >= self.max_open:
+            raise SessionLimitError(
+                f"{len(self._open)} calibration sessions are open, the most allowed "
+                "(api.max_calibration_sessions); finish one, or wait for it to expire after "
+                f"{self.expiry_s / 3600.0:g} h")
+        sid = uuid.uuid4().hex[:12]
+        folder = self.root / sid
+        folder.mkdir(parents=True, exist_ok=True)
+        s = CalibrationSession(sid, board, note, by, folder)
+        s.save()
+        self._open[sid] = s
+        return s
+
+    def get(self, sid: str) -> CalibrationSession:
+        """An open session (KeyError when there is none of that id)."""
+        self.expire()
+        s = self._open[sid]
+        s.touched = time.time()
+        return s

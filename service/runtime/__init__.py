@@ -1,0 +1,11 @@
+"""The running service, in parts with one job each (ARCHITECTURE.md): ``FramePipeline``
+(frames to measurements), ``Publisher`` and ``make_record`` (measurements to records, fanned
+out), ``MeasurementFeed`` (latest, history, subscribers), ``CalibrationContext`` (the
+calibration in force), ``CompensationService`` (the controller and its settings),
+``ModbusFacade`` (the registers), ``HealthReport`` (a read-only view), and ``Gauge`` (starts
+and stops them)."""
+
+from service.runtime.gauge import Gauge
+from service.runtime.record import MeasurementRecord
+
+__all__ = ["Gauge", "MeasurementRecord"]

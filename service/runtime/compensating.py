@@ -1,0 +1,277 @@
+"""The compensation in the running service: the only owner of the controller (through its
+offset channel), its settings and the part temperature (kept across restarts), the offset
+hold, and the gate a master check puts on writes. Every change goes through a method here and
+runs under the channel's lock."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import sqlite3
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from calib_store.compensation_log import CompensationLog
+from service.compensation import (
+    CompensationController,
+    CompensationSettings,
+    ControllerState,
+    Decision,
+    MeasurementIn,
+    State,
+)
+from service.offsets import OffsetChannel, OffsetTransport
+from service.runtime.record import Feature, MeasurementRecord
+
+log = logging.getLogger("shaftgauge.compensation")
+
+RUNTIME_SETTINGS_KEY = "runtime_settings"
+QUEUE_SIZE = 256
+
+
+@dataclass(frozen=True)
+class RuntimeSettings:
+    """What can be changed while the service runs, as the config file gave it or as last
+    changed (compensation tuning and feature, part temperature)."""
+
+    compensation: CompensationSettings
+    part_temp_c: float | None
+    alpha_per_k: float
+
+    def as_doc(self) -> dict[str, Any]:
+        """JSON-ready (compared after a round trip)."""
+        return json.loads(json.dumps({"compensation": asdict(self.compensation),
+                                      "part_temp_c": self.part_temp_c,
+                                      "alpha_per_k": self.alpha_per_k}))
+
+
+@dataclass(frozen=True)
+class OffsetHold:
+    """Measurements do not count for compensation until ``until_s`` (monotonic)."""
+
+    until_s: float
+    why: str
+    owner: str | None
+    code: str
+
+
+def restored_settings(from_file: RuntimeSettings, log_: CompensationLog | None
+                      ) -> RuntimeSettings:
+    """The settings to start with: those last changed at run time, unless the config file's
+    own have changed since (then the file's, and the log says so)."""
+    stored = log_.get_value(RUNTIME_SETTINGS_KEY) if log_ is not None else None
+    if stored is None or stored.get("config") != from_file.as_doc():
+        if stored is not None:
+            log.warning("the config file's compensation or temperature settings changed "
+                        "since the last run: they replace the changes made at run time")
+        return from_file
+    known = CompensationSettings.__dataclass_fields__
+    comp = CompensationSettings(**{k: v for k, v in stored["compensation"].items()
+                                   if k in known})
+    if comp.problems():
+        log.error("stored runtime settings are inconsistent (%s): the config file's are used",
+                  "; ".join(comp.problems()))
+        return from_file
+    log.info("compensation settings as last changed at run time (shadow %s)", comp.shadow)
+    return RuntimeSettings(comp, stored["part_temp_c"], stored["alpha_per_k"])
+
+
+class CompensationService:
+    """Owns the controller, its settings, the part temperature, the hold and the master gate.
+
+    Parameters
+    ----------
+    from_file : RuntimeSettings
+        The config file's settings (the stored ones win unless these changed since).
+    writer : OffsetTransport or None
+        The CNC's offset registers (None: nothing is ever written).
+    log_ : CompensationLog or None
+        Decisions, state and runtime settings.
+    reset_command : bool
+        Whether a reset from the CNC's command register is carried out.
+    """
+
+    def __init__(self, from_file: RuntimeSettings, writer: OffsetTransport | None,
+                 log_: CompensationLog | None, reset_command: bool = False) -> None:
+        self.from_file = from_file
+        self.log = log_
+        self.reset_command = reset_command
+        current = restored_settings(from_file, log_)
+        self.part_temp_c, self.alpha_per_k = current.part_temp_c, current.alpha_per_k
+        state = ControllerState.from_dict(log_.load_state() if log_ else None)
+        self.channel = OffsetChannel(CompensationController(current.compensation, state),
+                                     writer, log_, on_decision=self._decided)
+        self._decision_listeners: list[Callable[[Decision], None]] = []
+        self._settings_listeners: list[Callable[[CompensationSettings], None]] = []
+        self._hold: OffsetHold | None = None
+        self._queue: asyncio.Queue[MeasurementIn] | None = None
+        self.dropped = 0
+        self.errors = 0
+
+    # ---- listeners -----------------------------------------------------------------------
+
+    def on_decision(self, listener: Callable[[Decision], None]) -> None:
+        """Call ``listener(decision)`` for every decision."""
+        self._decision_listeners.append(listener)
+
+    def on_settings(self, listener: Callable[[CompensationSettings], None]) -> None:
+        """Call ``listener(settings)`` when the settings change (and once now)."""
+        self._settings_listeners.append(listener)
+        listener(self.settings)
+
+    def _decided(self, d: Decision) -> None:
+        for listener in self._decision_listeners:
+            listener(d)
+
+    # ---- read-only views -----------------------------------------------------------------
+
+    @property
+    def controller(self) -> CompensationController:
+        """The controller (read it; change it through this service)."""
+        return self.channel.controller
+
+    @property
+    def settings(self) -> CompensationSettings:
+        """The compensation settings in force."""
+        return self.channel.controller.settings
+
+    @property
+    def state(self) -> State:
+        """The controller's state."""
+        return self.channel.controller.state
+
+    def feature(self) -> Feature:
+        """Nominal and tolerance in force."""
+        s = self.settings
+        return Feature(s.nominal_mm, s.tol_lower_mm, s.tol_upper_mm)
+
+    def offset_hold(self) -> str | None:
+        """Why offsets are held now, or None."""
+        h = self._hold
+        return h.why if h is not None and time.monotonic() < h.until_s else None
+
+    def status(self) -> dict[str, Any]:
+        """The compensation's part of the service status."""
+        c = self.channel.controller
+        p = c.persisted
+        return {"state": c.state.value, "shadow": c.settings.shadow,
+                "cumulative_offset_mm": c.cumulative_mm, "cnc_total_mm": p.cnc_total_mm,
+                "baseline_mm": p.baseline_mm, "cnc_offset_from_baseline_mm": c.cnc_offset_mm(),
+                "max_total_mm": c.settings.max_total_mm, "offset_seq": p.offset_seq,
+                "pending_seq": p.pending_seq, "held": self.offset_hold(),
+                "log_rows": None if self.log is None else self.log.rows_written}
+
+    # ---- the measurements ----------------------------------------------------------------
+
+    def submit(self, record: MeasurementRecord, received_s: float,
+               uncertainty_mm: float | None) -> None:
+        """Queue a published measurement for the controller (the oldest is dropped and
+        counted when the queue is full). Held measurements go in with a held status."""
+        if self._queue is None:
+            return
+        if self._queue.full():
+            self._queue.get_nowait()
+            self.dropped += 1
+        hold = self._hold if self.offset_hold() else None
+        self._queue.put_nowait(MeasurementIn(
+            record.seq, received_s, ("held_for_" + hold.code) if hold else record.status,
+            record.compensation_diameter_mm, uncertainty_mm, record.calibration_id))
+
+    async def run(self) -> None:
+        """Judge queued measurements until cancelled."""
+        self._queue = asyncio.Queue(QUEUE_SIZE)
+        while True:
+            m = await self._queue.get()
+            try:
+                await self.channel.on_measurement(m)
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                self.errors += 1
+                log.exception("compensation error")
+
+    async def follow_master_gate(self, blocking: Callable[[], str | None],
+                                 period_s: float = 0.2) -> None:
+        """Only propose offsets while ``blocking()`` says why (a failed or overdue master
+        check); runs until cancelled."""
+        while True:
+            self.set_writes_blocked(blocking() or "")
+            await asyncio.sleep(period_s)
+
+    # ---- changes -------------------------------------------------------------------------
+
+    def hold_offsets(self, seconds: float, why: str, owner: str | None = None,
+                     code: str = "calibration") -> None:
+        """Treat every measurement as doubtful for ``seconds`` from now (the camera is
+        looking at a calibration board, or at the master): nothing is written to the CNC
+        meanwhile. ``owner`` may end it early with ``release_hold``; ``code`` names it in the
+        decision log (``held_for_<code>``)."""
+        self._hold = OffsetHold(time.monotonic() + seconds, why, owner, code)
+        log.info("offsets held for %.0f s: %s", seconds, why)
+
+    def release_hold(self, owner: str) -> bool:
+        """End the hold if ``owner`` set it; True when a hold ended."""
+        if self.offset_hold() is None or self._hold is None or self._hold.owner != owner:
+            return False
+        log.info("offsets no longer held (were: %s)", self._hold.why)
+        self._hold = None
+        return True
+
+    def set_calibration(self, calibration_id: int) -> None:
+        """Only measurements made with this calibration count from now on."""
+        self.channel.set_calibration(calibration_id)
+
+    def set_writes_blocked(self, why: str) -> None:
+        """Offsets are only proposed while ``why`` is not empty (a master check)."""
+        self.channel.set_writes_blocked(why)
+
+    async def update_settings(self, settings: CompensationSettings, who: str) -> Decision:
+        """New compensation settings (ValueError naming the bad one), logged with who changed
+        what and kept across restarts."""
+        d = await self.channel.update_settings(settings, who)
+        for listener in self._settings_listeners:
+            listener(settings)
+        await self._save()
+        return d
+
+    async def update_feature(self, who: str, **changes: float | None) -> Decision:
+        """Change some of nominal and tolerances (ValueError while inconsistent)."""
+        return await self.update_settings(replace(self.settings, **changes), who)
+
+    async def set_temperature(self, part_temp_c: float | None, alpha_per_k: float | None,
+                              who: str) -> None:
+        """The part temperature (and expansion coefficient) for the diameter at 20 C; logged
+        and kept across restarts."""
+        self.part_temp_c = part_temp_c
+        if alpha_per_k is not None:
+            self.alpha_per_k = alpha_per_k
+        await self.channel.note_settings(f"temperature changed (part_temp_c={part_temp_c!r}, "
+                                         f"alpha_per_k={self.alpha_per_k!r})", who)
+        await self._save()
+
+    async def reset(self, source: str, who: str) -> Decision:
+        """Reset compensation. From the CNC's command register (``source`` "modbus") it is
+        refused and logged unless ``reset_command`` allows it; a reset moves the reference of
+        the cumulative limit to where the CNC's total stands."""
+        if source == "modbus" and not self.reset_command:
+            return await self.channel.refuse_reset(
+                who, "resets from the CNC's command register are off (modbus.reset_command); "
+                "a technician resets over the API")
+        return await self.channel.command("reset", who)
+
+    async def acknowledge(self, who: str) -> Decision:
+        """Acknowledge an out-of-tolerance alarm."""
+        return await self.channel.command("acknowledge", who)
+
+    async def _save(self) -> None:
+        if self.log is None:
+            return
+        doc = RuntimeSettings(self.settings, self.part_temp_c, self.alpha_per_k).as_doc()
+        doc["config"] = self.from_file.as_doc()
+        try:
+            await asyncio.wrap_future(self.log.submit_value(RUNTIME_SETTINGS_KEY, doc))
+        except sqlite3.Error as err:
+            log.error("runtime settings not stored: %s", err)

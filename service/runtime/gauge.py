@@ -1,0 +1,65 @@
+"""The running gauge: its parts, started and stopped in order. ``service.serve.build`` is the
+one place that makes and wires them (see ARCHITECTURE.md)."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+
+from calib_store.compensation_log import CompensationLog
+from drivers.camera.base import Camera
+from drivers.plc.client import OffsetWriter
+from service.calibrate.session import CalibrationSessions
+from service.config import Settings
+from service.runtime.calibration import CalibrationContext
+from service.runtime.compensating import CompensationService
+from service.runtime.feed import MeasurementFeed
+from service.runtime.health import HealthReport
+from service.runtime.modbus import ModbusFacade
+from service.runtime.pipeline import FramePipeline
+
+
+@dataclass
+class Gauge:
+    """The parts of one running gauge (each owns its own state; see their modules)."""
+
+    settings: Settings
+    camera: Camera
+    context: CalibrationContext
+    pipeline: FramePipeline
+    feed: MeasurementFeed
+    compensation: CompensationService
+    modbus: ModbusFacade
+    health: HealthReport
+    sessions: CalibrationSessions
+    writer: OffsetWriter | None = None
+    log: CompensationLog | None = None
+    _tasks: list[asyncio.Task] = field(default_factory=list)
+
+    async def start(self) -> None:
+        """Start the camera, the Modbus server and the background tasks."""
+        loop = asyncio.get_running_loop()
+        comp = self.compensation
+        self._tasks = [
+            *self.pipeline.start(),
+            loop.create_task(comp.run(), name="compensation"),
+            loop.create_task(comp.channel.run_settler(), name="settler"),
+            loop.create_task(comp.follow_master_gate(
+                lambda: self.context.master_status()["blocking"]), name="master-gate"),
+            *await self.modbus.start(),
+        ]
+        self.health.running = True
+
+    async def stop(self) -> None:
+        """Stop everything started by ``start``; what was decided is on disk afterwards."""
+        self.health.running = False
+        for t in self._tasks:
+            t.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        await self.pipeline.stop()
+        await self.modbus.stop()
+        if self.writer is not None:
+            await self.writer.close()
+        if self.log is not None:
+            await asyncio.to_thread(self.log.flush, 5.0)

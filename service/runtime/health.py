@@ -1,0 +1,160 @@
+"""What is wrong and how the service stands: a read-only view over the other parts."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from drivers.camera.base import Camera, CameraState
+from drivers.plc.client import OffsetWriter
+from service.compensation import State
+from service.config import Settings
+from service.runtime.calibration import CalibrationContext
+from service.runtime.compensating import CompensationService
+from service.runtime.feed import MeasurementFeed
+from service.runtime.modbus import ModbusFacade, StatusSnapshot
+from service.runtime.pipeline import FramePipeline
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong now: a stable ``code`` for programs and tests, ``text`` for people."""
+
+    code: str
+    text: str
+
+    def as_dict(self) -> dict[str, str]:
+        """JSON-ready."""
+        return {"code": self.code, "text": self.text}
+
+
+class HealthReport:
+    """Reads the parts; changes nothing."""
+
+    def __init__(self, settings: Settings, camera: Camera, context: CalibrationContext,
+                 pipeline: FramePipeline, feed: MeasurementFeed,
+                 compensation: CompensationService, writer: OffsetWriter | None,
+                 modbus: ModbusFacade) -> None:
+        self.settings, self.camera, self.context = settings, camera, context
+        self.pipeline, self.feed, self.compensation = pipeline, feed, compensation
+        self.writer, self.modbus = writer, modbus
+        self.started = time.time()
+        self.running = False
+
+    def _fresh(self) -> bool:
+        age = self.feed.measurement_age_s()
+        return age is not None and age <= self.settings.measurement.max_age_s
+
+    def healthy(self) -> bool:
+        """Camera streaming, calibrated, and a fresh good measurement."""
+        latest = self.feed.latest
+        return bool(self.running and self.camera.status().state is CameraState.STREAMING
+                    and self.context.geometry is not None and latest is not None
+                    and latest.status == "ok" and self._fresh())
+
+    def problems(self) -> list[Problem]:
+        """What is wrong now (empty when all is well)."""
+        out = []
+        cam = self.camera.status()
+        streaming = cam.state is CameraState.STREAMING
+        if not streaming:
+            out.append(Problem(f"camera_{cam.state.value}",
+                               f"camera {cam.state.value}: {cam.message}"))
+        if self.context.store_error:
+            out.append(Problem("store", self.context.store_error))
+        if self.context.geometry is None:
+            out.append(Problem("no_calibration",
+                               "no calibration is active: import and activate one"))
+        elif streaming:
+            latest = self.feed.latest
+            if not self._fresh():
+                out.append(Problem("no_recent_measurement", "no recent measurement"))
+            elif latest is not None and latest.status != "ok":
+                out.append(Problem("not_measuring",
+                                   f"latest frame did not measure: {latest.reason}"))
+        comp = self.compensation
+        if comp.channel.log_problem:
+            out.append(Problem("log_unwritable", comp.channel.log_problem
+                               + ": offsets are not written meanwhile"))
+        hold = comp.offset_hold()
+        if hold:
+            out.append(Problem("offsets_held", f"offsets held: {hold}"))
+        w = self.writer
+        if w is not None and not w.connected and w.outage_since is not None:
+            out.append(Problem("plc_unreachable", f"CNC/PLC unreachable: {w.last_error}"))
+        if comp.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
+            out.append(Problem(f"compensation_{comp.state.value}",
+                               f"compensation {comp.state.value}"))
+        if comp.controller.writes_blocked:
+            out.append(Problem("offsets_blocked",
+                               f"offsets blocked: {comp.controller.writes_blocked}"))
+        return out
+
+    def snapshot(self) -> StatusSnapshot:
+        """The registers' view of the moment."""
+        latest = self.feed.latest
+        c = self.compensation.controller
+        w = self.writer
+        return StatusSnapshot(
+            healthy=self.healthy(),
+            camera_streaming=self.camera.status().state is CameraState.STREAMING,
+            calibrated=self.context.geometry is not None,
+            latest_status=None if latest is None else latest.status,
+            latest_in_tolerance=None if latest is None else latest.in_tolerance,
+            age_s=self.feed.measurement_age_s(),
+            max_age_s=self.settings.measurement.max_age_s,
+            shadow=c.settings.shadow, compensation=c.state,
+            plc_configured=w is not None, plc_connected=w is not None and w.connected,
+            plc_outage=w is not None and w.outage_since is not None,
+            writes_blocked=bool(c.writes_blocked))
+
+    def status(self) -> dict[str, Any]:
+        """Everything an operator or a monitoring system wants to know, JSON-ready."""
+        cam = self.camera.status()
+        feed, ctx, comp = self.feed, self.context, self.compensation
+        info = ctx.calibration[0].as_dict() if ctx.calibration else None
+        tracker = None
+        if ctx.tracker is not None:
+            _, sigma = ctx.tracker.center()
+            tracker = {"drift_um": [float(x * 1000) for x in ctx.tracker.drift_mm],
+                       "sigma_um": sigma * 1000, "accepted": ctx.tracker.accepted,
+                       "rejected": ctx.tracker.rejected}
+        counters = feed.counters
+        m = self.settings.modbus
+        return {
+            "healthy": self.healthy(), "problems": [p.as_dict() for p in self.problems()],
+            "uptime_s": time.time() - self.started,
+            "camera": {"device_id": cam.device_id, "state": cam.state.value,
+                       "message": cam.message, "counters": asdict(cam.counters)},
+            "pipeline": {"method": self.pipeline.method.value, "rate_hz": feed.rate_hz(),
+                         "frames_in": self.pipeline.counters["frames_in"],
+                         "measured": counters["measured"], "ok": counters["ok"],
+                         "failed": counters["measured"] - counters["ok"],
+                         "camera_dropped": cam.counters.dropped,
+                         "subscriber_dropped": feed.subscribers.dropped,
+                         "compensation_dropped": comp.dropped,
+                         "errors": self.pipeline.counters["errors"],
+                         "latest_age_s": feed.measurement_age_s(),
+                         "latency": feed.latency_summary(), "axis_tracking": tracker},
+            "calibration": info, "store_error": ctx.store_error or None,
+            "plc": self._plc(),
+            "modbus": {"enabled": m.enabled, "host": m.host, "port": self.modbus.port,
+                       "unit_id": m.unit_id, "requests": self.modbus.server.requests,
+                       "exceptions": self.modbus.server.exceptions},
+            "compensation": comp.status(),
+            "master": ctx.master_status(),
+            "temperature": {"part_temp_c": comp.part_temp_c, "alpha_per_k": comp.alpha_per_k},
+        }
+
+    def _plc(self) -> dict[str, Any] | None:
+        w = self.writer
+        if w is None:
+            return None
+        last = self.compensation.channel.last_write
+        return {"host": w.host, "port": w.port, "connected": w.connected,
+                "last_error": w.last_error,
+                "outage_s": None if w.outage_since is None else
+                time.monotonic() - w.outage_since,
+                "last_write": None if last is None else {
+                    "outcome": last.outcome.value, "seq": last.seq, "message": last.message}}

@@ -1,0 +1,221 @@
+"""The registers the CNC polls, as the running service fills them: the bank and its server,
+the CNC's writes (commands, feature) handed to their owner, and the status and fault bits
+from a pure function of a snapshot (``status_words``, tested bit by bit)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+
+from drivers.plc.registers import (
+    Command,
+    FaultBit,
+    RegisterBank,
+    StatusBit,
+    mm_to_units,
+    units_to_mm,
+)
+from drivers.plc.server import GaugeModbusServer, run_heartbeat
+from service.compensation import CompensationSettings, Decision, State
+from service.config import ModbusSettings
+from service.runtime.compensating import CompensationService
+from service.runtime.record import MeasurementRecord
+
+log = logging.getLogger("shaftgauge.modbus")
+
+REFRESH_S = 0.2
+
+
+@dataclass(frozen=True)
+class StatusSnapshot:
+    """What the status and fault bits are made of, read at one moment."""
+
+    healthy: bool = False
+    camera_streaming: bool = False
+    calibrated: bool = False
+    latest_status: str | None = None      # None: nothing measured yet
+    latest_in_tolerance: bool | None = None
+    age_s: float | None = None            # of the latest measurement
+    max_age_s: float = 5.0
+    shadow: bool = True
+    compensation: State = State.ACTIVE
+    plc_configured: bool = False
+    plc_connected: bool = False
+    plc_outage: bool = False
+    writes_blocked: bool = False
+
+
+def status_words(s: StatusSnapshot) -> tuple[StatusBit, FaultBit, int]:
+    """The ``status`` and ``faults`` registers and ``measurement_age`` (ms, 65535 when
+    older or none) for a snapshot."""
+    status, faults = StatusBit(0), FaultBit(0)
+    if s.healthy:
+        status |= StatusBit.HEALTHY
+    if s.camera_streaming:
+        status |= StatusBit.CAMERA_STREAMING
+    else:
+        faults |= FaultBit.CAMERA_LOST
+    fresh = s.age_s is not None and s.age_s <= s.max_age_s
+    if s.latest_status == "ok" and fresh:
+        status |= StatusBit.MEASUREMENT_VALID
+        if s.latest_in_tolerance:
+            status |= StatusBit.IN_TOLERANCE
+    elif s.latest_status is not None and s.latest_status != "ok":
+        faults |= FaultBit.NO_MEASUREMENT
+    if s.latest_status is not None and not fresh:
+        faults |= FaultBit.STALE_MEASUREMENT
+    if s.shadow:
+        status |= StatusBit.SHADOW_MODE
+    elif s.compensation in (State.ACTIVE, State.PENDING):
+        status |= StatusBit.COMPENSATION_ACTIVE
+    if s.compensation is State.ALARM:
+        faults |= FaultBit.OUT_OF_TOLERANCE
+    if s.compensation is State.STOPPED:
+        faults |= FaultBit.SAFE_AREA_STOP
+    if s.plc_configured:
+        if s.plc_connected:
+            status |= StatusBit.PLC_CONNECTED
+        elif s.plc_outage:
+            faults |= FaultBit.OFFSET_WRITE_FAILED
+    if s.compensation is State.UNCERTAIN:  # an offset the CNC has not settled: nothing moves
+        faults |= FaultBit.OFFSET_WRITE_FAILED
+    if s.calibrated:
+        status |= StatusBit.CALIBRATED
+    else:
+        faults |= FaultBit.NO_CALIBRATION
+    if s.writes_blocked:
+        faults |= FaultBit.MASTER_CHECK_DUE
+    age_ms = 65535 if s.age_s is None else min(65535, int(s.age_s * 1000))
+    return status, faults, age_ms
+
+
+class ModbusFacade:
+    """Owns the register bank and the Modbus server the CNC polls.
+
+    Parameters
+    ----------
+    settings : ModbusSettings
+        Where to serve, unit id, word order.
+    compensation : CompensationService
+        Where the CNC's commands and feature go.
+    snapshot : callable
+        ``snapshot()`` -> StatusSnapshot, read every ``REFRESH_S``.
+    healthy : callable
+        ``healthy()`` -> bool, for the heartbeat.
+    trigger : callable
+        ``trigger()``: the camera takes a frame now (the measure-now command).
+    """
+
+    def __init__(self, settings: ModbusSettings, compensation: CompensationService,
+                 snapshot: Callable[[], StatusSnapshot], healthy: Callable[[], bool],
+                 trigger: Callable[[], None]) -> None:
+        self.settings = settings
+        self.compensation = compensation
+        self.snapshot, self.healthy, self.trigger = snapshot, healthy, trigger
+        self.bank = RegisterBank(settings.word_order)
+        self.server = GaugeModbusServer(self.bank, settings.host, settings.port,
+                                        settings.unit_id, on_write=self._on_write)
+        self._tasks: set[asyncio.Task] = set()
+        compensation.on_decision(self.decided)
+        compensation.on_settings(self.set_feature)
+
+    @property
+    def port(self) -> int:
+        """The port served (the bound one once started)."""
+        return self.server.port
+
+    async def start(self) -> list[asyncio.Task]:
+        """Serve (when enabled); returns the background tasks to run (heartbeat, status)."""
+        if self.settings.enabled:
+            await self.server.start()
+        loop = asyncio.get_running_loop()
+        return [loop.create_task(run_heartbeat(self.bank, self.healthy), name="heartbeat"),
+                loop.create_task(self._refresh(), name="registers")]
+
+    async def stop(self) -> None:
+        """Stop serving."""
+        await self.server.stop()
+
+    # ---- what goes in ------------------------------------------------------------------
+
+    def publish(self, record: MeasurementRecord) -> None:
+        """The latest measurement."""
+        self.bank.set_many({"diameter": mm_to_units(record.diameter_mm),
+                            "uncertainty": mm_to_units(record.uncertainty_mm),
+                            "measurement_seq": record.seq & 0xFFFFFFFF,
+                            "measurement_age": 0})
+
+    def set_sequence(self, seq: int) -> None:
+        """The sequence number before any measurement (it never goes back)."""
+        self.bank.set("measurement_seq", seq & 0xFFFFFFFF)
+
+    def decided(self, d: Decision) -> None:
+        """A compensation decision: the offsets' registers."""
+        c = self.compensation.controller
+        update = {"cumulative_offset": mm_to_units(c.cumulative_mm),
+                  "offset_seq": c.persisted.offset_seq & 0xFFFFFFFF}
+        if d.offset_mm is not None:
+            update["proposed_offset"] = mm_to_units(d.offset_mm)
+        self.bank.set_many(update)
+
+    def set_feature(self, settings: CompensationSettings) -> None:
+        """Nominal and tolerances as in force."""
+        self.bank.set_many({"nominal": mm_to_units(settings.nominal_mm),
+                            "tol_upper": mm_to_units(settings.tol_upper_mm),
+                            "tol_lower": mm_to_units(settings.tol_lower_mm)})
+
+    async def _refresh(self) -> None:
+        while True:
+            await asyncio.sleep(REFRESH_S)
+            try:
+                status, faults, age_ms = status_words(self.snapshot())
+            except Exception:  # keep the loop: a bug here must not freeze the registers
+                log.exception("status registers")
+                continue
+            update = {"status": int(status), "faults": int(faults), "measurement_age": age_ms}
+            if faults & FaultBit.STALE_MEASUREMENT:  # a stale diameter is no diameter
+                update["diameter"] = mm_to_units(None)
+            self.bank.set_many(update)
+
+    # ---- what the CNC writes -----------------------------------------------------------
+
+    def _on_write(self, name: str, value: int) -> None:
+        """A CNC wrote a register (called inside the Modbus server, on the event loop)."""
+        if name == "command":
+            self._spawn(self.run_command(Command(value), source="modbus"))
+        elif name in ("nominal", "tol_upper", "tol_lower"):
+            self._spawn(self._feature_from_cnc(name, value))
+
+    def _spawn(self, coro: Awaitable[object]) -> None:
+        task = asyncio.get_running_loop().create_task(coro)  # type: ignore[arg-type]
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _feature_from_cnc(self, name: str, value: int) -> None:
+        key = {"nominal": "nominal_mm", "tol_upper": "tol_upper_mm",
+               "tol_lower": "tol_lower_mm"}[name]
+        try:
+            await self.compensation.update_feature("modbus", **{key: units_to_mm(value)})
+        except ValueError as err:  # consistent only once all three are written
+            log.info("feature from the CNC not taken yet: %s", err)
+
+    async def run_command(self, command: Command, source: str,
+                          who: str | None = None) -> Decision | None:
+        """Carry out a command (from the CNC or the API) and acknowledge it in the
+        registers."""
+        decision = None
+        who = who or source
+        if command is Command.RESET_COMPENSATION:
+            decision = await self.compensation.reset(source, who)
+        elif command is Command.ACKNOWLEDGE_ALARM:
+            decision = await self.compensation.acknowledge(who)
+        elif command is Command.MEASURE_NOW:
+            with contextlib.suppress(Exception):  # a free-running camera measures anyway
+                self.trigger()
+        seq = (self.bank.get("command_seq") + 1) & 0xFFFF
+        self.bank.set_many({"command": 0, "last_command": int(command), "command_seq": seq})
+        log.info("command %s from %s", command.name.lower(), source)
+        return decision

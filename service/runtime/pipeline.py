@@ -1,0 +1,143 @@
+"""Frames to measurements: camera -> bounded queue -> worker pool -> results in frame order.
+
+The camera's own thread fills a bounded drop-oldest queue; the intake task takes frames from
+it and hands each to a thread pool (numpy and OpenCV release the GIL), at most ``workers`` in
+flight, each with the calibration in force when it was taken; the publisher task hands the
+results on in frame order. Nothing downstream can stall acquisition."""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from drivers.camera.base import Camera, Frame
+from service.measure.diameter import MeasureParams, measure_frame
+from service.measure.geometry import RigGeometry
+from service.measure.result import Measurement, Method
+from service.runtime.calibration import CalibrationContext, CalibrationInUse
+
+log = logging.getLogger("shaftgauge.pipeline")
+
+OnResult = Callable[[Frame, Measurement, CalibrationInUse], None]
+
+
+class FramePipeline:
+    """Owns the camera's frames until they are measured: the intake, the worker pool, the
+    in-order publisher, the latest frame taken, and the pipeline's counters.
+
+    Parameters
+    ----------
+    camera : Camera
+        The frame source.
+    context : CalibrationContext
+        Which calibration a frame is measured with (read as the frame is taken).
+    method, params : Method, MeasureParams
+        How a frame is measured.
+    workers : int
+        Frames measured at once.
+    on_result : callable
+        ``on_result(frame, measurement, calibration_in_use)``, in frame order, on the loop.
+    """
+
+    def __init__(self, camera: Camera, context: CalibrationContext, method: Method,
+                 params: MeasureParams, workers: int, on_result: OnResult) -> None:
+        self.camera, self.context = camera, context
+        self.method, self.params, self.workers = method, params, workers
+        self.on_result = on_result
+        self.latest_frame: Frame | None = None
+        self.counters: collections.Counter[str] = collections.Counter()
+        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="measure")
+        self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
+        self._slots: asyncio.Semaphore | None = None
+        self._in_flight: asyncio.Queue | None = None
+        self._running = False
+
+    def image_size(self) -> tuple[int, int] | None:
+        """(width, height) of the camera's images: the latest frame's, else the active
+        calibration's (None when neither is known)."""
+        frame = self.latest_frame
+        if frame is not None:
+            return frame.image.shape[1], frame.image.shape[0]
+        if self.context.geometry is not None:
+            return self.context.geometry.image_size
+        return None
+
+    def start(self) -> list[asyncio.Task]:
+        """Start the camera; returns the intake and publisher tasks."""
+        self._running = True
+        self._slots = asyncio.Semaphore(self.workers)
+        self._in_flight = asyncio.Queue()
+        self.camera.start()
+        loop = asyncio.get_running_loop()
+        return [loop.create_task(self._intake(), name="intake"),
+                loop.create_task(self._publisher(), name="publisher")]
+
+    async def stop(self) -> None:
+        """Stop the camera and the pools (the tasks are cancelled by their owner)."""
+        self._running = False
+        await asyncio.get_running_loop().run_in_executor(None, self.camera.stop)
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._intake_pool.shutdown(wait=True, cancel_futures=True)
+
+    def _measure(self, frame: Frame, geometry: RigGeometry,
+                 prior: tuple[np.ndarray, float] | None) -> Measurement:
+        return measure_frame(frame.image, geometry, self.method, self.params, prior)
+
+    async def _intake(self) -> None:
+        """Frames from the camera to the worker pool, at most ``workers`` in flight."""
+        loop = asyncio.get_running_loop()
+        assert self._slots is not None and self._in_flight is not None
+        while self._running:
+            await self._slots.acquire()
+            submitted = False
+            try:
+                frame = await loop.run_in_executor(self._intake_pool, self.camera.get_frame,
+                                                   0.25)
+                if frame is None:
+                    continue
+                self.counters["frames_in"] += 1
+                self.latest_frame = frame
+                in_use = self.context.in_use
+                if in_use is None:
+                    self.counters["frames_without_calibration"] += 1
+                    continue
+                prior = in_use.tracker.center() if in_use.tracker is not None else None
+                fut = loop.run_in_executor(self._pool, self._measure, frame, in_use.geometry,
+                                           prior)
+                await self._in_flight.put((frame, in_use, fut))
+                submitted = True
+            except asyncio.CancelledError:
+                raise
+            except Exception:  # never let the pipeline die silently
+                self.counters["errors"] += 1
+                log.exception("pipeline intake error")
+                await asyncio.sleep(0.1)
+            finally:
+                if not submitted:
+                    self._slots.release()
+
+    async def _publisher(self) -> None:
+        """Results in frame order, each as soon as it and those before it are done."""
+        assert self._slots is not None and self._in_flight is not None
+        while True:
+            frame, in_use, fut = await self._in_flight.get()
+            try:
+                m = await fut
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                self.counters["errors"] += 1
+                log.exception("measurement error")
+                continue
+            finally:
+                self._slots.release()
+            try:
+                self.on_result(frame, m, in_use)
+            except Exception:
+                self.counters["errors"] += 1
+                log.exception("publishing error")

@@ -1,0 +1,97 @@
+"""One published measurement as the API, the registers and compensation see it: a pure
+function of the frame's measurement and what was in force when the frame was taken."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from service.calibrate.master import DiameterCorrection
+from service.measure.result import Measurement
+from service.measure.thermal import diameter_at_reference
+
+
+@dataclass(frozen=True)
+class MeasurementRecord:
+    """One published measurement, as the API shows it (lengths in mm)."""
+
+    seq: int
+    time: float                 # wall clock, Unix seconds
+    frame_id: int
+    method: str
+    status: str
+    diameter_mm: float | None   # after the master correction
+    raw_diameter_mm: float | None
+    uncertainty_mm: float | None
+    diameter_20c_mm: float | None
+    fused_diameter_mm: float | None
+    fused_uncertainty_mm: float | None
+    deviation_mm: float | None  # from the nominal, when one is set
+    in_tolerance: bool | None
+    arc_deg: float
+    n_points: int
+    rms_residual_mm: float | None
+    latency_ms: float           # frame received -> published
+    reason: str
+    note: str
+    calibration_id: int | None = None  # the calibration it was measured with
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready: a non-finite number (a fit's NaN residual, say) becomes None."""
+        return {k: finite_or_none(v) if isinstance(v, float) else v
+                for k, v in asdict(self).items()}
+
+    @property
+    def compensation_diameter_mm(self) -> float | None:
+        """The diameter compensation judges: at 20 C when the part temperature is known."""
+        return self.diameter_20c_mm if self.diameter_20c_mm is not None else self.diameter_mm
+
+
+@dataclass(frozen=True)
+class Feature:
+    """What a measurement is compared with (mm)."""
+
+    nominal_mm: float | None
+    tol_lower_mm: float
+    tol_upper_mm: float
+
+
+def corrected(m: Measurement, correction: DiameterCorrection | None) -> Measurement:
+    """The measurement with the master correction applied (its uncertainty scaled too)."""
+    if not m or correction is None:
+        return m
+    return replace(m, diameter_mm=correction.apply(m.diameter_mm),
+                   uncertainty_mm=None if m.uncertainty_mm is None
+                   else m.uncertainty_mm * abs(correction.scale))
+
+
+def make_record(*, seq: int, wall_time: float, frame_id: int, raw: Measurement,
+                m: Measurement, fused: Measurement | None, feature: Feature,
+                part_temp_c: float | None, alpha_per_k: float, latency_ms: float,
+                calibration_id: int | None) -> MeasurementRecord:
+    """The record of one frame: ``raw`` as measured, ``m`` corrected, ``fused`` the fusion
+    window's value; deviation and tolerance against ``feature`` at 20 C when the part's
+    temperature is known."""
+    d20 = (diameter_at_reference(m.diameter_mm, part_temp_c, alpha_per_k)
+           if m and part_temp_c is not None else None)
+    judged = d20 if d20 is not None else m.diameter_mm
+    dev = judged - feature.nominal_mm if m and feature.nominal_mm is not None else None
+    return MeasurementRecord(
+        seq=seq, time=wall_time, frame_id=frame_id, method=m.method.value,
+        status=m.status.value, diameter_mm=m.diameter_mm if m else None,
+        raw_diameter_mm=raw.diameter_mm if m else None,
+        uncertainty_mm=m.uncertainty_mm if m else None, diameter_20c_mm=d20,
+        fused_diameter_mm=fused.diameter_mm if fused else None,
+        fused_uncertainty_mm=fused.uncertainty_mm if fused else None,
+        deviation_mm=dev,
+        in_tolerance=None if dev is None else
+        bool(feature.tol_lower_mm <= dev <= feature.tol_upper_mm),
+        arc_deg=float(m.arc_deg or 0.0), n_points=m.n_points,
+        rms_residual_mm=m.rms_residual_mm, latency_ms=latency_ms,
+        reason=m.reason, note=m.note, calibration_id=calibration_id)
+
+
+def finite_or_none(x: float | None) -> float | None:
+    """None for None, NaN and infinity."""
+    return None if x is None or not math.isfinite(x) else x
