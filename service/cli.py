@@ -183,6 +183,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """One calibration step on image files; writes JSON, prints a one-line summary."""
     from calib_store.model import save_calibration
     from service.calibrate import commands as c
+    from service.calibrate.board import Board
+    from service.calibrate.session import StepInputs, run_step
 
     try:
         if args.step == "render":
@@ -199,24 +201,30 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(json.dumps(result))
             return EXIT_OK
         if args.step == "build":
-            cal, report = c.build_step(args.intrinsics, args.plane, args.axis)
-            if args.report:
-                c.write_json(args.report, report.as_dict())
-            print(json.dumps({"verdict": report.verdict, "reasons": report.reasons}))
-            if cal is None:
-                return _fail("calibration refused: " + "; ".join(report.reasons))
-            save_calibration(cal, args.output)
-            return EXIT_OK
-        if args.step == "intrinsics":
-            result, _ = c.intrinsics_step(args.images, c.parse_board(args.board))
+            inputs = StepInputs(Board(), intrinsics=args.intrinsics, plane=args.plane,
+                                axis=args.axis)
+        elif args.step == "intrinsics":
+            inputs = StepInputs(c.parse_board(args.board), {"view": args.images})
         elif args.step == "plane":
-            result, _ = c.plane_step(args.intrinsics, args.pairs)
+            off, on = args.pairs[0::2], args.pairs[1::2]
+            inputs = StepInputs(Board(), {"plane_off": off, "plane_on": on},
+                                intrinsics=args.intrinsics)
         else:
-            result, _ = c.axis_step(args.intrinsics, args.plane, args.images)
-        c.write_json(args.output, result)
-        summary = {k: result[k] for k in ("step", "ok", "reason") if k in result}
-        print(json.dumps(summary))
-        return EXIT_OK if result["ok"] else _fail(f"{args.step}: {result['reason']}")
+            inputs = StepInputs(Board(), {"axis": args.images}, intrinsics=args.intrinsics,
+                                plane=args.plane)
+        result = run_step(args.step, inputs)
+        if args.step == "build":
+            if args.report:
+                c.write_json(args.report, result.report)
+            print(json.dumps({"verdict": result.figures["verdict"],
+                              "reasons": (result.report or {}).get("reasons", [])}))
+            if result.calibration is None:
+                return _fail("calibration refused: " + result.reason)
+            save_calibration(result.calibration, args.output)
+            return EXIT_OK
+        c.write_json(args.output, result.figures)
+        print(json.dumps({"step": result.step, "ok": result.ok, "reason": result.reason}))
+        return EXIT_OK if result.ok else _fail(f"{args.step}: {result.reason}")
     except (c.StepError, CalibrationError, ValueError) as err:
         return _fail(str(err))
 

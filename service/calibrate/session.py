@@ -72,8 +72,8 @@ def run_step(step: Step, inputs: StepInputs) -> StepResult:
     elif step == "plane":
         off, on = imgs.get("plane_off", []), imgs.get("plane_on", [])
         if len(off) != len(on):
-            raise commands.StepError("plane images come in pairs: as many laser-on as "
-                                     "laser-off images")
+            raise commands.StepError("plane images come two by two: laser off, then laser "
+                                     "on (as many of each)")
         figures, _ = commands.plane_step(inputs.intrinsics,
                                          [p for pair in zip(off, on, strict=True) for p in pair])
     elif step == "axis":
