@@ -41,7 +41,7 @@ import collections
 import enum
 import math
 import statistics
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 
@@ -245,6 +245,13 @@ class ControllerState:
     pending_total_before_mm: float | None = None
     """The CNC's total read just before the pending offset was written."""
 
+    def cnc_offset_mm(self) -> float | None:
+        """How far the CNC's total stands from the baseline (None while either is unknown):
+        the figure the cumulative limit is checked against."""
+        if self.cnc_total_mm is None or self.baseline_mm is None:
+            return None
+        return self.cnc_total_mm - self.baseline_mm
+
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> ControllerState:
         """From what was saved (fields added since are defaulted; None: a fresh state)."""
@@ -306,14 +313,6 @@ class CompensationController:
         """Sum of the acknowledged offsets since the last reset, offset units."""
         return self.persisted.cumulative_mm
 
-    def cnc_offset_mm(self) -> float | None:
-        """How far the CNC's total stands from the baseline (None while either is unknown):
-        the figure the cumulative limit is checked against."""
-        p = self.persisted
-        if p.cnc_total_mm is None or p.baseline_mm is None:
-            return None
-        return p.cnc_total_mm - p.baseline_mm
-
     def _decision(self, kind: Kind, code: str, reason: str, now: float,
                   **kw: Any) -> Decision:
         cum = self.persisted.cumulative_mm
@@ -343,21 +342,15 @@ class CompensationController:
                                                                  State.UNCERTAIN):
             raise ValueError(f"offset {self.persisted.pending_seq} is unsettled: enable "
                              "compensation once the CNC's registers settle it")
-        changed = {k: v for k, v in asdict(settings).items() if asdict(old)[k] != v}
         self.settings = settings
         self._window = collections.deque(maxlen=settings.window)
         enabled = old.shadow and not settings.shadow
         if enabled:
             self.persisted.baseline_mm = None
-        what = ", ".join(f"{k}={v!r}" for k, v in changed.items()) or "nothing changed"
-        return self._decision(Kind.SETTINGS, "settings", f"settings changed ({what}): filter "
-                              "window restarted" + ("; compensation enabled: the CNC's total "
-                                                    "is the new baseline" if enabled else ""),
-                              now, who=who)
-
-    def set_shadow(self, shadow: bool, now: float, who: str = "") -> Decision:
-        """Switch shadow mode."""
-        return self.update_settings(replace(self.settings, shadow=shadow), now, who)
+        return self._decision(Kind.SETTINGS, "settings", f"settings changed "
+                              f"({_changes(old, settings)}): filter window restarted"
+                              + ("; compensation enabled: the CNC's total is the new baseline"
+                                 if enabled else ""), now, who=who)
 
     def observe_cnc_total(self, total_mm: float, now: float) -> Decision | None:
         """The CNC's total wear offset as just read. Takes it as the baseline when there is
@@ -376,7 +369,8 @@ class CompensationController:
     def on_measurement(self, m: MeasurementIn, now: float) -> Decision:
         """Judge one measurement; see the module docstring for the order of the checks."""
         s = self.settings
-        code, why = self._refusal(m, now)
+        code, why = refusal(s, m, now, self.persisted.last_measurement_seq,
+                            self.calibration_id)
         if why:
             return self._decision(Kind.REFUSED, code, why, now, measurement_seq=m.seq)
         self.persisted.last_measurement_seq = m.seq
@@ -391,15 +385,9 @@ class CompensationController:
                 f"deviation {deviation * 1000:+.1f} um is beyond the safe area of "
                 f"{s.safe_area_mm * 1000:.0f} um (broken tool, wrong part or wrong "
                 "nominal?): stopped; a person must check and reset", now, **kw)
-        gate = {State.STOPPED: "stopped: waiting for a reset",
-                State.ALARM: "out-of-tolerance alarm: waiting for acknowledgement",
-                State.PENDING: f"waiting for the CNC to acknowledge offset "
-                               f"{self.persisted.pending_seq}",
-                State.UNCERTAIN: f"offset {self.persisted.pending_seq} was not acknowledged: "
-                                 "holding until the CNC's registers settle it"}
-        if self.state in gate:
-            return self._decision(Kind.HELD, f"gate_{self.state.value}", gate[self.state],
-                                  now, **kw)
+        gate = _gate(self.state, self.persisted.pending_seq)
+        if gate:
+            return self._decision(Kind.HELD, f"gate_{self.state.value}", gate, now, **kw)
         self._since_correction += 1
         if (self._since_correction <= s.dead_time_measurements
                 or now - self._correction_time < s.dead_time_s):
@@ -409,13 +397,7 @@ class CompensationController:
         if len(self._window) < s.window:
             return self._decision(Kind.HELD, "filling_window", f"filling the window "
                                   f"({len(self._window)} of {s.window})", now, **kw)
-        devs = [d for d, _ in self._window]
-        if s.filter == "median":
-            filtered = float(statistics.median(devs))
-        else:
-            weights = [1.0 / u**2 for _, u in self._window]
-            filtered = float(sum(w * d for w, d in zip(weights, devs, strict=True))
-                             / sum(weights))
+        filtered = filtered_deviation(list(self._window), s.filter)
         kw["filtered_mm"] = filtered
         if not s.tol_lower_mm <= filtered <= s.tol_upper_mm:
             return self._enter(
@@ -429,54 +411,18 @@ class CompensationController:
                                   f"{s.deadband_mm * 1000:.1f} um", now, **kw)
         return self._correct(filtered, now, kw)
 
-    def _refusal(self, m: MeasurementIn, now: float) -> tuple[str, str]:
-        """(code, reason) of a refusal, or ("", "")."""
-        s = self.settings
-        if m.status != "ok":
-            return f"status_{m.status}", f"measurement status {m.status!r}"
-        if m.diameter_mm is None or not math.isfinite(m.diameter_mm) or m.diameter_mm <= 0:
-            return "bad_diameter", f"diameter {m.diameter_mm!r} is not a positive finite number"
-        if m.uncertainty_mm is None or not math.isfinite(m.uncertainty_mm) \
-                or m.uncertainty_mm < 0:
-            return "bad_uncertainty", (f"uncertainty {m.uncertainty_mm!r} is not a finite "
-                                       "number >= 0")
-        limit = s.max_uncertainty_fraction * (s.tol_upper_mm - s.tol_lower_mm)
-        if m.uncertainty_mm > limit:
-            return "uncertain_measurement", (
-                f"uncertainty {m.uncertainty_mm * 1000:.1f} um is above {limit * 1000:.1f} um "
-                f"({s.max_uncertainty_fraction:.0%} of the tolerance width)")
-        if m.calibration_id != self.calibration_id:
-            return "other_calibration", (f"measured with calibration {m.calibration_id}, "
-                                         f"calibration {self.calibration_id} is active")
-        if m.seq <= self.persisted.last_measurement_seq:
-            return "out_of_order", (f"measurement {m.seq} is not newer than "
-                                    f"{self.persisted.last_measurement_seq} (out of order or "
-                                    "repeated)")
-        if not math.isfinite(m.time_s) or now - m.time_s > s.max_age_s:
-            return "stale", f"measurement is stale (older than {s.max_age_s:g} s)"
-        if m.time_s - now > 1.0:
-            return "future", "measurement is from the future (clock jump?)"
-        return "", ""
-
     def _correct(self, filtered: float, now: float, kw: dict[str, Any]) -> Decision:
         s = self.settings
-        factor = 0.5 if s.programming == "radius" else 1.0
-        wanted = -s.gain * filtered * factor * s.offset_sign
-        step = max(-s.max_step_mm, min(s.max_step_mm, wanted))
         writing = not (s.shadow or self.writes_blocked)
         # Writing, the limit is on the CNC's own total; proposing, on our bookkeeping.
-        cnc = self.cnc_offset_mm()
+        cnc = self.persisted.cnc_offset_mm()
         if writing and cnc is None:
             self._window.clear()
             return self._decision(Kind.HELD, "cnc_total_unknown", "the CNC's total wear offset "
                                   "has not been read yet: no offset until it is (the "
                                   "cumulative limit is checked against it)", now, **kw)
         cum = cnc if writing else self.persisted.cumulative_mm
-        target = max(-s.max_total_mm, min(s.max_total_mm, cum + step))
-        limited = abs(target - (cum + step)) > 1e-12
-        # In the CNC's resolution, rounded toward zero: what is logged is what is applied,
-        # and rounding never takes the total past the limit.
-        step = _toward_zero(target - cum, s.offset_resolution_mm)
+        step, wanted, limited = offset_step(s, filtered, cum)
         self._window.clear()
         if step == 0.0:
             if limited:  # already at the cumulative limit in this direction
@@ -509,24 +455,16 @@ class CompensationController:
         """Just before the pending offset goes out: the CNC's total as read now. None when it
         may be written; otherwise the offset is dropped (never written) and the decision says
         why: the total cannot be read, or the offset would take it beyond the limit."""
-        p, s = self.persisted, self.settings
+        p = self.persisted
         if p.pending_seq != offset_seq or self.state is not State.PENDING:
             return self._drop(offset_seq, "not_in_flight", "it is not the offset in flight",
                               now)
-        if total_mm is None:
-            return self._drop(offset_seq, "cnc_total_unreadable", "the CNC's total wear "
-                              "offset cannot be read, so the cumulative limit cannot be checked",
-                              now)
-        p.cnc_total_mm = total_mm
-        if p.baseline_mm is None:  # a reset or enabling came between the decision and now
-            return self._drop(offset_seq, "no_baseline", "the reference of the cumulative "
-                              "limit is being taken again", now)
-        step = p.pending_offset_mm or 0.0
-        after = total_mm + step - p.baseline_mm
-        if abs(after) > s.max_total_mm + 1e-9:
-            return self._drop(offset_seq, "limit", f"the CNC's total would stand "
-                              f"{after * 1000:+.1f} um from the baseline, beyond the limit of "
-                              f"{s.max_total_mm * 1000:.0f} um", now, kind=Kind.LIMIT)
+        if total_mm is not None:
+            p.cnc_total_mm = total_mm
+        code, why = limit_veto(self.settings, p, total_mm)
+        if code:
+            return self._drop(offset_seq, code, why, now,
+                              kind=Kind.LIMIT if code == "limit" else Kind.NOT_APPLIED)
         p.pending_total_before_mm = total_mm
         return None
 
@@ -550,12 +488,13 @@ class CompensationController:
                                   f"{offset_seq} ignored: it is not the offset in flight", now,
                                   offset_seq=offset_seq)
         step = p.pending_offset_mm or 0.0
+        what = f"offset {offset_seq} ({step * 1000:+.2f} um)"
+        kw: dict[str, Any] = {"offset_mm": step, "offset_seq": offset_seq}
         if applied is None:
             p.state = State.UNCERTAIN.value
-            return self._decision(Kind.UNCERTAIN, "uncertain", f"offset {offset_seq} "
-                                  f"({step * 1000:+.2f} um) not acknowledged{_colon(detail)}; "
-                                  "holding until the CNC's registers settle it, it will not be "
-                                  "sent again", now, offset_mm=step, offset_seq=offset_seq)
+            return self._decision(Kind.UNCERTAIN, "uncertain", f"{what} not acknowledged"
+                                  f"{_colon(detail)}; holding until the CNC's registers settle "
+                                  "it, it will not be sent again", now, **kw)
         before = p.cumulative_mm
         p.pending_seq, p.pending_offset_mm, p.pending_total_before_mm = None, None, None
         p.state = State.ACTIVE.value
@@ -566,15 +505,11 @@ class CompensationController:
                 p.cnc_total_mm += step
             self._since_correction = 0
             self._correction_time = now
-            return self._decision(Kind.APPLIED, "applied", f"offset {offset_seq} "
-                                  f"({step * 1000:+.2f} um) acknowledged by the "
-                                  f"CNC{_colon(detail)}", now,
-                                  offset_mm=step, offset_seq=offset_seq, before_mm=before,
-                                  after_mm=p.cumulative_mm)
-        return self._decision(Kind.NOT_APPLIED, "not_applied", f"offset {offset_seq} "
-                              f"({step * 1000:+.2f} um) was not applied{_colon(detail)}; it "
-                              "will not be sent again", now, offset_mm=step,
-                              offset_seq=offset_seq)
+            return self._decision(Kind.APPLIED, "applied", f"{what} acknowledged by the "
+                                  f"CNC{_colon(detail)}", now, before_mm=before,
+                                  after_mm=p.cumulative_mm, **kw)
+        return self._decision(Kind.NOT_APPLIED, "not_applied", f"{what} was not applied"
+                              f"{_colon(detail)}; it will not be sent again", now, **kw)
 
     def settle_from_cnc(self, cnc: CncReading, now: float) -> Decision | None:
         """Settle an UNCERTAIN offset from the CNC's registers, or None while they cannot
@@ -589,19 +524,10 @@ class CompensationController:
         seq = p.pending_seq
         if self.state is not State.UNCERTAIN or seq is None:
             return None
-        step = p.pending_offset_mm or 0.0
-        if cnc.ack_seq == seq:
-            d = self.on_write_outcome(seq, True, now, "the CNC's acknowledgement register "
-                                      "echoes its sequence")
-        elif p.pending_total_before_mm is not None and abs(step) > 0 and \
-                abs(cnc.total_mm - (p.pending_total_before_mm + step)) < 0.5e-4:
-            d = self.on_write_outcome(seq, True, now, "the CNC's total moved by the offset")
-        elif cnc.request_seq != seq:
-            d = self.on_write_outcome(seq, False, now, "the CNC's request registers no longer "
-                                      f"hold it (they hold {cnc.request_seq}): cleared by the "
-                                      "CNC or never received")
-        else:
+        applied, how = cnc_verdict(p, cnc)
+        if applied is None:
             return None
+        d = self.on_write_outcome(seq, applied, now, how)
         self.persisted.cnc_total_mm = cnc.total_mm
         return d
 
@@ -648,6 +574,109 @@ class CompensationController:
         """Record a reset that was asked for and not carried out."""
         return self._decision(Kind.REFUSED, "reset_refused", f"reset refused: {why}", now,
                               who=who)
+
+
+def refusal(s: CompensationSettings, m: MeasurementIn, now: float, last_seq: int,
+            calibration_id: int | None) -> tuple[str, str]:
+    """(code, reason) why a measurement does not count, or ("", "")."""
+    if m.status != "ok":
+        return f"status_{m.status}", f"measurement status {m.status!r}"
+    if m.diameter_mm is None or not math.isfinite(m.diameter_mm) or m.diameter_mm <= 0:
+        return "bad_diameter", f"diameter {m.diameter_mm!r} is not a positive finite number"
+    if m.uncertainty_mm is None or not math.isfinite(m.uncertainty_mm) \
+            or m.uncertainty_mm < 0:
+        return "bad_uncertainty", (f"uncertainty {m.uncertainty_mm!r} is not a finite "
+                                   "number >= 0")
+    limit = s.max_uncertainty_fraction * (s.tol_upper_mm - s.tol_lower_mm)
+    if m.uncertainty_mm > limit:
+        return "uncertain_measurement", (
+            f"uncertainty {m.uncertainty_mm * 1000:.1f} um is above {limit * 1000:.1f} um "
+            f"({s.max_uncertainty_fraction:.0%} of the tolerance width)")
+    if m.calibration_id != calibration_id:
+        return "other_calibration", (f"measured with calibration {m.calibration_id}, "
+                                     f"calibration {calibration_id} is active")
+    if m.seq <= last_seq:
+        return "out_of_order", (f"measurement {m.seq} is not newer than "
+                                f"{last_seq} (out of order or "
+                                "repeated)")
+    if not math.isfinite(m.time_s) or now - m.time_s > s.max_age_s:
+        return "stale", f"measurement is stale (older than {s.max_age_s:g} s)"
+    if m.time_s - now > 1.0:
+        return "future", "measurement is from the future (clock jump?)"
+    return "", ""
+
+
+def _changes(old: CompensationSettings, new: CompensationSettings) -> str:
+    """``name=value`` of each setting that changed."""
+    before = asdict(old)
+    return ", ".join(f"{k}={v!r}" for k, v in asdict(new).items() if before[k] != v) \
+        or "nothing changed"
+
+
+def _gate(state: State, pending_seq: int | None) -> str:
+    """Why nothing is judged in this state ("" when it is)."""
+    return {State.STOPPED: "stopped: waiting for a reset",
+            State.ALARM: "out-of-tolerance alarm: waiting for acknowledgement",
+            State.PENDING: f"waiting for the CNC to acknowledge offset {pending_seq}",
+            State.UNCERTAIN: f"offset {pending_seq} was not acknowledged: holding until the "
+                             "CNC's registers settle it"}.get(state, "")
+
+
+def limit_veto(s: CompensationSettings, p: ControllerState, total_mm: float | None
+               ) -> tuple[str, str]:
+    """(code, why) the pending offset must not be written with the CNC's total as read now,
+    or ("", "")."""
+    if total_mm is None:
+        return "cnc_total_unreadable", ("the CNC's total wear offset cannot be read, so the "
+                                        "cumulative limit cannot be checked")
+    if p.baseline_mm is None:  # a reset or enabling came between the decision and now
+        return "no_baseline", "the reference of the cumulative limit is being taken again"
+    after = total_mm + (p.pending_offset_mm or 0.0) - p.baseline_mm
+    if abs(after) > s.max_total_mm + 1e-9:
+        return "limit", (f"the CNC's total would stand {after * 1000:+.1f} um from the "
+                         f"baseline, beyond the limit of {s.max_total_mm * 1000:.0f} um")
+    return "", ""
+
+
+def filtered_deviation(window: list[tuple[float, float]], how: str) -> float:
+    """The window of (deviation, uncertainty) as one deviation: the median, or the mean
+    weighted by 1 / uncertainty^2."""
+    devs = [d for d, _ in window]
+    if how == "median":
+        return float(statistics.median(devs))
+    weights = [1.0 / u**2 for _, u in window]
+    return float(sum(w * d for w, d in zip(weights, devs, strict=True)) / sum(weights))
+
+
+def offset_step(s: CompensationSettings, filtered_mm: float, cum_mm: float
+                ) -> tuple[float, float, bool]:
+    """(step, wanted, limited): the offset that corrects ``gain`` of the filtered deviation
+    (offset units, clipped to ``max_step_mm``, and to ``max_total_mm`` around ``cum_mm``,
+    in the CNC's resolution rounded toward zero), what was wanted before clipping, and
+    whether the cumulative limit clipped it."""
+    factor = 0.5 if s.programming == "radius" else 1.0
+    wanted = -s.gain * filtered_mm * factor * s.offset_sign
+    step = max(-s.max_step_mm, min(s.max_step_mm, wanted))
+    target = max(-s.max_total_mm, min(s.max_total_mm, cum_mm + step))
+    limited = abs(target - (cum_mm + step)) > 1e-12
+    # In the CNC's resolution, rounded toward zero: what is logged is what is applied, and
+    # rounding never takes the total past the limit.
+    return _toward_zero(target - cum_mm, s.offset_resolution_mm), wanted, limited
+
+
+def cnc_verdict(p: ControllerState, cnc: CncReading) -> tuple[bool | None, str]:
+    """Whether the CNC's registers say the pending offset was applied (True, False, or None
+    while they cannot tell), and how they say it."""
+    seq, step = p.pending_seq, p.pending_offset_mm or 0.0
+    if cnc.ack_seq == seq:
+        return True, "the CNC's acknowledgement register echoes its sequence"
+    if p.pending_total_before_mm is not None and abs(step) > 0 and \
+            abs(cnc.total_mm - (p.pending_total_before_mm + step)) < 0.5e-4:
+        return True, "the CNC's total moved by the offset"
+    if cnc.request_seq != seq:
+        return False, (f"the CNC's request registers no longer hold it (they hold "
+                       f"{cnc.request_seq}): cleared by the CNC or never received")
+    return None, ""
 
 
 def _toward_zero(value_mm: float, resolution_mm: float) -> float:

@@ -159,7 +159,7 @@ class CompensationService:
         p = c.persisted
         return {"state": c.state.value, "shadow": c.settings.shadow,
                 "cumulative_offset_mm": c.cumulative_mm, "cnc_total_mm": p.cnc_total_mm,
-                "baseline_mm": p.baseline_mm, "cnc_offset_from_baseline_mm": c.cnc_offset_mm(),
+                "baseline_mm": p.baseline_mm, "cnc_offset_from_baseline_mm": p.cnc_offset_mm(),
                 "max_total_mm": c.settings.max_total_mm, "offset_seq": p.offset_seq,
                 "pending_seq": p.pending_seq, "held": self.offset_hold(),
                 "log_rows": None if self.log is None else self.log.rows_written}

@@ -1,0 +1,78 @@
+"""ARCHITECTURE.md's rules, checked: dependencies point one way (pure core <- adapters <-
+application), no class over 300 lines, no API module over 150 lines."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+# The pure core: numerics and state machines, no I/O, nothing of the adapters or the app.
+CORE = ["service/measure", "service/compensation.py", "service/calibrate/board.py",
+        "service/calibrate/intrinsics.py", "service/calibrate/plane.py",
+        "service/calibrate/axis.py", "service/calibrate/report.py",
+        "service/calibrate/master.py"]
+CORE_MODULES = ("service.measure", "service.compensation", "service.calibrate.board",
+                "service.calibrate.intrinsics", "service.calibrate.plane",
+                "service.calibrate.axis", "service.calibrate.report",
+                "service.calibrate.master")
+
+
+def files(*parts: str) -> list[Path]:
+    out: list[Path] = []
+    for part in parts:
+        p = ROOT / part
+        out += sorted(p.rglob("*.py")) if p.is_dir() else [p]
+    return out
+
+
+def imports(path: Path) -> set[str]:
+    """Every module a file imports (at any depth: lazy imports count too)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+    return found
+
+
+def ours(module: str) -> bool:
+    return module.split(".")[0] in ("service", "drivers", "calib_store")
+
+
+@pytest.mark.parametrize("path", files(*CORE), ids=str)
+def test_the_core_imports_only_the_core(path: Path) -> None:
+    bad = {m for m in imports(path) if ours(m) and not m.startswith(CORE_MODULES)}
+    assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+
+
+@pytest.mark.parametrize("path", files("calib_store", "drivers"), ids=str)
+def test_adapters_import_only_the_core_and_adapters(path: Path) -> None:
+    bad = {m for m in imports(path) if m.startswith("service") and
+           not m.startswith(CORE_MODULES)}
+    assert not bad, f"{path.relative_to(ROOT)} imports {bad} (the application)"
+
+
+@pytest.mark.parametrize("path", files("calib_store"), ids=str)
+def test_the_store_imports_nothing_from_service(path: Path) -> None:
+    bad = {m for m in imports(path) if m.startswith("service")}
+    assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+
+
+def test_no_class_over_300_lines() -> None:
+    long = []
+    for path in files("service", "drivers", "calib_store"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > 300:
+                long.append(f"{path.relative_to(ROOT)}:{node.name} "
+                            f"({node.end_lineno - node.lineno + 1} lines)")
+    assert not long, long
+
+
+def test_no_api_module_over_150_lines() -> None:
+    long = [f"{p.relative_to(ROOT)} ({n} lines)" for p in files("service/api")
+            if (n := len(p.read_text().splitlines())) > 150]
+    assert not long, long
