@@ -33,7 +33,9 @@ class ConfigError(ValueError):
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # Frozen after load: what changes at run time has an owner that keeps it (the
+    # compensation service for the feature, tuning and part temperature).
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class CameraSettings(_Section):
@@ -192,7 +194,7 @@ class Settings(BaseSettings):
     """Everything ``shaftgauge serve`` needs."""
 
     model_config = SettingsConfigDict(env_prefix="SHAFTGAUGE_", env_nested_delimiter="__",
-                                      extra="forbid")
+                                      extra="forbid", frozen=True)
 
     camera: CameraSettings = CameraSettings()
     plc: PlcSettings = PlcSettings()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pydantic
 import pytest
 
 from service.config import ConfigError, load_settings
@@ -52,3 +53,12 @@ def test_bad_environment_names_the_setting(monkeypatch) -> None:
 def test_missing_file(tmp_path) -> None:
     with pytest.raises(ConfigError, match="cannot read"):
         load_settings(tmp_path / "nope.toml")
+
+
+def test_settings_are_frozen_after_load() -> None:
+    """Changes at run time go through their owner (and are kept), never into the settings."""
+    s = load_settings()
+    with pytest.raises(pydantic.ValidationError, match="frozen"):
+        s.api.port = 1
+    with pytest.raises(pydantic.ValidationError, match="frozen"):
+        s.log_level = "debug"
