@@ -24,12 +24,17 @@ class Corners:
 def find_corners(image: np.ndarray, board: Board) -> Corners:
     """Sub-pixel inner corners of the chessboard in a grey image."""
     size = (board.cols, board.rows)
-    ok, corners = cv2.findChessboardCornersSB(image, size, flags=cv2.CALIB_CB_ACCURACY)
-    if not ok or corners is None:
-        ok, corners = cv2.findChessboardCorners(image, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
-        if not ok:
-            return Corners(None, f"board of {board.cols}x{board.rows} inner corners not found")
-        corners = cv2.cornerSubPix(image, corners, (5, 5), (-1, -1), _SUBPIX)
+    missing = Corners(None, f"board of {board.cols}x{board.rows} inner corners not found")
+    try:
+        ok, corners = cv2.findChessboardCornersSB(image, size, flags=cv2.CALIB_CB_ACCURACY)
+        if not ok or corners is None:
+            ok, corners = cv2.findChessboardCorners(image, size,
+                                                    flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
+            if not ok:
+                return missing
+            corners = cv2.cornerSubPix(image, corners, (5, 5), (-1, -1), _SUBPIX)
+    except cv2.error:  # an image too small or odd for OpenCV's detectors holds no board
+        return missing
     return Corners(corners.reshape(-1, 2).astype(np.float64))
 
 

@@ -1,0 +1,46 @@
+"""The calibration session outside HTTP: kept on disk, found again after a restart, capped,
+and one step dispatch for the API and the CLI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.calibrate.commands import StepError
+from service.calibrate.session import CalibrationSessions, SessionLimitError
+
+
+def test_an_open_session_survives_a_restart(tmp_path) -> None:
+    sessions = CalibrationSessions(tmp_path, max_open=2, max_images=5, expiry_h=24)
+    s = sessions.create("11x8x8", "monday", "technician")
+    s.add_image("view", np.zeros((8, 8), np.uint8), sessions.max_images)
+    r = s.run("intrinsics")  # one image without a board: refused, and the refusal recorded
+    assert not r.ok and "need 6" in r.reason
+    again = CalibrationSessions(tmp_path, max_open=2, max_images=5, expiry_h=24)
+    t = again.get(s.id)
+    assert t.images["view"] == s.images["view"] and t.note == "monday"
+    assert t.progress["state"] == "failed" and "need 6" in t.progress["message"]
+
+
+def test_a_step_running_at_a_restart_is_marked_interrupted(tmp_path) -> None:
+    sessions = CalibrationSessions(tmp_path, max_open=2, max_images=5, expiry_h=24)
+    s = sessions.create("11x8x8", "", "technician")
+    s.progress = {"step": "axis", "state": "running", "message": "axis: working"}
+    s.save()
+    t = CalibrationSessions(tmp_path, 2, 5, 24).get(s.id)
+    assert t.progress["state"] == "failed" and "interrupted" in t.progress["message"]
+
+
+def test_caps_and_a_damaged_session_file(tmp_path) -> None:
+    sessions = CalibrationSessions(tmp_path, max_open=1, max_images=1, expiry_h=24)
+    s = sessions.create("9x6x6", "", "technician")
+    with pytest.raises(SessionLimitError, match="max_calibration_sessions"):
+        sessions.create("9x6x6", "", "technician")
+    s.add_image("axis", np.zeros((4, 4), np.uint8), sessions.max_images)
+    with pytest.raises(SessionLimitError, match="max_session_images"):
+        s.add_image("axis", np.zeros((4, 4), np.uint8), sessions.max_images)
+    with pytest.raises(StepError, match="COLSxROWSxMM"):
+        sessions.create("banana", "", "technician")
+    (s.dir / "session.json").write_text("{not json")
+    assert CalibrationSessions(tmp_path, 1, 1, 24)._open == {}  # not served, left on disk
+    assert (s.dir / "session.json").exists()
