@@ -11,6 +11,7 @@ rest is handed over without waiting.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import logging
 import sqlite3
 import time
@@ -19,6 +20,7 @@ from dataclasses import asdict
 from typing import Protocol
 
 from calib_store.compensation_log import CompensationLog
+from drivers.plc.client import WriteResult
 from service.compensation import (
     QUIET_KINDS,
     CncReading,
@@ -45,7 +47,7 @@ class OffsetTransport(Protocol):
     """What the channel needs of the CNC side (``drivers.plc.client.OffsetWriter``, or a
     fake CNC in tests)."""
 
-    async def write_offset(self, offset_mm: float, seq: int):  # -> WriteResult
+    async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
         """Write one offset once; the result says APPLIED, NOT_APPLIED or UNKNOWN."""
 
     async def read_cnc(self) -> CncReading | None:
@@ -67,7 +69,7 @@ class OffsetChannel:
         self.controller, self.writer, self.store = controller, writer, store
         self.on_decision = on_decision
         self.clock = clock
-        self.last_write = None
+        self.last_write: WriteResult | None = None
         self._lock = asyncio.Lock()
         self._last_refresh = -float("inf")
 
@@ -76,7 +78,8 @@ class OffsetChannel:
         """Why the decision log cannot be written now (empty: it can)."""
         return self.store.problem if self.store is not None else ""
 
-    def _submit(self, decision: Decision, durable: bool = False):
+    def _submit(self, decision: Decision, durable: bool = False
+                ) -> concurrent.futures.Future | None:
         assert self.store is not None
         return self.store.submit(decision.as_dict(), time.time(),
                                  asdict(self.controller.persisted),
