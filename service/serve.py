@@ -173,17 +173,13 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                            axis_sigma_mm=ms.axis_sigma_mm, free_fit=ms.track_axis,
                            sheet_correction=ms.sheet_correction,
                            sheet_sigma_mm=ms.sheet_sigma_mm)
-    health_ref: list[HealthReport] = []
-    modbus = ModbusFacade(settings.modbus, compensation, snapshot=lambda: health_ref[0]
-                          .snapshot(), healthy=lambda: health_ref[0].healthy(),
-                          trigger=camera.software_trigger)
+    modbus = ModbusFacade(settings.modbus, compensation, trigger=camera.software_trigger)
     sequence = SequenceCounter(comp_log, compensation.controller.persisted
                                .last_measurement_seq + 1)
     publisher = Publisher(sequence, feed, modbus, compensation)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher)
     health = HealthReport(settings, camera, context, pipeline, feed, compensation, writer,
                           modbus)
-    health_ref.append(health)
     context.load_active()
     api = settings.api
     sessions = CalibrationSessions(settings.store.path.parent / "calibration-sessions",

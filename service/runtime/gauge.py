@@ -46,7 +46,7 @@ class Gauge:
             loop.create_task(comp.channel.run_settler(), name="settler"),
             loop.create_task(comp.follow_master_gate(
                 lambda: self.context.master_status()["blocking"]), name="master-gate"),
-            *await self.modbus.start(),
+            *await self.modbus.start(self.health.snapshot, self.health.healthy),
         ]
         self.health.running = True
 

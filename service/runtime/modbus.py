@@ -101,20 +101,15 @@ class ModbusFacade:
         Where to serve, unit id, word order.
     compensation : CompensationService
         Where the CNC's commands and feature go.
-    snapshot : callable
-        ``snapshot()`` -> StatusSnapshot, read every ``REFRESH_S``.
-    healthy : callable
-        ``healthy()`` -> bool, for the heartbeat.
     trigger : callable
         ``trigger()``: the camera takes a frame now (the measure-now command).
     """
 
     def __init__(self, settings: ModbusSettings, compensation: CompensationService,
-                 snapshot: Callable[[], StatusSnapshot], healthy: Callable[[], bool],
                  trigger: Callable[[], None]) -> None:
         self.settings = settings
         self.compensation = compensation
-        self.snapshot, self.healthy, self.trigger = snapshot, healthy, trigger
+        self.trigger = trigger
         self.bank = RegisterBank(settings.word_order)
         self.server = GaugeModbusServer(self.bank, settings.host, settings.port,
                                         settings.unit_id, on_write=self._on_write)
@@ -127,13 +122,15 @@ class ModbusFacade:
         """The port served (the bound one once started)."""
         return self.server.port
 
-    async def start(self) -> list[asyncio.Task]:
-        """Serve (when enabled); returns the background tasks to run (heartbeat, status)."""
+    async def start(self, snapshot: Callable[[], StatusSnapshot],
+                    healthy: Callable[[], bool]) -> list[asyncio.Task]:
+        """Serve (when enabled); returns the background tasks: the heartbeat (counting while
+        ``healthy()``) and the status registers (from ``snapshot()`` every ``REFRESH_S``)."""
         if self.settings.enabled:
             await self.server.start()
         loop = asyncio.get_running_loop()
-        return [loop.create_task(run_heartbeat(self.bank, self.healthy), name="heartbeat"),
-                loop.create_task(self._refresh(), name="registers")]
+        return [loop.create_task(run_heartbeat(self.bank, healthy), name="heartbeat"),
+                loop.create_task(self._refresh(snapshot), name="registers")]
 
     async def stop(self) -> None:
         """Stop serving."""
@@ -167,11 +164,11 @@ class ModbusFacade:
                             "tol_upper": mm_to_units(settings.tol_upper_mm),
                             "tol_lower": mm_to_units(settings.tol_lower_mm)})
 
-    async def _refresh(self) -> None:
+    async def _refresh(self, snapshot: Callable[[], StatusSnapshot]) -> None:
         while True:
             await asyncio.sleep(REFRESH_S)
             try:
-                status, faults, age_ms = status_words(self.snapshot())
+                status, faults, age_ms = status_words(snapshot())
             except Exception:  # keep the loop: a bug here must not freeze the registers
                 log.exception("status registers")
                 continue
