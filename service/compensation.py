@@ -501,7 +501,7 @@ class CompensationController:
         self._window.clear()
         if applied:
             p.cumulative_mm = before + step
-            if p.cnc_total_mm is not None and p.baseline_mm is not None:
+            if p.cnc_total_mm is not None:  # until the next reading says otherwise
                 p.cnc_total_mm += step
             self._since_correction = 0
             self._correction_time = now
@@ -531,11 +531,6 @@ class CompensationController:
         self.persisted.cnc_total_mm = cnc.total_mm
         return d
 
-    def reconcile(self, offset_seq: int, applied: bool, now: float) -> Decision:
-        """Settle an UNCERTAIN offset with a known outcome."""
-        return self.on_write_outcome(offset_seq, applied, now,
-                                     "settled from the CNC's acknowledgement register")
-
     def acknowledge_alarm(self, now: float, who: str = "") -> Decision:
         """Leave the out-of-tolerance alarm."""
         if self.state is not State.ALARM:
@@ -546,25 +541,22 @@ class CompensationController:
         return self._decision(Kind.ACKNOWLEDGED, "acknowledged", "alarm acknowledged", now,
                               who=who)
 
-    def reset(self, now: float, who: str = "", rebaseline: bool = True) -> Decision:
+    def reset(self, now: float, who: str = "") -> Decision:
         """A reset (after a tool change): the gauge's cumulative offset back to 0, leave
-        STOPPED or ALARM. With ``rebaseline`` (a person's reset) the CNC's total at the next
-        reading becomes the reference of the cumulative limit; without it the reference stays
-        where it is. Refused while an offset's fate is unknown."""
+        STOPPED or ALARM; the CNC's total at the next reading becomes the reference of the
+        cumulative limit. Refused while an offset's fate is unknown."""
         if self.state in (State.PENDING, State.UNCERTAIN):
-            return self._decision(Kind.HELD, "reset_refused", f"reset refused: offset "
+            return self._decision(Kind.HELD, "reset_unsettled", f"reset refused: offset "
                                   f"{self.persisted.pending_seq} is still unsettled", now,
                                   who=who)
         before = self.persisted.cumulative_mm
         self.persisted.cumulative_mm = 0.0
         self.persisted.state = State.ACTIVE.value
-        if rebaseline:
-            self.persisted.baseline_mm = None
+        self.persisted.baseline_mm = None
         self._window.clear()
         return self._decision(Kind.RESET, "reset", "compensation reset: cumulative offset "
-                              "back to 0" + ("; the CNC's total at the next reading is the "
-                                             "new baseline" if rebaseline else ""),
-                              now, before_mm=before, after_mm=0.0, who=who)
+                              "back to 0; the CNC's total at the next reading is the new "
+                              "baseline", now, before_mm=before, after_mm=0.0, who=who)
 
     def note_settings(self, what: str, now: float, who: str) -> Decision:
         """Record a change of a setting outside the controller (for the audit trail)."""

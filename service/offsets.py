@@ -191,19 +191,19 @@ class OffsetChannel:
         return p.cnc_total_mm is None or (p.baseline_mm is None
                                           and not self.controller.settings.shadow)
 
-    async def command(self, action: str, who: str = "", rebaseline: bool = True) -> Decision:
-        """A command: ``reset`` (``rebaseline``: a person's reset moves the limit's reference
-        to where the CNC's total stands) or ``acknowledge``."""
+    async def command(self, action: str, who: str = "") -> Decision:
+        """A command: ``reset`` (moves the limit's reference to where the CNC's total stands)
+        or ``acknowledge``."""
         async with self._lock:
             now = self.clock()
             if action == "reset":
-                d = self.controller.reset(now, who, rebaseline)
+                d = self.controller.reset(now, who)
             elif action == "acknowledge":
                 d = self.controller.acknowledge_alarm(now, who)
             else:
                 raise ValueError(f"unknown compensation command {action!r}")
             d = self._note(d)
-        if action == "reset" and d.kind is Kind.RESET and rebaseline:
+        if d.kind is Kind.RESET:
             await self.refresh()  # the new baseline at once, when the CNC answers
         return d
 

@@ -178,10 +178,6 @@ class OffsetWriter:
                 return None
         return CncReading(ack, request, total * UM_PER_UNIT / 1000.0)
 
-    async def check(self) -> bool:
-        """Whether the CNC answers now (a read of its acknowledgement register)."""
-        return await self.read_ack() is not None
-
     async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
         """Write one offset with its sequence number, exactly once.
 

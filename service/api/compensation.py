@@ -48,11 +48,7 @@ def router(comp: CompensationService, log: CompensationLog | None, run_command: 
 
     @r.get("/compensation", summary="Compensation settings and state")
     def compensation() -> dict:
-        c = comp.controller
-        return {"settings": asdict(c.settings), "state": c.state.value,
-                "cumulative_offset_mm": c.cumulative_mm,
-                "cnc_total_mm": c.persisted.cnc_total_mm, "baseline_mm": c.persisted.baseline_mm,
-                "offset_seq": c.persisted.offset_seq, "pending_seq": c.persisted.pending_seq}
+        return {"settings": asdict(comp.settings), **comp.status()}
 
     @r.put("/compensation", summary="Tune compensation (admin)")
     async def tune(body: CompensationIn, role: str = admin) -> dict:

@@ -166,8 +166,7 @@ class CompensationService:
 
     # ---- the measurements ----------------------------------------------------------------
 
-    def submit(self, record: MeasurementRecord, received_s: float,
-               uncertainty_mm: float | None) -> None:
+    def submit(self, record: MeasurementRecord, received_s: float) -> None:
         """Queue a published measurement for the controller (the oldest is dropped and
         counted when the queue is full). Held measurements go in with a held status."""
         if self._queue is None:
@@ -178,7 +177,7 @@ class CompensationService:
         hold = self._hold if self.offset_hold() else None
         self._queue.put_nowait(MeasurementIn(
             record.seq, received_s, ("held_for_" + hold.code) if hold else record.status,
-            record.compensation_diameter_mm, uncertainty_mm, record.calibration_id))
+            record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id))
 
     async def run(self) -> None:
         """Judge queued measurements until cancelled."""

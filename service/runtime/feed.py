@@ -99,7 +99,6 @@ class MeasurementFeed:
 
     def __init__(self, history: int, fuse_frames: int) -> None:
         self.latest: MeasurementRecord | None = None
-        self.latest_measurement: Measurement | None = None
         self.latest_frame: Frame | None = None
         # The latest measured frame with its measurement and the geometry it was measured with.
         self.latest_measured: tuple[Frame, Measurement, RigGeometry] | None = None
@@ -124,7 +123,7 @@ class MeasurementFeed:
                 geometry: RigGeometry) -> None:
         """Make ``record`` the latest and hand it to every subscriber."""
         self.latest_measured = (frame, m, geometry)
-        self.latest, self.latest_measurement = record, m
+        self.latest = record
         self.counters["measured"] += 1
         self.counters["ok" if m else f"status_{m.status.value}"] += 1
         self.history.append(record)

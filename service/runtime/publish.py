@@ -49,4 +49,4 @@ class Publisher:
             calibration_id=in_use.info.id)
         self.modbus.publish(record)  # first: the latency is frame -> registers
         self.feed.publish(record, m, frame, in_use.geometry)
-        comp.submit(record, frame.received_ns / 1e9, m.uncertainty_mm)
+        comp.submit(record, frame.received_ns / 1e9)

@@ -151,7 +151,7 @@ def test_unknown_outcome_blocks_until_reconciled_and_is_never_resent() -> None:
     held = feed(c, [30.008] * 6, start_seq=10, t0=104)
     assert all(x.kind is Kind.HELD for x in held)
     assert c.reset(110).kind is Kind.HELD  # no reset while unsettled
-    r = c.reconcile(w.offset_seq, False, 111)
+    r = c.on_write_outcome(w.offset_seq, False, 111, "settled from the CNC's registers")
     assert r.kind is Kind.NOT_APPLIED and "not be sent again" in r.reason
     assert c.cumulative_mm == 0 and c.state is State.ACTIVE
     nxt = feed(c, [30.008] * 3, start_seq=30, t0=120)[-1]
@@ -216,7 +216,7 @@ def run(settings_, evts):
             r = c.on_write_outcome(d.offset_seq, outcome, now)
             log.append((None, r, c.state, c.cumulative_mm))
         if c.state is State.UNCERTAIN and outcome is False:
-            c.reconcile(c.persisted.pending_seq, False, now)
+            c.on_write_outcome(c.persisted.pending_seq, False, now)
     return c, log
 
 

@@ -25,9 +25,9 @@ def test_a_frame_in_flight_keeps_its_calibration(tmp_path) -> None:
     ctx.set_calibration(*ctx.store.get(new_id))
     ctx.set_correction(DiameterCorrection(0.005, 1.0, 0.0))  # the new calibration's
     queue: list[MeasurementIn] = []
-    comp.submit = lambda record, received_s, u: queue.append(  # what compensation is given
-        MeasurementIn(record.seq, received_s, record.status, record.diameter_mm, u,
-                      record.calibration_id))
+    comp.submit = lambda record, received_s: queue.append(  # what compensation is given
+        MeasurementIn(record.seq, received_s, record.status, record.diameter_mm,
+                      record.uncertainty_mm, record.calibration_id))
     frame = Frame(np.zeros((4, 4), np.uint8), 1, 0, 0)
     m = Measurement(Status.OK, Method.AXIS, 30.0, uncertainty_mm=0.001)
     publish(frame, m, old)  # measured with the old geometry, published after the switch
