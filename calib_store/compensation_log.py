@@ -142,7 +142,8 @@ class CompensationLog:
         returned future resolves once both are committed (or raises the ``sqlite3.Error``
         that stopped it)."""
         fut: concurrent.futures.Future | None = concurrent.futures.Future() if durable else None
-        self._put(_Item("decision", (dict(decision), wall_time, json.dumps(state), quiet), fut))
+        # The state is serialised by the writer thread, once a batch (the last one counts).
+        self._put(_Item("decision", (dict(decision), wall_time, state, quiet), fut))
         return fut
 
     def record(self, decision: dict[str, Any], wall_time: float, state: dict[str, Any],
@@ -259,20 +260,20 @@ class CompensationLog:
         self._db.close()
 
     def _write(self, batch: list[_Item]) -> None:
-        state_json = None
+        state = None
         try:
             with transaction(self._db):
                 runs = dict(self._open_runs)
                 for item in batch:
                     if item.kind == "decision":
-                        decision, wall_time, state_json, quiet = item.payload
+                        decision, wall_time, state, quiet = item.payload
                         self._insert(decision, wall_time, quiet, runs)
                     elif item.kind == "value":
                         self._db.execute("INSERT OR REPLACE INTO gauge_values (key, value) "
                                          "VALUES (?, ?)", item.payload)
-                if state_json is not None:
+                if state is not None:
                     self._db.execute("INSERT OR REPLACE INTO compensation_state (id, state) "
-                                     "VALUES (1, ?)", (state_json,))
+                                     "VALUES (1, ?)", (json.dumps(state),))
                 if self._prune() and runs:  # forget the runs whose rows were pruned
                     ids = list(runs.values())
                     alive = {r[0] for r in self._db.execute(
