@@ -56,7 +56,7 @@ class Kind(enum.StrEnum):
     WRITE = "write"              # the service must write this offset now
     APPLIED = "applied"          # the CNC acknowledged it
     NOT_APPLIED = "not_applied"  # definitely not applied (never re-sent)
-    UNCERTAIN = "uncertain"      # written, not acknowledged: holding until reconciled
+    UNCERTAIN = "uncertain"      # written, not acknowledged: holding until the CNC tells
     LIMIT = "limit"              # the cumulative limit forbids any further correction
     RESET = "reset"
     ACKNOWLEDGED = "acknowledged"
