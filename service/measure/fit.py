@@ -309,23 +309,68 @@ def fit_hyper(points: np.ndarray) -> CircleFit:
                                np.ones(len(pts), bool)), pts)
 
 
-def _lm_circle(pts: np.ndarray, start: CircleFit, sqrt_w: np.ndarray | None = None
-               ) -> tuple[np.ndarray, float] | None:
-    sw = np.ones(len(pts)) if sqrt_w is None else sqrt_w
+def solve_circle(pts: np.ndarray, center: np.ndarray, radius: float,
+                 sqrt_w: np.ndarray | None = None, noise: float = 1.0,
+                 prior: tuple[np.ndarray, float] | None = None, max_iter: int = 100,
+                 tol: float = 1e-12) -> tuple[np.ndarray, float] | None:
+    """Least-squares circle by Levenberg-Marquardt with the analytic Jacobian.
 
-    def residuals(p: np.ndarray) -> np.ndarray:
-        return sw * (np.hypot(pts[:, 0] - p[0], pts[:, 1] - p[1]) - p[2])
+    Minimises ``sum (sqrt_w_i (|p_i - c| - r) / noise)^2`` (plus ``|c - c0|^2 / sigma^2`` with
+    ``prior = (c0, sigma)``) over ``(c, r)`` from ``center`` (mm), ``radius`` (mm). Three
+    unknowns: the normal equations are 3x3 and each step costs a few passes over the points,
+    where scipy's general ``least_squares`` spends most of its time in its own machinery.
 
-    def jac(p: np.ndarray) -> np.ndarray:
-        dx, dy = pts[:, 0] - p[0], pts[:, 1] - p[1]
+    Returns
+    -------
+    (ndarray, float) or None
+        Centre and radius, mm; None when the solve does not converge to a positive radius.
+    """
+    x, y = pts[:, 0], pts[:, 1]
+    w = np.ones(len(pts)) if sqrt_w is None else sqrt_w * sqrt_w
+    w = w / (noise * noise)
+    q = np.array([center[0], center[1], radius], np.float64)
+    c0, inv_s2 = (np.zeros(2), 0.0) if prior is None else (np.asarray(prior[0]), prior[1] ** -2)
+
+    def normal_equations(q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        dx, dy = x - q[0], y - q[1]
         dist = np.maximum(np.hypot(dx, dy), 1e-300)
-        return sw[:, None] * np.column_stack([-dx / dist, -dy / dist, -np.ones(len(pts))])
+        res = dist - q[2]
+        ux, uy = dx / dist, dy / dist           # the Jacobian's rows are -(ux, uy, 1)
+        wr, wux, wuy = w * res, w * ux, w * uy
+        jtj = np.array([[wux @ ux, wux @ uy, wux.sum()],
+                        [0.0, wuy @ uy, wuy.sum()],
+                        [0.0, 0.0, w.sum()]])
+        jtj[1, 0], jtj[2, 0], jtj[2, 1] = jtj[0, 1], jtj[0, 2], jtj[1, 2]
+        grad = -np.array([wr @ ux, wr @ uy, wr.sum()])
+        dc = q[:2] - c0
+        cost = float(wr @ res) + inv_s2 * float(dc @ dc)
+        jtj[0, 0] += inv_s2
+        jtj[1, 1] += inv_s2
+        grad[:2] += inv_s2 * dc
+        return cost, jtj, grad
 
-    x0 = np.array([start.center[0], start.center[1], start.radius])
-    sol = least_squares(residuals, x0, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
-    if not sol.success or not np.isfinite(sol.x).all() or sol.x[2] <= 0:
+    cost, jtj, grad = normal_equations(q)
+    lam = 1e-9
+    for _ in range(max_iter):
+        try:
+            step = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj)), -grad)
+        except np.linalg.LinAlgError:
+            return None
+        trial = q + step
+        t_cost, t_jtj, t_grad = normal_equations(trial)
+        small = bool(np.all(np.abs(step) <= tol * (np.abs(trial) + tol)))
+        if t_cost <= cost or (small and t_cost <= cost * (1.0 + 1e-12)):
+            q, cost, jtj, grad = trial, t_cost, t_jtj, t_grad
+            lam *= 0.1
+            if small:
+                break
+        else:
+            lam *= 10.0
+            if small or lam > 1e12 * max(float(np.max(np.diag(jtj))), 1e-300):
+                break  # no step lowers the cost: at the minimum to rounding
+    if not (np.isfinite(q).all() and q[2] > 0):
         return None
-    return sol.x[:2], float(sol.x[2])
+    return q[:2].copy(), float(q[2])
 
 
 def fit_geometric(
@@ -377,7 +422,7 @@ def fit_geometric(
         last = k == max_rounds - 1
         if inliers.sum() < 3:
             return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
-        solved = _lm_circle(pts[inliers], CircleFit(center, radius), sw[inliers])
+        solved = solve_circle(pts[inliers], center, radius, sw[inliers])
         if solved is None:
             return CircleFit.failure("geometric fit did not converge", len(pts))
         center, radius = solved
@@ -542,16 +587,10 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
         noise = _MAD_TO_SIGMA * float(np.median(np.abs(res0 - np.median(res0))))
         noise = max(noise, 1e-6) * math.sqrt(correlation_factor(res0[order]))
 
-        def residuals(q: np.ndarray, use: np.ndarray = use, sw: np.ndarray = sw,
-                      noise: float = noise) -> np.ndarray:
-            d = (np.hypot(use[:, 0] - q[0], use[:, 1] - q[1]) - q[2]) * sw
-            return np.concatenate([d / noise, (q[:2] - c0) / center_sigma])
-
-        sol = least_squares(residuals, np.array([center[0], center[1], radius]), method="lm",
-                            xtol=1e-12, ftol=1e-12)
-        if not sol.success or not np.isfinite(sol.x).all() or sol.x[2] <= 0:
+        solved = solve_circle(use, center, radius, sw, noise, prior=(c0, center_sigma))
+        if solved is None:
             return CircleFit.failure("axis-prior fit did not converge", len(pts))
-        center, radius = sol.x[:2], float(sol.x[2])
+        center, radius = solved
         res = (np.hypot(*(pts - center).T) - radius) * sw_all
         scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
         new = np.abs(res - np.median(res[inliers])) <= max(reject_k * scale, floor_mm)

@@ -8,6 +8,8 @@ along the axis does not matter.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
@@ -24,7 +26,14 @@ def orthonormal_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     e1, e2 : ndarray, shape (3,)
         ``e1 x e2`` is parallel to ``direction``.
     """
-    a = np.asarray(direction, np.float64)
+    e1, e2 = _basis(tuple(float(v) for v in np.asarray(direction, np.float64).ravel()))
+    return e1.copy(), e2.copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _basis(direction: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    # Cached: the same axis is asked for several times a frame, and np.cross is slow on (3,).
+    a = np.array(direction)
     a = a / np.linalg.norm(a)
     ref = np.eye(3)[int(np.argmin(np.abs(a)))]  # the axis least aligned with a
     e1 = np.cross(a, ref)
