@@ -16,13 +16,7 @@ from service.measure.section import (
     orthonormal_basis,
     project_to_section,
 )
-from service.measure.sheet import (
-    arc_angles,
-    cross_the_stripe,
-    light_direction,
-    ridge_bias,
-    sheet_sigma_from_profile,
-)
+from service.measure.sheet_correction import correct_sheet_bias
 from service.measure.stripe import StripeParams, StripePoints, extract_stripe
 from service.measure.triangulate import triangulate
 
@@ -151,51 +145,6 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
                          points.section[keep])
 
 
-SHEET_SAMPLES = 16
-"""Points along the arc where the sheet's error is modelled (it changes slowly along it)."""
-
-
-def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
-                       geometry: RigGeometry, params: MeasureParams) -> np.ndarray:
-    """The section coordinates (mm) moved radially by the error the sheet's thickness leaves
-    in them, modelled on a fitted section of ``center`` (mm) and ``radius`` (mm)
-    (``service.measure.sheet``).
-
-    Points where the model has no answer (the camera does not see across the stripe there)
-    are left where they are; so are all when the stripe gives no heights or no width.
-    """
-    st = points.stripe
-    if st.peak is None:
-        return points.section
-    center = np.asarray(center, np.float64)
-    angles, _ = arc_angles(points.section, center)
-    samples = np.linspace(angles.min(), angles.max(), SHEET_SAMPLES)
-    blur, filter_px = params.stripe.optics_blur_px, params.stripe.sigma_px
-    smoothing = float(np.hypot(filter_px, blur))
-    order = np.argsort(angles)  # the points in arc order, for the light and the width
-    # The laser's irradiance: the smoothed height of a Gaussian line of width w, seen with
-    # filters of scale s, is its height times w / sqrt(w^2 + s^2).
-    with np.errstate(divide="ignore", invalid="ignore"):
-        brightness = st.peak * np.sqrt(st.width_px**2 + filter_px**2) / st.width_px
-    toward_laser = light_direction(points.section, center, brightness, geometry)
-    crossings = cross_the_stripe(center, radius, samples, geometry, smoothing)
-    sigma = params.sheet_sigma_mm
-    if sigma is None:
-        slope = np.interp(angles, samples, crossings.slope_mm_per_px)
-        sigma = sheet_sigma_from_profile(st.peak[order], st.strength[order], slope[order],
-                                         filter_px, blur)
-    if not (np.isfinite(sigma) and sigma > 0):
-        return points.section
-    radial = ridge_bias(crossings, geometry, center, radius, sigma, smoothing, toward_laser)
-    known = np.isfinite(radial)
-    if known.sum() < 2:
-        return points.section
-    dr = np.interp(angles, samples[known], radial[known])
-    rel = points.section - center
-    dist = np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)
-    return center + rel * ((dist - dr) / dist)[:, None]
-
-
 def axis_center(geometry: RigGeometry) -> np.ndarray | None:
     """The calibrated spindle axis in section coordinates, mm (None when not calibrated)."""
     if geometry.axis_point is None:
@@ -302,6 +251,7 @@ def measure_frame(
     image: np.ndarray, geometry: RigGeometry, method: Method = DEFAULT_METHOD,
     params: MeasureParams | None = None,
     center_prior: tuple[np.ndarray, float] | None = None,
+    near: np.ndarray | None = None,
 ) -> Measurement:
     """Measure the shaft diameter in one stripe image.
 
@@ -318,6 +268,9 @@ def measure_frame(
     center_prior : (ndarray, float), optional
         Section centre (mm) and its standard deviation (mm) for ``axis``, replacing the
         calibrated axis (the service passes its tracked centre).
+    near : ndarray, shape (N, 2), optional
+        The previous frame's stripe centres, px (its ``points_px``): the stripe is looked for
+        near them first (``extract_stripe``).
 
     Returns
     -------
@@ -330,7 +283,7 @@ def measure_frame(
     problem = check_image(image, geometry)
     if problem:
         return Measurement.failed(Status.BAD_IMAGE, method, problem)
-    stripe = extract_stripe(image, params.stripe)
+    stripe = extract_stripe(image, params.stripe, near)
     if not stripe:
         return Measurement.failed(Status.NO_STRIPE, method, stripe.reason or "no stripe found")
     points = drop_grazing(section_points(stripe, geometry), geometry, params)

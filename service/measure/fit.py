@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import least_squares
 
-_MAD_TO_SIGMA = 1.4826
+from service.measure import circle_kernels as ck
 
 
 @dataclass(frozen=True)
@@ -141,25 +141,7 @@ def correlation_factor(residuals: np.ndarray, max_lag_fraction: float = 0.2) -> 
     float
         ``tau >= 1``.
     """
-    r = np.asarray(residuals, np.float64)
-    r = r - r.mean()
-    var = float(r @ r)
-    if r.size < 8 or var <= 0:
-        return 1.0
-    tau = 1.0
-    for k in range(1, max(2, int(max_lag_fraction * r.size))):
-        rho = float(r[:-k] @ r[k:]) / var
-        if rho < 0.05:
-            break
-        tau += 2.0 * rho
-    return tau
-
-
-def _circle_jacobian(points: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distances to the centre and the Jacobian of ``|p - c| - r`` w.r.t. (cx, cy, r)."""
-    dx, dy = points[:, 0] - center[0], points[:, 1] - center[1]
-    dist = np.maximum(np.hypot(dx, dy), 1e-300)
-    return dist, np.column_stack([-dx / dist, -dy / dist, -np.ones(len(points))])
+    return float(ck.correlation_factor(np.asarray(residuals, np.float64), max_lag_fraction))
 
 
 def circle_covariance(points: np.ndarray, center: np.ndarray, radius: float,
@@ -171,15 +153,11 @@ def circle_covariance(points: np.ndarray, center: np.ndarray, radius: float,
     ``correlation_factor`` for residuals correlated along the arc; with a centre prior of
     standard deviation ``center_prior_sigma`` (mm) its information is added to the centre's.
     """
-    dist, jac = _circle_jacobian(points, center)
-    res = dist - radius
-    w = np.ones(len(points)) if weights is None else np.asarray(weights, np.float64)
+    pts = np.asarray(points, np.float64)
+    w = np.ones(len(pts)) if weights is None else np.asarray(weights, np.float64)
     n_free = 3 if center_prior_sigma is None else 1
-    dof = max(len(points) - n_free, 1)
-    s2 = float(w @ (res * res)) / dof
-    order = order_along_arc(points, center)
-    s2 *= correlation_factor((res * np.sqrt(w))[order])
-    info = (jac * w[:, None]).T @ jac / max(s2, 1e-30)
+    info = ck.circle_information(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                                 float(center[0]), float(center[1]), float(radius), w, n_free)
     if center_prior_sigma is not None:
         info[0, 0] += 1.0 / center_prior_sigma**2
         info[1, 1] += 1.0 / center_prior_sigma**2
@@ -309,70 +287,6 @@ def fit_hyper(points: np.ndarray) -> CircleFit:
                                np.ones(len(pts), bool)), pts)
 
 
-def solve_circle(pts: np.ndarray, center: np.ndarray, radius: float,
-                 sqrt_w: np.ndarray | None = None, noise: float = 1.0,
-                 prior: tuple[np.ndarray, float] | None = None, max_iter: int = 100,
-                 tol: float = 1e-12) -> tuple[np.ndarray, float] | None:
-    """Least-squares circle by Levenberg-Marquardt with the analytic Jacobian.
-
-    Minimises ``sum (sqrt_w_i (|p_i - c| - r) / noise)^2`` (plus ``|c - c0|^2 / sigma^2`` with
-    ``prior = (c0, sigma)``) over ``(c, r)`` from ``center`` (mm), ``radius`` (mm). Three
-    unknowns: the normal equations are 3x3 and each step costs a few passes over the points,
-    where scipy's general ``least_squares`` spends most of its time in its own machinery.
-
-    Returns
-    -------
-    (ndarray, float) or None
-        Centre and radius, mm; None when the solve does not converge to a positive radius.
-    """
-    x, y = pts[:, 0], pts[:, 1]
-    w = np.ones(len(pts)) if sqrt_w is None else sqrt_w * sqrt_w
-    w = w / (noise * noise)
-    q = np.array([center[0], center[1], radius], np.float64)
-    c0, inv_s2 = (np.zeros(2), 0.0) if prior is None else (np.asarray(prior[0]), prior[1] ** -2)
-
-    def normal_equations(q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        dx, dy = x - q[0], y - q[1]
-        dist = np.maximum(np.hypot(dx, dy), 1e-300)
-        res = dist - q[2]
-        ux, uy = dx / dist, dy / dist           # the Jacobian's rows are -(ux, uy, 1)
-        wr, wux, wuy = w * res, w * ux, w * uy
-        jtj = np.array([[wux @ ux, wux @ uy, wux.sum()],
-                        [0.0, wuy @ uy, wuy.sum()],
-                        [0.0, 0.0, w.sum()]])
-        jtj[1, 0], jtj[2, 0], jtj[2, 1] = jtj[0, 1], jtj[0, 2], jtj[1, 2]
-        grad = -np.array([wr @ ux, wr @ uy, wr.sum()])
-        dc = q[:2] - c0
-        cost = float(wr @ res) + inv_s2 * float(dc @ dc)
-        jtj[0, 0] += inv_s2
-        jtj[1, 1] += inv_s2
-        grad[:2] += inv_s2 * dc
-        return cost, jtj, grad
-
-    cost, jtj, grad = normal_equations(q)
-    lam = 1e-9
-    for _ in range(max_iter):
-        try:
-            step = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj)), -grad)
-        except np.linalg.LinAlgError:
-            return None
-        trial = q + step
-        t_cost, t_jtj, t_grad = normal_equations(trial)
-        small = bool(np.all(np.abs(step) <= tol * (np.abs(trial) + tol)))
-        if t_cost <= cost or (small and t_cost <= cost * (1.0 + 1e-12)):
-            q, cost, jtj, grad = trial, t_cost, t_jtj, t_grad
-            lam *= 0.1
-            if small:
-                break
-        else:
-            lam *= 10.0
-            if small or lam > 1e12 * max(float(np.max(np.diag(jtj))), 1e-300):
-                break  # no step lowers the cost: at the minimum to rounding
-    if not (np.isfinite(q).all() and q[2] > 0):
-        return None
-    return q[:2].copy(), float(q[2])
-
-
 def fit_geometric(
     points: np.ndarray, reject_k: float = 3.5, max_rounds: int = 6, floor_mm: float = 1e-4,
     weights: np.ndarray | None = None, start: CircleFit | None = None,
@@ -415,35 +329,25 @@ def fit_geometric(
     fit = start if start and start.inliers.size == len(pts) else fit_hyper(pts)
     if not fit:
         return fit
-    center, radius = fit.center, fit.radius
-    if fit is start:
-        inliers = start.inliers.copy()
-    for k in range(max_rounds):
-        last = k == max_rounds - 1
-        if inliers.sum() < 3:
-            return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
-        solved = solve_circle(pts[inliers], center, radius, sw[inliers])
-        if solved is None:
-            return CircleFit.failure("geometric fit did not converge", len(pts))
-        center, radius = solved
-        res = (np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) - radius) * sw
-        scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
-        new = np.abs(res) <= max(reject_k * scale, floor_mm)
-        if np.array_equal(new, inliers) or last:
-            break  # the inliers reported are those this fit was made with
-        inliers = new
+    inliers = start.inliers if fit is start else inliers
+    cx, cy, radius, inliers, status = ck.robust_rounds(
+        np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sw,
+        float(fit.center[0]), float(fit.center[1]), float(fit.radius), inliers, False,
+        0.0, 0.0, 1.0, reject_k, max_rounds, floor_mm)
+    if status == 1:
+        return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
+    if status == 2:
+        return CircleFit.failure("geometric fit did not converge", len(pts))
+    center = np.array([cx, cy])
     return _with_std(CircleFit(center, radius, circle_rms(pts[inliers], center, radius),
                                inliers), pts, w)
 
 
 def order_along_arc(points: np.ndarray, center: np.ndarray) -> np.ndarray:
     """Indices that sort points by angle around ``center``, starting after the largest gap."""
-    ang = np.arctan2(points[:, 1] - center[1], points[:, 0] - center[0])
-    order = np.argsort(ang)
-    a = ang[order]
-    gaps = np.diff(np.concatenate([a, [a[0] + 2 * math.pi]]))
-    start = (int(np.argmax(gaps)) + 1) % len(a)
-    return np.roll(order, -start)
+    pts = np.asarray(points, np.float64)
+    return ck.order_along_arc(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                              float(center[0]), float(center[1]))
 
 
 def arc_span_deg(points: np.ndarray, center: np.ndarray) -> float:
@@ -576,27 +480,15 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
     radius = float(np.average(np.hypot(*(pts - c0).T), weights=w))
     if start and start.inliers.size == len(pts):
         inliers, center, radius = start.inliers.copy(), start.center.copy(), start.radius
-    for k in range(max_rounds):
-        last = k == max_rounds - 1
-        use, sw = pts[inliers], sw_all[inliers]
-        if len(use) < 3:
-            return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
-        dist0 = np.hypot(*(use - center).T)
-        res0 = (dist0 - np.median(dist0)) * sw
-        order = order_along_arc(use, center)
-        noise = _MAD_TO_SIGMA * float(np.median(np.abs(res0 - np.median(res0))))
-        noise = max(noise, 1e-6) * math.sqrt(correlation_factor(res0[order]))
-
-        solved = solve_circle(use, center, radius, sw, noise, prior=(c0, center_sigma))
-        if solved is None:
-            return CircleFit.failure("axis-prior fit did not converge", len(pts))
-        center, radius = solved
-        res = (np.hypot(*(pts - center).T) - radius) * sw_all
-        scale = _MAD_TO_SIGMA * float(np.median(np.abs(res[inliers] - np.median(res[inliers]))))
-        new = np.abs(res - np.median(res[inliers])) <= max(reject_k * scale, floor_mm)
-        if np.array_equal(new, inliers) or last:
-            break  # the inliers reported are those this fit was made with
-        inliers = new
+    cx, cy, radius, inliers, status = ck.robust_rounds(
+        np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sw_all,
+        float(center[0]), float(center[1]), float(radius), inliers, True, float(c0[0]),
+        float(c0[1]), float(center_sigma), reject_k, max_rounds, floor_mm)
+    if status == 1:
+        return CircleFit.failure("outlier rejection left fewer than 3 points", len(pts))
+    if status == 2:
+        return CircleFit.failure("axis-prior fit did not converge", len(pts))
+    center = np.array([cx, cy])
     use = pts[inliers]
     cov = circle_covariance(use, center, radius, center_prior_sigma=center_sigma,
                             weights=w[inliers])

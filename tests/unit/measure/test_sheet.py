@@ -74,7 +74,7 @@ def test_sheet_sigma_on_rendered_images(rig) -> None:
     """The estimate on a noise-free image of the simulated rig, whose sheet has sigma 0.06."""
     r, geo = rig
     seen = {}
-    import service.measure.diameter as diameter
+    import service.measure.sheet_correction as diameter
 
     def spy(*args: object) -> float:
         seen["sigma"] = sheet_sigma_from_profile(*args)

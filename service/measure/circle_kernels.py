@@ -1,0 +1,232 @@
+"""Compiled circle fitting (numba): Levenberg-Marquardt with the analytic Jacobian, the robust
+fit-and-reject rounds of ``fit.fit_geometric`` and ``fit.fit_axis_prior``, and the covariance.
+
+``service.measure.fit`` is the interface (validation, results, documentation); this module is
+its inner loops, written once in compiled form because a frame runs them a dozen times on a
+few hundred points and numpy's per-call overhead (a median is ~15 us however short the array)
+was most of their cost. Pure numerics; no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_OPTS = dict(cache=True, nogil=True)
+MAD_TO_SIGMA = 1.4826
+
+
+@numba.njit(**_OPTS)
+def solve_circle(x: np.ndarray, y: np.ndarray, w: np.ndarray, cx: float, cy: float, r: float,
+                 c0x: float, c0y: float, inv_s2: float, max_iter: int = 100,
+                 tol: float = 1e-12) -> tuple[float, float, float, bool]:
+    """Minimise ``sum w_i (|p_i - c| - r)^2 + inv_s2 |c - c0|^2`` over (cx, cy, r) from the
+    given start by Levenberg-Marquardt (Marquardt's diagonal scaling). Returns the solution
+    and whether it is a circle (finite, positive radius)."""
+    q = np.array([cx, cy, r])
+    jtj = np.zeros((3, 3))
+    grad = np.zeros(3)
+    cost = _normal_equations(x, y, w, q, c0x, c0y, inv_s2, jtj, grad)
+    t_jtj = np.zeros((3, 3))
+    t_grad = np.zeros(3)
+    lam = 1e-9
+    for _ in range(max_iter):
+        a = jtj.copy()
+        for i in range(3):
+            a[i, i] += lam * jtj[i, i]
+        step = _solve3(a, -grad)
+        trial = q + step
+        t_cost = _normal_equations(x, y, w, trial, c0x, c0y, inv_s2, t_jtj, t_grad)
+        small = True
+        for i in range(3):
+            if abs(step[i]) > tol * (abs(trial[i]) + tol):
+                small = False
+        small = small or (t_cost <= cost and cost - t_cost <= 1e-15 * cost)
+        if t_cost <= cost or (small and t_cost <= cost * (1.0 + 1e-12)):
+            q[:] = trial
+            cost = t_cost
+            jtj[:, :] = t_jtj
+            grad[:] = t_grad
+            lam *= 0.1
+            if small:
+                break
+        else:
+            lam *= 10.0
+            if small or lam > 1e12:
+                break  # no step lowers the cost: at the minimum to rounding
+    ok = math.isfinite(q[0]) and math.isfinite(q[1]) and math.isfinite(q[2]) and q[2] > 0
+    return q[0], q[1], q[2], ok
+
+
+@numba.njit(**_OPTS)
+def _normal_equations(x: np.ndarray, y: np.ndarray, w: np.ndarray, q: np.ndarray,
+                      c0x: float, c0y: float, inv_s2: float, jtj: np.ndarray,
+                      grad: np.ndarray) -> float:
+    """Cost, J^T W J and the gradient J^T W r at q (the Jacobian's rows are -(ux, uy, 1))."""
+    sxx = sxy = sx = syy = sy = sw = gx = gy = gr = cost = 0.0
+    for i in range(x.shape[0]):
+        dx, dy = x[i] - q[0], y[i] - q[1]
+        dist = max(math.hypot(dx, dy), 1e-300)
+        res = dist - q[2]
+        ux, uy = dx / dist, dy / dist
+        wi = w[i]
+        sxx += wi * ux * ux
+        sxy += wi * ux * uy
+        syy += wi * uy * uy
+        sx += wi * ux
+        sy += wi * uy
+        sw += wi
+        gx += wi * res * ux
+        gy += wi * res * uy
+        gr += wi * res
+        cost += wi * res * res
+    dcx, dcy = q[0] - c0x, q[1] - c0y
+    jtj[0, 0], jtj[0, 1], jtj[0, 2] = sxx + inv_s2, sxy, sx
+    jtj[1, 0], jtj[1, 1], jtj[1, 2] = sxy, syy + inv_s2, sy
+    jtj[2, 0], jtj[2, 1], jtj[2, 2] = sx, sy, sw
+    grad[0] = -gx + inv_s2 * dcx
+    grad[1] = -gy + inv_s2 * dcy
+    grad[2] = -gr
+    return cost + inv_s2 * (dcx * dcx + dcy * dcy)
+
+
+@numba.njit(**_OPTS)
+def _solve3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solution of a 3x3 system by Gaussian elimination with partial pivoting."""
+    m = a.copy()
+    v = b.copy()
+    for col in range(3):
+        piv = col
+        for row in range(col + 1, 3):
+            if abs(m[row, col]) > abs(m[piv, col]):
+                piv = row
+        if piv != col:
+            for k in range(3):
+                m[col, k], m[piv, k] = m[piv, k], m[col, k]
+            v[col], v[piv] = v[piv], v[col]
+        for row in range(col + 1, 3):
+            f = m[row, col] / m[col, col]
+            for k in range(col, 3):
+                m[row, k] -= f * m[col, k]
+            v[row] -= f * v[col]
+    out = np.zeros(3)
+    for row in range(2, -1, -1):
+        acc = v[row]
+        for k in range(row + 1, 3):
+            acc -= m[row, k] * out[k]
+        out[row] = acc / m[row, row]
+    return out
+
+
+@numba.njit(**_OPTS)
+def order_along_arc(x: np.ndarray, y: np.ndarray, cx: float, cy: float) -> np.ndarray:
+    """Indices that sort points by angle around (cx, cy), starting after the largest gap."""
+    n = x.shape[0]
+    ang = np.arctan2(y - cy, x - cx)
+    order = np.argsort(ang)
+    best, start = -1.0, 0
+    for i in range(n):
+        nxt = ang[order[i + 1]] if i + 1 < n else ang[order[0]] + 2 * math.pi
+        gap = nxt - ang[order[i]]
+        if gap > best:
+            best, start = gap, (i + 1) % n
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        out[i] = order[(start + i) % n]
+    return out
+
+
+@numba.njit(**_OPTS)
+def correlation_factor(residuals: np.ndarray, max_lag_fraction: float = 0.2) -> float:
+    """``fit.correlation_factor`` compiled: ``tau = 1 + 2 sum rho_k`` while rho_k >= 0.05."""
+    n = residuals.shape[0]
+    r = residuals - residuals.mean()
+    var = 0.0
+    for i in range(n):
+        var += r[i] * r[i]
+    if n < 8 or var <= 0:
+        return 1.0
+    tau = 1.0
+    for k in range(1, max(2, int(max_lag_fraction * n))):
+        acc = 0.0
+        for i in range(n - k):
+            acc += r[i] * r[i + k]
+        rho = acc / var
+        if rho < 0.05:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+@numba.njit(**_OPTS)
+def _mad(values: np.ndarray) -> tuple[float, float]:
+    """Median and the robust standard deviation (scaled MAD) about it."""
+    med = np.median(values)
+    return med, MAD_TO_SIGMA * np.median(np.abs(values - med))
+
+
+@numba.njit(**_OPTS)
+def robust_rounds(x: np.ndarray, y: np.ndarray, sw_all: np.ndarray, cx: float, cy: float,
+                  r: float, inliers: np.ndarray, with_prior: bool, c0x: float, c0y: float,
+                  sigma: float, reject_k: float, max_rounds: int, floor_mm: float
+                  ) -> tuple[float, float, float, np.ndarray, int]:
+    """Fit-and-reject rounds of ``fit.fit_geometric`` (``with_prior`` False) and
+    ``fit.fit_axis_prior`` (True), from the start (cx, cy, r) and ``inliers``.
+
+    Returns the circle, the inliers it was fitted with, and a status: 0 done, 1 fewer than 3
+    inliers left, 2 the fit did not converge.
+    """
+    inl = inliers.copy()
+    for k in range(max_rounds):
+        last = k == max_rounds - 1
+        idx = np.flatnonzero(inl)
+        if idx.shape[0] < 3:
+            return cx, cy, r, inl, 1
+        ux, uy, usw = x[idx], y[idx], sw_all[idx]
+        if with_prior:
+            dist0 = np.hypot(ux - cx, uy - cy)
+            res0 = (dist0 - np.median(dist0)) * usw
+            order = order_along_arc(ux, uy, cx, cy)
+            noise = _mad(res0)[1]
+            noise = max(noise, 1e-6) * math.sqrt(correlation_factor(res0[order]))
+            w = usw * usw / (noise * noise)
+            cx, cy, r, ok = solve_circle(ux, uy, w, cx, cy, r, c0x, c0y, sigma ** -2.0)
+        else:
+            cx, cy, r, ok = solve_circle(ux, uy, usw * usw, cx, cy, r, 0.0, 0.0, 0.0)
+        if not ok:
+            return cx, cy, r, inl, 2
+        res = (np.hypot(x - cx, y - cy) - r) * sw_all
+        med, scale = _mad(res[idx])
+        centre = med if with_prior else 0.0
+        new = np.abs(res - centre) <= max(reject_k * scale, floor_mm)
+        if np.array_equal(new, inl) or last:
+            break  # the inliers reported are those this fit was made with
+        inl = new
+    return cx, cy, r, inl, 0
+
+
+@numba.njit(**_OPTS)
+def circle_information(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float,
+                       w: np.ndarray, n_free: int) -> np.ndarray:
+    """``s^-2 J^T W J`` of a circle fit, with ``s^2`` the weighted residual variance inflated
+    for correlation along the arc (``fit.circle_covariance``)."""
+    n = x.shape[0]
+    dx, dy = x - cx, y - cy
+    dist = np.maximum(np.hypot(dx, dy), 1e-300)
+    res = dist - r
+    s2 = 0.0
+    for i in range(n):
+        s2 += w[i] * res[i] * res[i]
+    s2 /= max(n - n_free, 1)
+    order = order_along_arc(x, y, cx, cy)
+    s2 *= correlation_factor((res * np.sqrt(w))[order])
+    s2 = max(s2, 1e-30)
+    info = np.zeros((3, 3))
+    for i in range(n):
+        j = (-dx[i] / dist[i], -dy[i] / dist[i], -1.0)
+        for a in range(3):
+            for b in range(3):
+                info[a, b] += w[i] * j[a] * j[b]
+    return info / s2

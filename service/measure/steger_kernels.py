@@ -1,0 +1,366 @@
+"""Compiled kernels of the stripe extractor (numba): Steger's test on the pixels of a band only,
+the refinement at float positions, and the local fits of the curvature correction.
+
+They compute exactly what ``service.measure.stripe``'s reference numpy forms compute (the
+tests hold them to it), but only where the stripe is: the separable derivative filters run on
+the band's pixels and the few rows the filters reach beyond it, not over the band's bounding
+box. No I/O; numba compiles them once and caches the machine code beside this file.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_OPTS = dict(cache=True, nogil=True)
+
+
+@numba.njit(**_OPTS)
+def band_hessian(roi: np.ndarray, band: np.ndarray, g: np.ndarray, g1: np.ndarray,
+                 g2: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The Gaussian-smoothed image and its derivatives up to second order at every band pixel.
+
+    Parameters
+    ----------
+    roi : ndarray of float32, shape (H, W)
+        Image (background taken off).
+    band : ndarray of bool, shape (H, W)
+        Pixels to evaluate; those nearer the border than the kernels' radius are skipped.
+    g, g1, g2 : ndarray of float32, shape (2r + 1,)
+        Sampled Gaussian and its derivatives (``stripe._gaussian_kernels``), applied as
+        OpenCV's ``sepFilter2D`` applies them (correlation).
+
+    Returns
+    -------
+    iy, ix : ndarray of int64
+        Band pixels evaluated.
+    d : ndarray of float64, shape (N, 6)
+        ``v, x, y, xx, yy, xy`` at each.
+    """
+    h, w = roi.shape
+    r = (g.shape[0] - 1) // 2
+    # Rows the column pass reads: the band's pixels and r rows above and below them.
+    need = np.zeros((h, w), np.bool_)
+    count = 0
+    for y in range(r, h - r):
+        for x in range(r, w - r):
+            if band[y, x]:
+                count += 1
+                for k in range(-r, r + 1):
+                    need[y + k, x] = True
+    rows0 = np.empty((h, w), np.float32)
+    rows1 = np.empty((h, w), np.float32)
+    rows2 = np.empty((h, w), np.float32)
+    for y in range(h):
+        for x in range(r, w - r):
+            if need[y, x]:
+                a0 = np.float32(0.0)
+                a1 = np.float32(0.0)
+                a2 = np.float32(0.0)
+                for k in range(2 * r + 1):
+                    p = roi[y, x + k - r]
+                    a0 += g[k] * p
+                    a1 += g1[k] * p
+                    a2 += g2[k] * p
+                rows0[y, x] = a0
+                rows1[y, x] = a1
+                rows2[y, x] = a2
+    iy = np.empty(count, np.int64)
+    ix = np.empty(count, np.int64)
+    d = np.empty((count, 6), np.float64)
+    n = 0
+    for y in range(r, h - r):
+        for x in range(r, w - r):
+            if not band[y, x]:
+                continue
+            v = np.float32(0.0)
+            dx = np.float32(0.0)
+            dy = np.float32(0.0)
+            dxx = np.float32(0.0)
+            dyy = np.float32(0.0)
+            dxy = np.float32(0.0)
+            for k in range(2 * r + 1):
+                c0 = rows0[y + k - r, x]
+                c1 = rows1[y + k - r, x]
+                v += g[k] * c0
+                dx += g[k] * c1
+                dy += g1[k] * c0
+                dxx += g[k] * rows2[y + k - r, x]
+                dyy += g2[k] * c0
+                dxy += g1[k] * c1
+            iy[n] = y
+            ix[n] = x
+            d[n, 0] = v
+            d[n, 1] = dx
+            d[n, 2] = dy
+            d[n, 3] = dxx
+            d[n, 4] = dyy
+            d[n, 5] = dxy
+            n += 1
+    return iy, ix, d
+
+
+@numba.njit(**_OPTS)
+def steger_test(d: np.ndarray, min_curvature: float, search: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steger's first step at pixels with derivatives ``d`` (rows ``v, x, y, xx, yy, xy``):
+    the line normal from the Hessian's eigenvector of the most negative eigenvalue, the
+    offset ``t`` along it, and the test (a ridge, stronger across than along, curvature above
+    ``min_curvature``, the centre within ``search`` px of the pixel).
+
+    Returns
+    -------
+    index, nx, ny, t : ndarray
+        Rows of ``d`` that pass, with their normal and offset.
+    """
+    n = d.shape[0]
+    index = np.empty(n, np.int64)
+    nxs = np.empty(n)
+    nys = np.empty(n)
+    ts = np.empty(n)
+    m = 0
+    for i in range(n):
+        gx, gy, hxx, hyy, hxy = d[i, 1], d[i, 2], d[i, 3], d[i, 4], d[i, 5]
+        half_tr = 0.5 * (hxx + hyy)
+        root = math.hypot(0.5 * (hxx - hyy), hxy)
+        lam_lo = half_tr - root
+        lam_hi = half_tr + root
+        if not (lam_lo < 0.0 and abs(lam_lo) > abs(lam_hi) and -lam_lo > min_curvature):
+            continue
+        theta = 0.5 * math.atan2(2.0 * hxy, hxx - hyy)  # direction of the high eigenvalue
+        nx, ny = -math.sin(theta), math.cos(theta)      # ... and of the low one
+        t = -(nx * gx + ny * gy) / lam_lo
+        if abs(t * nx) <= search and abs(t * ny) <= search:
+            index[m] = i
+            nxs[m] = nx
+            nys[m] = ny
+            ts[m] = t
+            m += 1
+    return index[:m], nxs[:m], nys[:m], ts[:m]
+
+
+@numba.njit(**_OPTS)
+def derivatives_at(image: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float
+                   ) -> np.ndarray:
+    """``stripe.derivatives_at`` compiled: the continuous-Gaussian derivatives at float
+    positions, as an (N, 6) array ``v, x, y, xx, xy, yy``."""
+    h, w = image.shape
+    r = max(1, math.ceil(4.0 * sigma))
+    m = 2 * r + 1
+    out = np.empty((x.shape[0], 6), np.float64)
+    norm = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
+    kx = np.empty((3, m))
+    ky = np.empty((3, m))
+    for i in range(x.shape[0]):
+        cx = min(max(int(np.rint(x[i])), r), w - 1 - r)
+        cy = min(max(int(np.rint(y[i])), r), h - 1 - r)
+        for j in range(m):
+            u = ((j - r) - (x[i] - cx)) / sigma
+            gv = math.exp(-0.5 * u * u) * norm
+            kx[0, j] = gv
+            kx[1, j] = u / sigma * gv
+            kx[2, j] = (u * u - 1.0) / sigma**2 * gv
+            u = ((j - r) - (y[i] - cy)) / sigma
+            gv = math.exp(-0.5 * u * u) * norm
+            ky[0, j] = gv
+            ky[1, j] = u / sigma * gv
+            ky[2, j] = (u * u - 1.0) / sigma**2 * gv
+        v = 0.0
+        dx = 0.0
+        dy = 0.0
+        dxx = 0.0
+        dxy = 0.0
+        dyy = 0.0
+        for a in range(m):
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            for b in range(m):
+                p = float(image[cy - r + a, cx - r + b])
+                s0 += kx[0, b] * p
+                s1 += kx[1, b] * p
+                s2 += kx[2, b] * p
+            v += ky[0, a] * s0
+            dx += ky[0, a] * s1
+            dy += ky[1, a] * s0
+            dxx += ky[0, a] * s2
+            dyy += ky[2, a] * s0
+            dxy += ky[1, a] * s1
+        out[i, 0] = v
+        out[i, 1] = dx
+        out[i, 2] = dy
+        out[i, 3] = dxx
+        out[i, 4] = dxy
+        out[i, 5] = dyy
+    return out
+
+
+@numba.njit(**_OPTS)
+def local_parabolas(xy: np.ndarray, normal: np.ndarray, idx: np.ndarray, window_px: float
+                    ) -> np.ndarray:
+    """For each centre, ``c`` of ``v = a + b u + c u^2`` fitted with Gaussian weights (half
+    width ``window_px`` along the stripe) to its neighbours ``idx`` in the frame of its own
+    tangent ``u`` and normal ``v`` (``stripe.correct_curvature_bias``)."""
+    n, k = idx.shape
+    out = np.empty(n)
+    for i in range(n):
+        tx, ty = -normal[i, 1], normal[i, 0]
+        s = np.zeros((3, 3))
+        rhs = np.zeros(3)
+        for j in range(k):
+            q = idx[i, j]
+            rx = xy[q, 0] - xy[i, 0]
+            ry = xy[q, 1] - xy[i, 1]
+            u = rx * tx + ry * ty
+            v = rx * normal[i, 0] + ry * normal[i, 1]
+            if abs(v) >= 2.0:
+                continue  # a parallel stray line
+            wgt = math.exp(-0.5 * (u / window_px) ** 2)
+            basis = (1.0, u, u * u)
+            for a in range(3):
+                rhs[a] += wgt * basis[a] * v
+                for b in range(3):
+                    s[a, b] += wgt * basis[a] * basis[b]
+        for a in range(3):
+            s[a, a] += 1e-9
+        out[i] = _third_unknown(s, rhs)
+    return out
+
+
+@numba.njit(**_OPTS)
+def _det3(a00: float, a01: float, a02: float, a10: float, a11: float, a12: float,
+          a20: float, a21: float, a22: float) -> float:
+    return (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20)
+            + a02 * (a10 * a21 - a11 * a20))
+
+
+@numba.njit(**_OPTS)
+def _third_unknown(s: np.ndarray, rhs: np.ndarray) -> float:
+    """The third unknown of the 3x3 system ``s z = rhs`` (Cramer's rule)."""
+    det = _det3(s[0, 0], s[0, 1], s[0, 2], s[1, 0], s[1, 1], s[1, 2], s[2, 0], s[2, 1], s[2, 2])
+    if det == 0.0:
+        return 0.0
+    return _det3(s[0, 0], s[0, 1], rhs[0], s[1, 0], s[1, 1], rhs[1], s[2, 0], s[2, 1],
+                 rhs[2]) / det
+
+
+@numba.njit(**_OPTS)
+def disc_mask(h: int, w: int, ys: np.ndarray, xs: np.ndarray, radius: int) -> np.ndarray:
+    """A (h, w) mask of the pixels within ``radius`` px of any of the points (``ys``, ``xs``,
+    integer pixels, may lie outside)."""
+    mask = np.zeros((h, w), np.bool_)
+    r2 = radius * radius
+    for i in range(ys.shape[0]):
+        for dy in range(-radius, radius + 1):
+            y = ys[i] + dy
+            if y < 0 or y >= h:
+                continue
+            span = int(math.sqrt(r2 - dy * dy))
+            for x in range(max(0, xs[i] - span), min(w, xs[i] + span + 1)):
+                mask[y, x] = True
+    return mask
+
+
+@numba.njit(**_OPTS)
+def block_means(image: np.ndarray, k: int, spacing: int) -> np.ndarray:
+    """Means of the ``k``-square blocks of ``image``, one block in ``spacing`` each way."""
+    hb, wb = image.shape[0] // k, image.shape[1] // k
+    ny, nx = (hb + spacing - 1) // spacing, (wb + spacing - 1) // spacing
+    out = np.empty(ny * nx)
+    m = 0
+    for by in range(0, hb, spacing):
+        for bx in range(0, wb, spacing):
+            acc = 0.0
+            for y in range(by * k, by * k + k):
+                for x in range(bx * k, bx * k + k):
+                    acc += image[y, x]
+            out[m] = acc / (k * k)
+            m += 1
+    return out[:m]
+
+
+@numba.njit(**_OPTS)
+def _sweep_order(xy: np.ndarray) -> tuple[np.ndarray, int]:
+    """Points sorted along the coordinate (0: x, 1: y) they spread most in, and which."""
+    axis = 1 if np.ptp(xy[:, 1]) > np.ptp(xy[:, 0]) else 0
+    return np.argsort(xy[:, axis]), axis
+
+
+@numba.njit(**_OPTS)
+def nearest_neighbours(xy: np.ndarray, k: int) -> np.ndarray:
+    """Indices of each point's ``k`` nearest points (itself first), nearest first: what
+    ``cKDTree(xy).query(xy, k)`` gives, by a sweep along the points' longer extent (a
+    stripe's centres lie along a curve, so few candidates are looked at)."""
+    n = xy.shape[0]
+    order, axis = _sweep_order(xy)
+    rank = np.empty(n, np.int64)
+    for i in range(n):
+        rank[order[i]] = i
+    out = np.empty((n, k), np.int64)
+    best_d = np.empty(k)
+    best_i = np.empty(k, np.int64)
+    for i in range(n):
+        filled = 0
+        ri = rank[i]
+        for direction in (-1, 1):
+            j = ri if direction == 1 else ri - 1
+            while 0 <= j < n:
+                q = order[j]
+                along = xy[q, axis] - xy[i, axis]
+                if filled == k and along * along > best_d[k - 1]:
+                    break
+                dx, dy = xy[q, 0] - xy[i, 0], xy[q, 1] - xy[i, 1]
+                d2 = dx * dx + dy * dy
+                if filled < k or d2 < best_d[k - 1]:
+                    pos = filled if filled < k else k - 1
+                    while pos > 0 and best_d[pos - 1] > d2:
+                        if pos < k:
+                            best_d[pos] = best_d[pos - 1]
+                            best_i[pos] = best_i[pos - 1]
+                        pos -= 1
+                    best_d[pos] = d2
+                    best_i[pos] = q
+                    if filled < k:
+                        filled += 1
+                j += direction
+        out[i, :] = best_i
+    return out
+
+
+@numba.njit(**_OPTS)
+def _root(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@numba.njit(**_OPTS)
+def chain_sizes(xy: np.ndarray, gap: float) -> np.ndarray:
+    """For each point, the number of points in its chain: points linked when no farther apart
+    than ``gap`` (px), chains the connected sets (union-find over a sweep)."""
+    n = xy.shape[0]
+    order, axis = _sweep_order(xy)
+    parent = np.arange(n)
+    g2 = gap * gap
+    for a in range(n):
+        i = order[a]
+        for b in range(a + 1, n):
+            q = order[b]
+            along = xy[q, axis] - xy[i, axis]
+            if along > gap:
+                break
+            dx, dy = xy[q, 0] - xy[i, 0], xy[q, 1] - xy[i, 1]
+            if dx * dx + dy * dy <= g2:
+                ri, rq = _root(parent, i), _root(parent, q)
+                if ri != rq:
+                    parent[ri] = rq
+    sizes = np.zeros(n, np.int64)
+    for i in range(n):
+        sizes[_root(parent, i)] += 1
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        out[i] = sizes[_root(parent, i)]
+    return out

@@ -1,0 +1,144 @@
+"""The compiled kernels against the reference forms they replace: OpenCV's separable filters,
+the numpy continuous-Gaussian derivatives, scipy's k-d tree and connected components, scipy's
+least_squares; and tracking against a full search."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import least_squares
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from service.measure import circle_kernels as ck
+from service.measure import steger_kernels as sk
+from service.measure.band import gaussian_kernels, tube_band
+from service.measure.stripe import StripeParams, extract_stripe
+
+
+def _speckled(seed: int, shape: tuple[int, int] = (60, 80)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur(rng.uniform(0, 200, shape).astype(np.float32), (0, 0), 1.2)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_band_hessian_equals_opencv_filters(seed: int) -> None:
+    roi = _speckled(seed)
+    band = np.random.default_rng(seed + 10).random(roi.shape) < 0.3
+    g, g1, g2 = gaussian_kernels(1.5)
+    iy, ix, d = sk.band_hessian(roi, band, g, g1, g2)
+    r = (len(g) - 1) // 2
+    inner = band.copy()
+    inner[:r], inner[-r:], inner[:, :r], inner[:, -r:] = False, False, False, False
+    assert np.array_equal(np.column_stack([iy, ix]), np.argwhere(inner))
+    for col, (kx, ky) in enumerate([(g, g), (g1, g), (g, g1), (g2, g), (g, g2), (g1, g1)]):
+        ref = cv2.sepFilter2D(roi, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_REPLICATE)
+        np.testing.assert_allclose(d[:, col], ref[iy, ix], rtol=1e-4, atol=1e-3)
+
+
+def _derivatives_reference(image: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float
+                           ) -> np.ndarray:
+    """The continuous Gaussian's derivatives at float positions, summed in numpy."""
+    r = max(1, math.ceil(4.0 * sigma))
+    out = []
+    for px, py in zip(x, y, strict=True):
+        cx, cy = int(np.rint(px)), int(np.rint(py))
+        k = np.arange(-r, r + 1)
+        ux, uy = (k - (px - cx)) / sigma, (k - (py - cy)) / sigma
+        gx, gy = (np.exp(-0.5 * u * u) / (math.sqrt(2 * math.pi) * sigma) for u in (ux, uy))
+        kx = [gx, ux / sigma * gx, (ux * ux - 1) / sigma**2 * gx]
+        ky = [gy, uy / sigma * gy, (uy * uy - 1) / sigma**2 * gy]
+        patch = image[cy - r:cy + r + 1, cx - r:cx + r + 1].astype(np.float64)
+        val = [ky[a] @ patch @ kx[b] for a, b in [(0, 0), (0, 1), (1, 0), (0, 2), (1, 1),
+                                                   (2, 0)]]
+        out.append(val)
+    return np.array(out)
+
+
+def test_derivatives_at_float_positions_equal_the_numpy_sum() -> None:
+    image = _speckled(4)
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(10, 70, 50), rng.uniform(10, 50, 50)
+    np.testing.assert_allclose(sk.derivatives_at(image, x, y, 1.5),
+                               _derivatives_reference(image, x, y, 1.5), rtol=1e-9, atol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.integers(5, 300), st.integers(2, 25))
+def test_nearest_neighbours_are_the_k_d_tree_s(seed: int, n: int, k: int) -> None:
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.uniform(0, 6, n))
+    xy = np.column_stack([80 * np.cos(t), 300 * t]) + rng.normal(0, 0.5, (n, 2))
+    k = min(k, n)
+    got = sk.nearest_neighbours(xy, k)
+    dist, _ = cKDTree(xy).query(xy, k=k)
+    got_d = np.hypot(*(xy[got] - xy[:, None, :]).transpose(2, 0, 1))
+    np.testing.assert_allclose(got_d, dist.reshape(n, k), atol=1e-12)  # ties may swap
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.integers(2, 300))
+def test_chain_sizes_are_the_connected_components(seed: int, n: int) -> None:
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 40, (n, 2))
+    pairs = cKDTree(xy).query_pairs(2.0, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    assert np.array_equal(sk.chain_sizes(xy, 2.0), np.bincount(labels)[labels])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.floats(0.2, 3.0), st.booleans())
+def test_circle_solve_reaches_scipy_s_minimum(seed: int, arc: float, prior: bool) -> None:
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0.0, arc, 200)
+    x, y = 3 + 20 * np.cos(a) + rng.normal(0, 0.01, 200), -2 + 20 * np.sin(a) \
+        + rng.normal(0, 0.01, 200)
+    w = rng.uniform(0.2, 1.0, 200)
+    c0, inv_s2 = (np.array([3.0, -2.0]), 1e4) if prior else (np.zeros(2), 0.0)
+
+    def res(q: np.ndarray) -> np.ndarray:
+        d = np.sqrt(w) * (np.hypot(x - q[0], y - q[1]) - q[2])
+        return np.concatenate([d, math.sqrt(inv_s2) * (q[:2] - c0)])
+
+    start = np.array([3.05, -2.05, 19.9])
+    ref = least_squares(res, start, method="lm", xtol=1e-14, ftol=1e-14).x
+    cx, cy, r, ok = ck.solve_circle(x, y, w, *start, c0[0], c0[1], inv_s2)
+    assert ok
+    cost = float(np.sum(res(np.array([cx, cy, r])) ** 2))
+    assert cost <= float(np.sum(res(ref) ** 2)) * (1 + 1e-9)
+    if arc > 0.5:  # a well-posed circle: the same parameters, to well under a nanometre
+        np.testing.assert_allclose([cx, cy, r], ref, atol=1e-7)
+
+
+def test_tracked_frames_give_the_points_of_a_full_search(renderer) -> None:
+    images = [renderer.render(33.0, i) for i in range(8)]
+    params = StripeParams()
+    near = extract_stripe(images[0], params).xy
+    for image in images[1:]:
+        full = extract_stripe(image, params)
+        tracked = extract_stripe(image, params, near)
+        # The same stripe, end to end; the centres differ only by the background estimated
+        # over another box (a few thousandths of a pixel).
+        assert abs(len(tracked) - len(full)) <= 0.03 * len(full)
+        dist, _ = cKDTree(full.xy).query(tracked.xy)
+        assert np.median(dist) < 0.005 and np.percentile(dist, 95) < 0.02
+        # The ends are not lost from frame to frame (the stripe runs top to bottom here).
+        assert np.ptp(tracked.xy[:, 1]) == pytest.approx(np.ptp(full.xy[:, 1]), rel=0.02)
+        near = tracked.xy
+
+
+def test_a_stripe_that_moved_is_found_by_a_full_search(renderer) -> None:
+    image = renderer.render(33.0, 0)
+    params = StripeParams()
+    full = extract_stripe(image, params)
+    far = full.xy + np.array([60.0, 0.0])  # where the stripe was: 60 px to the right
+    moved = extract_stripe(image, params, far)
+    assert len(moved) == len(full)
+    assert tube_band(far, image.shape, params.track_px) is not None
