@@ -13,16 +13,19 @@ $(STAMP): pyproject.toml deploy/bootstrap.sh
 
 ## make run: the service on its embedded default (simulated GigE camera and PLC on loopback).
 run: setup
+	$(PY) -m service.measure.compiled
 	$(VENV)/bin/shaftgauge serve
 
 ## make test: lint, then the whole suite (short fault runs included, long soak runs left out).
 test: setup
 	$(VENV)/bin/ruff check .
+	$(PY) -m service.measure.compiled
 	$(PY) -m pytest -m "not slow" -q
 
 ## make bench: accuracy and speed figures; results land in bench-results/.
 bench: setup
-	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 $(PY) -m tests.bench.core_throughput
+	$(PY) -m service.measure.compiled
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PY) -m tests.bench.core_throughput
 	$(PY) -m tests.bench.paper_comparison
 	$(PY) -m tests.bench.beyond_paper
 	$(PY) -m tests.bench.principal_point
@@ -31,6 +34,7 @@ bench: setup
 
 ## make soak: the long soak and fault runs (an hour; SHAFTGAUGE_SOAK_S=600 for ten minutes).
 soak: setup
+	$(PY) -m service.measure.compiled
 	$(PY) -m pytest -m slow -q
 
 lint: setup

@@ -11,6 +11,7 @@ from drivers.camera.base import Camera
 from drivers.plc.client import OffsetWriter
 from service.calibrate.session import CalibrationSessions
 from service.config import Settings
+from service.measure.compiled import compile_kernels
 from service.runtime.calibration import CalibrationContext
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
@@ -40,6 +41,9 @@ class Gauge:
         """Start the camera, the Modbus server and the background tasks."""
         loop = asyncio.get_running_loop()
         comp = self.compensation
+        # The core's compiled kernels are loaded (or, on a fresh checkout, compiled) before
+        # the first frame, not by it.
+        await loop.run_in_executor(None, compile_kernels)
         self._tasks = [
             *self.pipeline.start(),
             loop.create_task(comp.run(), name="compensation"),

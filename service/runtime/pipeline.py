@@ -2,8 +2,10 @@
 
 The camera's own thread fills a bounded drop-oldest queue; the intake task takes frames from
 it and hands each to a thread pool (numpy and OpenCV release the GIL), at most ``workers`` in
-flight, each with the calibration in force when it was taken; the publisher task hands the
-results on in frame order. Nothing downstream can stall acquisition."""
+flight, each with the calibration in force when it was taken and the stripe of the last frame
+measured (it is looked for there first: ``service.measure.stripe.extract_stripe``); the
+publisher task hands the results on in frame order. Nothing downstream can stall
+acquisition."""
 
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import numpy as np
 from drivers.camera.base import Camera, Frame
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import RigGeometry
-from service.measure.result import Measurement, Method
+from service.measure.result import Measurement, Method, Status
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 
 log = logging.getLogger("shaftgauge.pipeline")
@@ -56,6 +58,8 @@ class FramePipeline:
         self._slots: asyncio.Semaphore | None = None
         self._in_flight: asyncio.Queue | None = None
         self._running = False
+        # The stripe's centres in the last frame measured (px), None after a failure.
+        self._near: np.ndarray | None = None
 
     def image_size(self) -> tuple[int, int] | None:
         """(width, height) of the camera's images: the latest frame's, else the active
@@ -85,8 +89,9 @@ class FramePipeline:
         self._intake_pool.shutdown(wait=True, cancel_futures=True)
 
     def _measure(self, frame: Frame, geometry: RigGeometry,
-                 prior: tuple[np.ndarray, float] | None) -> Measurement:
-        return measure_frame(frame.image, geometry, self.method, self.params, prior)
+                 prior: tuple[np.ndarray, float] | None, near: np.ndarray | None
+                 ) -> Measurement:
+        return measure_frame(frame.image, geometry, self.method, self.params, prior, near)
 
     async def _intake(self) -> None:
         """Frames from the camera to the worker pool, at most ``workers`` in flight."""
@@ -108,7 +113,7 @@ class FramePipeline:
                     continue
                 prior = in_use.tracker.center() if in_use.tracker is not None else None
                 fut = loop.run_in_executor(self._pool, self._measure, frame, in_use.geometry,
-                                           prior)
+                                           prior, self._near)
                 await self._in_flight.put((frame, in_use, fut))
                 submitted = True
             except asyncio.CancelledError:
@@ -136,6 +141,7 @@ class FramePipeline:
                 continue
             finally:
                 self._slots.release()
+            self._near = m.points_px if m.status is Status.OK else None
             try:
                 self.on_result(frame, m, in_use)
             except Exception:

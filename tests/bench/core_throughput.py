@@ -1,18 +1,23 @@
-"""Speed of the measurement core on one core, and how its stripe extractor compares on the
-same frames with a plain full-frame Steger and a grey-centroid extractor.
+"""Speed of the measurement core on one core, where its time goes, and how its stripe
+extractor compares on the same frames with a plain full-frame Steger and a grey-centroid
+extractor.
 
-Frames: the simulated rig at 1376x1024, shafts of 20-47 mm, ``--frames`` of them (seeded).
-- Core: ``measure_frame`` (method ``axis``) over every frame, repeated ``--runs`` times; frames
-  per second of each run, the median reported. OpenCV is held to one thread here; run it
-  with ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` (``make bench`` does) for numpy's BLAS.
-- Extractors: ours (coarse band, Steger in the band, weak-point rejection, chain linking,
-  curvature-bias correction), plain Steger (the same Hessian filter over the whole frame with
-  the same acceptance test, nothing else), grey centroid (per column, the intensity-weighted
-  centre of the pixels above half the column's peak). Each extractor's points go through the
-  same triangulation and the same ``geometric`` fit; time per frame (median over the runs) and
-  mean |diameter error| per frame are reported.
+Frames: the simulated rig at 1376x1024, ``--shafts`` shafts of 20-47 mm, ``--frames`` turning
+frames of each (fresh speckle per frame; seeded), as a lathe delivers them.
+- Core: ``measure_frame`` over every frame of every shaft in order, the stripe tracked from
+  the previous frame of the same shaft (``near``) as the service does, the first frame of a
+  shaft searched in full; method ``axis`` and ``geometric``, each repeated ``--runs`` times;
+  frames per second of each run, the median reported, and the first (full-search) frames'
+  time separately. OpenCV is held to one thread; run with ``OMP_NUM_THREADS=1
+  OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1`` (``make bench`` does).
+- Stages: the time spent in each step of ``measure_frame`` (``axis``, tracked), ms per frame.
+- Extractors: ours (tracked, as the core runs it), plain Steger (``plain_steger``: OpenCV's
+  filters over the whole frame and Steger's test at every pixel), grey centroid (per column,
+  the intensity-weighted centre of the pixels above half the column's peak). Each
+  extractor's points go through the same triangulation and the same ``geometric`` fit; time
+  per frame (median over the runs) and mean |diameter error| per frame are reported.
 
-Run: ``.venv/bin/python -m tests.bench.core_throughput [--frames N] [--runs R]``.
+Run: ``.venv/bin/python -m tests.bench.core_throughput [--shafts N] [--frames M] [--runs R]``.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import argparse
 import json
 import statistics
 import time
+from collections import defaultdict
 from collections.abc import Callable
 from pathlib import Path
 
@@ -28,6 +34,7 @@ import cv2
 import numpy as np
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.measure import diameter
 from service.measure.diameter import (
     MeasureParams,
     drop_grazing,
@@ -35,23 +42,10 @@ from service.measure.diameter import (
     measure_frame,
     section_points,
 )
-from service.measure.geometry import geometry_of
-from service.measure.result import Method
-from service.measure.stripe import (
-    StripeParams,
-    StripePoints,
-    extract_stripe,
-    reject_weak,
-    steger_centres,
-)
-
-
-def plain_steger(image: np.ndarray, params: StripeParams) -> StripePoints:
-    """Steger's centres over the whole frame with his acceptance test, nothing more."""
-    img = image.astype(np.float32)
-    background = float(np.median(img))
-    noise = float(1.4826 * np.median(np.abs(img - background))) or 1.0
-    return reject_weak(steger_centres(img, None, params, background, noise), params)
+from service.measure.geometry import RigGeometry, geometry_of
+from service.measure.result import Method, Status
+from service.measure.stripe import StripeParams, StripePoints, extract_stripe
+from tests.bench.plain_steger import plain_steger
 
 
 def grey_centroid(image: np.ndarray, _: StripeParams) -> StripePoints:
@@ -72,46 +66,126 @@ def grey_centroid(image: np.ndarray, _: StripeParams) -> StripePoints:
                         np.ones(n), background, 1.0)
 
 
-EXTRACTORS: dict[str, Callable[[np.ndarray, StripeParams], StripePoints]] = {
-    "ours": extract_stripe, "plain_steger": plain_steger, "grey_centroid": grey_centroid}
+Sequence = list[tuple[np.ndarray, float]]
 
 
-def frames(n: int, seed: int) -> tuple[list[tuple[np.ndarray, float]], ShaftRenderer]:
+def sequences(shafts: int, frames: int, seed: int) -> tuple[list[Sequence], ShaftRenderer]:
     rig = ShaftRenderer(RigConfig(), seed=seed)
     rng = np.random.default_rng(seed)
-    return [(rig.render(d, i), d) for i, d in enumerate(rng.uniform(20.0, 47.0, n))], rig
+    out = []
+    for k, d in enumerate(rng.uniform(20.0, 47.0, shafts)):
+        out.append([(rig.render(d, k * 1000 + i), d) for i in range(frames)])
+    return out, rig
+
+
+def run_core(data: list[Sequence], geometry: RigGeometry, method: Method,
+             params: MeasureParams) -> tuple[float, float, list[float]]:
+    """Frames per second over all frames, ms of the first (full-search) frames, |errors|."""
+    first_ms, errors = [], []
+    t0 = time.perf_counter()
+    for seq in data:
+        near = None
+        for i, (image, d) in enumerate(seq):
+            t1 = time.perf_counter()
+            m = measure_frame(image, geometry, method, params, near=near)
+            if i == 0:
+                first_ms.append((time.perf_counter() - t1) * 1000.0)
+            near = m.points_px if m.status is Status.OK else None
+            if m.status is Status.OK:
+                errors.append(abs(m.diameter_mm - d) * 1000.0)
+    fps = sum(len(s) for s in data) / (time.perf_counter() - t0)
+    return fps, statistics.median(first_ms), errors
+
+
+STAGES = ["extract_stripe", "section_points", "drop_grazing", "_fit_circle",
+          "correct_sheet_bias"]
+
+
+def stage_times(data: list[Sequence], geometry: RigGeometry, params: MeasureParams
+                ) -> dict[str, float]:
+    """ms per frame in each step of ``measure_frame`` (axis, tracked); the rest is 'other'."""
+    spent: dict[str, float] = defaultdict(float)
+    originals = {name: getattr(diameter, name) for name in STAGES}
+
+    def timed(name: str, fn: Callable) -> Callable:
+        def wrapper(*args: object, **kwargs: object) -> object:
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[name] += time.perf_counter() - t
+        return wrapper
+
+    for name, fn in originals.items():
+        setattr(diameter, name, timed(name, fn))
+    try:
+        t0 = time.perf_counter()
+        run_core(data, geometry, Method.AXIS, params)
+        total = time.perf_counter() - t0
+    finally:
+        for name, fn in originals.items():
+            setattr(diameter, name, fn)
+    n = sum(len(s) for s in data)
+    out = {name: spent[name] / n * 1000.0 for name in STAGES}
+    out["fit (both fits, all rounds)"] = out.pop("_fit_circle")
+    out["other"] = (total - sum(spent.values())) / n * 1000.0
+    out["total"] = total / n * 1000.0
+    return out
+
+
+def tracked_ours(seq: Sequence, params: StripeParams) -> list[StripePoints]:
+    found, near = [], None
+    for image, _d in seq:
+        st = extract_stripe(image, params, near)
+        near = st.xy if st else None
+        found.append(st)
+    return found
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--shafts", type=int, default=5)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--json", default="bench-results/core_throughput.json")
     args = ap.parse_args()
     cv2.setNumThreads(1)
-    data, rig = frames(args.frames, args.seed)
+    data, rig = sequences(args.shafts, args.frames, args.seed)
     geometry = geometry_of(rig.calibration)
     params = MeasureParams()
-    core_fps = []
-    for _ in range(args.runs):
-        t0 = time.perf_counter()
-        for image, _d in data:
-            measure_frame(image, geometry, Method.AXIS, params)
-        core_fps.append(len(data) / (time.perf_counter() - t0))
-    out: dict = {"frames": args.frames, "runs": args.runs, "seed": args.seed,
-                 "image_size": list(rig.config.image_size),
-                 "core_fps_one_core": statistics.median(core_fps),
-                 "core_fps_runs": core_fps, "extractors": {}}
-    for name, extract in EXTRACTORS.items():
+    n_frames = sum(len(s) for s in data)
+    out: dict = {"shafts": args.shafts, "frames_per_shaft": args.frames, "runs": args.runs,
+                 "seed": args.seed, "image_size": list(rig.config.image_size), "core": {},
+                 "extractors": {}}
+    run_core(data[:1], geometry, Method.AXIS, params)  # warm caches and compiled code
+    for method in (Method.AXIS, Method.GEOMETRIC):
+        runs = [run_core(data, geometry, method, params) for _ in range(args.runs)]
+        fps = [r[0] for r in runs]
+        out["core"][method.value] = {
+            "fps_one_core": statistics.median(fps), "fps_runs": fps,
+            "ms_per_frame": 1000.0 / statistics.median(fps),
+            "first_frame_ms": statistics.median(r[1] for r in runs),
+            "mean_abs_error_um": float(np.mean(runs[0][2])),
+            "measured": len(runs[0][2])}
+    out["stages_ms"] = stage_times(data, geometry, params)
+    flat = [(image, d) for seq in data for image, d in seq]
+    plain_data = flat[:: max(1, len(flat) // 20)]  # 20 frames are plenty for a 200 ms one
+    extractors: dict[str, tuple[Callable, list]] = {
+        "ours": (None, flat), "plain_steger": (plain_steger, plain_data),
+        "grey_centroid": (grey_centroid, flat)}
+    for name, (extract, frames) in extractors.items():
         times, errors, failed = [], [], 0
         for run in range(args.runs):
             t0 = time.perf_counter()
-            found = [extract(image, params.stripe) for image, _d in data]
-            times.append((time.perf_counter() - t0) / len(data) * 1000.0)
+            if extract is None:
+                found = [st for seq in data for st in tracked_ours(seq, params.stripe)]
+            else:
+                found = [extract(image, params.stripe) for image, _d in frames]
+            times.append((time.perf_counter() - t0) / len(frames) * 1000.0)
             if run:
                 continue
-            for stripe, (_image, d) in zip(found, data, strict=True):
+            for stripe, (_image, d) in zip(found, frames, strict=True):
                 m = None
                 if stripe:
                     pts = drop_grazing(section_points(stripe, geometry), geometry, params)
@@ -122,20 +196,33 @@ def main() -> None:
                 else:
                     failed += 1
         out["extractors"][name] = {
-            "ms_per_frame": statistics.median(times),
+            "frames": len(frames), "ms_per_frame": statistics.median(times),
             "mean_abs_error_um": float(np.mean(errors)) if errors else None,
             "failed": failed}
-    ours = out["extractors"]["ours"]["ms_per_frame"]
+    plain = out["extractors"]["plain_steger"]["ms_per_frame"]
     for v in out["extractors"].values():
-        v["time_vs_ours"] = v["ms_per_frame"] / ours
-    print(f"{args.frames} frames of {rig.config.image_size[0]}x{rig.config.image_size[1]} "
-          f"(shafts 20-47 mm, seed {args.seed}), {args.runs} runs, medians\n")
-    print(f"measurement core (axis), one core: {out['core_fps_one_core']:.1f} frames/s\n")
-    print(f"{'extractor':>14} {'ms/frame':>9} {'x ours':>7} {'mean|err| um':>13} {'failed':>6}")
+        v["plain_vs_this"] = plain / v["ms_per_frame"]
+    for v in out["core"].values():
+        v["plain_steger_vs_core"] = plain / v["ms_per_frame"]
+    print(f"{args.shafts} shafts x {args.frames} frames of {rig.config.image_size[0]}x"
+          f"{rig.config.image_size[1]} (20-47 mm, seed {args.seed}), {args.runs} runs, "
+          f"medians, one core\n")
+    print(f"{'core':>10} {'frames/s':>9} {'ms/frame':>9} {'1st frame ms':>13} "
+          f"{'plain/core':>10} {'mean|err| um':>13}")
+    for name, v in out["core"].items():
+        print(f"{name:>10} {v['fps_one_core']:9.1f} {v['ms_per_frame']:9.2f} "
+              f"{v['first_frame_ms']:13.1f} {v['plain_steger_vs_core']:10.1f} "
+              f"{v['mean_abs_error_um']:13.2f}")
+    print("\nwhere the time goes (axis, tracked), ms per frame:")
+    for name, v in out["stages_ms"].items():
+        print(f"  {name:>28} {v:7.3f}")
+    print(f"\n{'extractor':>14} {'frames':>6} {'ms/frame':>9} {'plain/this':>10} "
+          f"{'mean|err| um':>13} {'failed':>6}")
     for name, v in out["extractors"].items():
         err = "-" if v["mean_abs_error_um"] is None else f"{v['mean_abs_error_um']:.1f}"
-        print(f"{name:>14} {v['ms_per_frame']:9.1f} {v['time_vs_ours']:7.2f} {err:>13} "
-              f"{v['failed']:6d}")
+        print(f"{name:>14} {v['frames']:6d} {v['ms_per_frame']:9.2f} {v['plain_vs_this']:10.1f} "
+              f"{err:>13} {v['failed']:6d}")
+    assert n_frames == len(flat)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=2))
     print(f"\nWritten {args.json}")

@@ -1,0 +1,44 @@
+"""Compile the core's numba kernels ahead of the first frame.
+
+numba compiles a kernel the first time it is called with a given type of argument and keeps
+the machine code in ``__pycache__``; on a fresh checkout that first call takes about 20 s.
+``python -m service.measure.compiled`` (run by ``make run``, ``make test`` and ``make bench``)
+and the service's start call ``compile_kernels`` so that no frame, and no test with a
+deadline, waits for it.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from service.measure import fit
+from service.measure.stripe import extract_stripe
+
+
+def _ring(dtype: type, scale: float) -> np.ndarray:
+    """A bright ring of radius 60 px on a dark ground, sigma 1.2 px."""
+    yy, xx = np.mgrid[0:160, 0:180].astype(np.float64)
+    r = np.hypot(xx - 90.3, yy - 80.6)
+    img = 6.0 + 150.0 * np.exp(-0.5 * ((r - 60.0) / 1.2) ** 2)
+    img += np.random.default_rng(0).normal(0.0, 1.5, img.shape)
+    return np.clip(img * scale, 0, np.iinfo(dtype).max).astype(dtype)
+
+
+def compile_kernels() -> float:
+    """Run every kernel once for 8- and 16-bit images; returns the seconds it took."""
+    t0 = time.perf_counter()
+    for dtype, scale in ((np.uint8, 1.0), (np.uint16, 257.0)):
+        image = _ring(dtype, scale)
+        found = extract_stripe(image)
+        extract_stripe(image, near=found.xy)
+    pts = (found.xy - [90.3, 80.6]) * 0.01
+    free = fit.fit_geometric(pts)
+    fit.fit_axis_prior(pts, np.zeros(2), 0.001, start=free)
+    fit.circle_covariance(pts, free.center, free.radius, center_prior_sigma=0.001)
+    return time.perf_counter() - t0
+
+
+if __name__ == "__main__":
+    print(f"measurement kernels ready ({compile_kernels():.1f} s)")
