@@ -16,9 +16,6 @@ import numpy as np
 
 from service.measure import steger_kernels as kernels
 
-# Robust standard deviation from the median absolute deviation of a normal sample.
-MAD_TO_SIGMA = 1.4826
-
 
 @dataclass(frozen=True)
 class Band:
@@ -75,11 +72,8 @@ def image_statistics(image: np.ndarray, decimation: int, spacing: int = 4
     k = max(1, int(decimation))
     if h < k or w < k:
         return float(np.median(image)), 0.0
-    means = kernels.block_means(image, k, spacing)
-    background = float(np.median(means))
-    dark = means[means <= np.percentile(means, 75)]
-    noise = MAD_TO_SIGMA * float(np.median(np.abs(dark - np.median(dark)))) * k
-    return background, noise
+    background, noise = kernels.background_and_noise(image, k, spacing)
+    return float(background), float(noise)
 
 
 def coarse_band(image: np.ndarray, decimation: int, min_contrast: float,

@@ -132,7 +132,7 @@ def view_angles_deg(points: SectionPoints, center: np.ndarray, axis_direction: n
 def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasureParams
                  ) -> SectionPoints:
     """Drop points seen at a grazing angle, judged on a preliminary (Hyper) circle."""
-    prelim = fits.fit_hyper(points.section)
+    prelim = fits.fit_hyper(points.section, uncertainty=False)
     if not prelim:
         return points
     keep = view_angles_deg(points, prelim.center, geometry.axis_direction) \

@@ -233,7 +233,7 @@ def fit_kasa(points: np.ndarray) -> CircleFit:
                                np.ones(len(pts), bool)), pts)
 
 
-def fit_hyper(points: np.ndarray) -> CircleFit:
+def fit_hyper(points: np.ndarray, uncertainty: bool = True) -> CircleFit:
     """Hyper algebraic circle fit (Al-Sharadqah & Chernov 2009), SVD form.
 
     Its radius has no essential bias, so it is a good start for the geometric fit.
@@ -242,6 +242,8 @@ def fit_hyper(points: np.ndarray) -> CircleFit:
     ----------
     points : ndarray, shape (N, 2)
         Points, mm; N >= 3.
+    uncertainty : bool
+        Also compute ``radius_std`` (False leaves it NaN: a preliminary circle needs none).
 
     Returns
     -------
@@ -283,8 +285,8 @@ def fit_hyper(points: np.ndarray) -> CircleFit:
     if not (np.isfinite(r2) and r2 > 0):
         return CircleFit.failure("Hyper fit gave no real circle", len(pts))
     radius = math.sqrt(r2)
-    return _with_std(CircleFit(center, radius, circle_rms(pts, center, radius),
-                               np.ones(len(pts), bool)), pts)
+    fit = CircleFit(center, radius, circle_rms(pts, center, radius), np.ones(len(pts), bool))
+    return _with_std(fit, pts) if uncertainty else fit
 
 
 def fit_geometric(
@@ -326,7 +328,8 @@ def fit_geometric(
     w = np.ones(len(pts)) if weights is None else np.asarray(weights, np.float64)
     sw = np.sqrt(w)
     inliers = np.ones(len(pts), bool)
-    fit = start if start and start.inliers.size == len(pts) else fit_hyper(pts)
+    fit = start if start and start.inliers.size == len(pts) \
+        else fit_hyper(pts, uncertainty=False)
     if not fit:
         return fit
     inliers = start.inliers if fit is start else inliers

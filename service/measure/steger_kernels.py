@@ -15,9 +15,11 @@ import numba
 import numpy as np
 
 _OPTS = dict(cache=True, nogil=True)
+# The filter loops may be reordered and vectorised (sums of 13 products, rounding at 1e-7).
+_FAST = dict(_OPTS, fastmath=True)
 
 
-@numba.njit(**_OPTS)
+@numba.njit(**_FAST)
 def band_hessian(roi: np.ndarray, band: np.ndarray, g: np.ndarray, g1: np.ndarray,
                  g2: np.ndarray) -> tuple[np.ndarray, ...]:
     """The Gaussian-smoothed image and its derivatives up to second order at every band pixel.
@@ -261,6 +263,16 @@ def disc_mask(h: int, w: int, ys: np.ndarray, xs: np.ndarray, radius: int) -> np
             for x in range(max(0, xs[i] - span), min(w, xs[i] + span + 1)):
                 mask[y, x] = True
     return mask
+
+
+@numba.njit(**_OPTS)
+def background_and_noise(image: np.ndarray, k: int, spacing: int) -> tuple[float, float]:
+    """Median of the block means (``block_means``) and the robust standard deviation
+    (scaled MAD) of the darker three quarters of them, times ``k``."""
+    means = block_means(image, k, spacing)
+    background = np.median(means)
+    dark = means[means <= np.percentile(means, 75.0)]
+    return background, 1.4826 * np.median(np.abs(dark - np.median(dark))) * k
 
 
 @numba.njit(**_OPTS)
