@@ -120,7 +120,7 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
     settings = SimCameraSettings(
         serial=args.serial, address=args.address, diameter_mm=args.diameter,
         drift_um_per_min=args.drift_um_per_min, fps=args.fps, lost_ratio=args.lost_ratio,
-        seed=args.seed)
+        seed=args.seed, replay_frames=args.replay)
     camera = SimGigECamera(settings)
     try:
         camera.start()
@@ -339,6 +339,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tool wear: diameter change in um per minute")
     p.add_argument("--lost-ratio", type=float, default=0.0, help="GVSP packet loss (0-1)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--replay", type=int, default=0, metavar="N",
+                   help="render a ring of N frames at start and only send them afterwards "
+                   "(re-rendered in the background when the diameter changes); 0 renders "
+                   "every frame")
     p.add_argument("--control-port", type=int, default=0,
                    help="loopback TCP port of the JSON-lines control (0: any free port)")
     p.add_argument("--calibration-out", metavar="FILE",

@@ -54,10 +54,24 @@ class CameraSettings(_Section):
     packet_socket: bool = True
     socket_buffer_bytes: int | None = Field(None, gt=0)
     queue_size: int = Field(4, ge=1, le=1000)
+    auto_roi: bool | None = None
+    """Narrow the sensor's region to the stripe (plus ``roi_margin_px``) and widen it again
+    when the stripe nears its edge or is lost: fewer rows, more frames per second. None: on
+    for the simulated cameras, off for a real one until it is tried there."""
+    roi_margin_px: int = Field(32, ge=4, le=512)
     sim_serial: str = "SIM001"
     sim_diameter_mm: float = Field(30.0, gt=1, lt=500)
     sim_drift_um_per_min: float = 0.0
     sim_seed: int = 0
+    sim_replay_frames: int = Field(32, ge=0, le=1000)
+    """The simulated GigE camera renders a ring of this many frames at start and then only
+    sends them (re-rendered in the background when the diameter changes); 0 renders every
+    frame it sends."""
+
+    @property
+    def roi_enabled(self) -> bool:
+        """Whether the region of interest follows the stripe."""
+        return self.source in ("sim", "rig") if self.auto_roi is None else self.auto_roi
 
 
 class PlcSettings(_Section):

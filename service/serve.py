@@ -124,7 +124,8 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
                 [_shaftgauge(), "sim-camera", "--serial", cam_cfg.sim_serial, "--diameter",
                  str(cam_cfg.sim_diameter_mm), "--fps", str(cam_cfg.frame_rate_hz or 10.0),
                  "--drift-um-per-min", str(cam_cfg.sim_drift_um_per_min), "--seed",
-                 str(cam_cfg.sim_seed), "--calibration-out", str(cal_path)], "camera")
+                 str(cam_cfg.sim_seed), "--replay", str(cam_cfg.sim_replay_frames),
+                 "--calibration-out", str(cal_path)], "camera")
             device_id = ready["device_id"]
             extras["sim_camera_control_port"] = ready["control_port"]
             sim_cal = load_calibration(cal_path)
@@ -177,7 +178,9 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     sequence = SequenceCounter(comp_log, compensation.controller.persisted
                                .last_measurement_seq + 1)
     publisher = Publisher(sequence, feed, modbus, compensation)
-    pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher)
+    pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
+                             settings.camera.roi_margin_px if settings.camera.roi_enabled
+                             else None)
     health = HealthReport(settings, camera, context, pipeline, feed, compensation, writer,
                           modbus)
     context.load_active()

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from drivers.camera.base import (
+    NO_REGION_REQUEST,
     CameraConfig,
     CameraError,
     CameraState,
@@ -99,6 +100,9 @@ class _Session:
     lost: threading.Event
     packet_size: int | None
     infos: dict[str, str]  # our counter -> the stream's info name, for the infos it has
+    sensor: tuple[int, int] = (0, 0)                  # width, height, px
+    region: tuple[int, int, int, int] = (0, 0, 0, 0)  # x, y, width, height in force
+    previous: tuple[int, int, int, int] = (0, 0, 0, 0)  # ... and before the last change
 
 
 _STREAM_INFOS = {
@@ -205,7 +209,11 @@ class AravisCamera(ThreadedCamera):
                     stream.set_property("socket-buffer-size", int(cfg.socket_buffer_bytes))
                 else:
                     stream.set_property("socket-buffer", Aravis.GvStreamSocketBuffer.AUTO)
-            payload = camera.get_payload()
+            sensor = tuple(int(v) for v in camera.get_sensor_size())
+            # Buffers that hold a whole sensor's frame: a region can then change (narrow or
+            # widen) without allocating again.
+            bytes_per_px = max(1, bits_per_pixel(camera.get_pixel_format()) // 8)
+            payload = max(camera.get_payload(), sensor[0] * sensor[1] * bytes_per_px)
             for _ in range(cfg.n_buffers):
                 stream.push_buffer(Aravis.Buffer.new_allocate(payload))
             camera.start_acquisition()
@@ -217,7 +225,38 @@ class AravisCamera(ThreadedCamera):
             raise
         names = {stream.get_info_name(i) for i in range(stream.get_n_infos())}
         infos = {k: v for k, v in _STREAM_INFOS.items() if v in names}
-        return _Session(camera, device, stream, handler_id, lost, packet_size, infos)
+        region = tuple(int(v) for v in camera.get_region())
+        self._region_applied(None if region == (0, 0, *sensor) else region)  # type: ignore[arg-type]
+        return _Session(camera, device, stream, handler_id, lost, packet_size, infos,
+                        sensor, region, region)  # type: ignore[arg-type]
+
+    def _apply_region(self, session: _Session, region: tuple[int, int, int, int] | None
+                      ) -> None:
+        """Stop acquisition, set the sensor region (None: the whole sensor) rounded to the
+        camera's increments, and start again; frames read before carry the old region."""
+        GLibError = _glib_error()
+        cam = session.camera
+        sw, sh = session.sensor
+        x, y, w, h = (0, 0, sw, sh) if region is None else region
+        with self._cam_lock:
+            try:
+                xi, yi = max(1, cam.get_x_offset_increment()), max(1, cam.get_y_offset_increment())
+                wi, hi = max(1, cam.get_width_increment()), max(1, cam.get_height_increment())
+                x, y = min(x, sw - 1) // xi * xi, min(y, sh - 1) // yi * yi
+                w = min(-(-w // wi) * wi, (sw - x) // wi * wi)
+                h = min(-(-h // hi) * hi, (sh - y) // hi * hi)
+                cam.stop_acquisition()
+                cam.set_region(x, y, w, h)  # Aravis zeroes the offsets, sets the size, then them
+                applied = tuple(int(v) for v in cam.get_region())
+                cam.start_acquisition()
+            except GLibError as err:
+                with self._lock:
+                    self._message = f"cannot set region {(x, y, w, h)}: {err.message}"
+                with contextlib.suppress(GLibError):
+                    cam.start_acquisition()
+                return
+        session.previous, session.region = session.region, applied  # type: ignore[assignment]
+        self._region_applied(None if applied == (0, 0, sw, sh) else applied)
 
     def _configure(self, camera: Any, Aravis: Any) -> int | None:
         """Apply the configuration; return the stream packet size (GigE only)."""
@@ -270,6 +309,10 @@ class AravisCamera(ThreadedCamera):
         while not self._stop.is_set():
             if session.lost.is_set():
                 return f"camera {self.device_id} lost (no answer to control messages)"
+            request = self._take_region_request()
+            if request is not NO_REGION_REQUEST:
+                self._apply_region(session, request)  # type: ignore[arg-type]
+                last_ok = time.monotonic()
             buf = stream.timeout_pop_buffer(_POP_TIMEOUT_US)
             self._update_stream_counters(session)
             if buf is None:
@@ -285,7 +328,7 @@ class AravisCamera(ThreadedCamera):
                 stream.push_buffer(buf)
                 continue
             try:
-                frame = self._to_frame(buf)
+                frame = self._to_frame(buf, session)
             finally:
                 stream.push_buffer(buf)  # back to the pool at once: get_data() copied it
             if frame is None:
@@ -303,8 +346,16 @@ class AravisCamera(ThreadedCamera):
         except Exception:
             return False
 
-    def _to_frame(self, buf: Any) -> Frame | None:
+    def _to_frame(self, buf: Any, session: _Session) -> Frame | None:
         w, h = buf.get_image_width(), buf.get_image_height()
+        # Which region it was read with: the one in force, or (a frame read just before a
+        # change) the one before; anything else is not handed on.
+        region = next((r for r in (session.region, session.previous) if r[2:] == (w, h)),
+                      None)
+        if region is None:
+            log.warning("camera %s: frame %d is %dx%d, the region is %s", self.device_id,
+                        buf.get_frame_id(), w, h, session.region)
+            return None
         bits = bits_per_pixel(buf.get_image_pixel_format())
         if bits not in (8, 16):
             with self._lock:
@@ -320,8 +371,9 @@ class AravisCamera(ThreadedCamera):
         image = np.frombuffer(data, dtype=dtype, count=w * h).reshape(h, w)
         if bits == 16:
             image = image.astype(np.uint16, copy=False)
+        whole = region == (0, 0, *session.sensor)
         return Frame(image, int(buf.get_frame_id()), int(buf.get_timestamp()),
-                     time.monotonic_ns())
+                     time.monotonic_ns(), None if whole else (region[0], region[1]))
 
     def _update_stream_counters(self, session: _Session) -> None:
         stream = session.stream

@@ -15,6 +15,7 @@ from drivers.camera.queue import DropOldestQueue
 log = logging.getLogger("shaftgauge.camera")
 
 PIXEL_FORMATS = ("Mono8", "Mono12", "Mono16")
+NO_REGION_REQUEST = object()
 TRIGGER_MODES = ("free_run", "software", "hardware")
 
 
@@ -98,12 +99,16 @@ class Frame:
         The device's timestamp, as it came (ns, device clock).
     received_ns : int
         ``time.monotonic_ns()`` when the driver received it.
+    origin : (int, int) or None
+        None for a whole sensor's frame; when the camera reads a region of interest, the
+        sensor position (x, y, px) of the image's top-left pixel.
     """
 
     image: np.ndarray
     frame_id: int
     timestamp_ns: int
     received_ns: int
+    origin: tuple[int, int] | None = None
 
 
 class CameraState(enum.StrEnum):
@@ -128,6 +133,7 @@ class CameraCounters:
     underruns: int = 0        # the camera had no free buffer to fill
     dropped: int = 0          # frames dropped because the consumer was slow
     reconnects: int = 0
+    region_changes: int = 0   # regions of interest applied
 
 
 @dataclass(frozen=True)
@@ -139,6 +145,7 @@ class CameraStatus:
     message: str
     counters: CameraCounters = field(default_factory=CameraCounters)
     last_frame_ns: int | None = None
+    region: tuple[int, int, int, int] | None = None  # the region read; None: whole sensor
 
 
 @dataclass(frozen=True)
@@ -181,6 +188,13 @@ class Camera(abc.ABC):
         """Ask for one frame (trigger mode ``software``)."""
         raise CameraError("this camera has no software trigger")
 
+    def set_region(self, region: tuple[int, int, int, int] | None) -> None:
+        """Ask the camera to read only ``region`` (x, y, width, height, px) of its sensor,
+        None for the whole sensor. Applied by the acquisition thread between frames, rounded
+        to the increments the camera reports; frames carry the region they were read with
+        (``Frame.origin`` and the image's size)."""
+        raise CameraError("this camera cannot change its region of interest")
+
     def __enter__(self) -> Camera:
         self.start()
         return self
@@ -204,6 +218,9 @@ class ThreadedCamera(Camera):
         self._last_frame_ns: int | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        # A region asked for and not yet applied; NO_REGION_REQUEST when none is pending.
+        self._region_request: object = NO_REGION_REQUEST
+        self._region_now: tuple[int, int, int, int] | None = None
 
     @abc.abstractmethod
     def _run(self) -> None:
@@ -232,6 +249,20 @@ class ThreadedCamera(Camera):
     def _wake(self) -> None:
         """Wake the acquisition thread if it waits on something besides ``_stop``."""
 
+    def set_region(self, region: tuple[int, int, int, int] | None) -> None:
+        if region is not None and (len(region) != 4 or min(region[2:]) < 1
+                                   or min(region[:2]) < 0):
+            raise CameraError(f"region {region}: give (x >= 0, y >= 0, width >= 1, "
+                              "height >= 1) in pixels")
+        with self._lock:
+            self._region_request = None if region is None else tuple(int(v) for v in region)
+
+    def _take_region_request(self) -> object:
+        """The region asked for since the last call (``NO_REGION_REQUEST`` if none)."""
+        with self._lock:
+            request, self._region_request = self._region_request, NO_REGION_REQUEST
+        return request
+
     def get_frame(self, timeout_s: float | None = None) -> Frame | None:
         return self._queue.get(timeout_s)
 
@@ -239,7 +270,14 @@ class ThreadedCamera(Camera):
         with self._lock:
             counters = replace(self._counters, dropped=self._queue.dropped)
             return CameraStatus(self.device_id, self._state, self._message, counters,
-                                self._last_frame_ns)
+                                self._last_frame_ns, self._region_now)
+
+    def _region_applied(self, region: tuple[int, int, int, int] | None) -> None:
+        """Record the region now read (None: the whole sensor) and count the change."""
+        with self._lock:
+            if region != self._region_now:
+                self._counters.region_changes += 1
+            self._region_now = region
 
     def _set_state(self, state: CameraState, message: str) -> None:
         with self._lock:

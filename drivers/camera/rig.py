@@ -2,7 +2,8 @@
 
 For unit tests of consumers (the pipeline) and for machines without Aravis. It honours the
 frame rate, the trigger mode (``software``: one frame per trigger), Mono8 or Mono16 frames,
-and can be told to vanish and come back (``unplug`` / ``plug``) to exercise loss handling.
+a region of interest (``set_region``), and can be told to vanish and come back (``unplug`` /
+``plug``) to exercise loss handling.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import time
 import numpy as np
 
 from drivers.camera.base import (
+    NO_REGION_REQUEST,
     CameraConfig,
     CameraError,
     CameraState,
@@ -35,6 +37,7 @@ class RigCamera(ThreadedCamera):
         self._plugged = threading.Event()
         self._plugged.set()
         self._frame_id = 0
+        self._region: tuple[int, int, int, int] | None = config.region if config else None
 
     def _wake(self) -> None:
         self._trigger.release()
@@ -51,6 +54,15 @@ class RigCamera(ThreadedCamera):
     def plug(self) -> None:
         """Bring the camera back."""
         self._plugged.set()
+
+    def _fit_region(self, region: tuple[int, int, int, int] | None
+                    ) -> tuple[int, int, int, int] | None:
+        """The region clipped to the sensor (None: the whole sensor)."""
+        if region is None:
+            return None
+        sw, sh = self.renderer.config.image_size
+        x, y = min(region[0], sw - 1), min(region[1], sh - 1)
+        return x, y, min(region[2], sw - x), min(region[3], sh - y)
 
     def _run(self) -> None:
         period = 1.0 / (self.config.frame_rate_hz or 10.0)
@@ -73,9 +85,18 @@ class RigCamera(ThreadedCamera):
                 if delay > 0 and self._stop.wait(delay):
                     break
                 next_t = max(next_t + period, time.monotonic() - period)
+            request = self._take_region_request()
+            if request is not NO_REGION_REQUEST:
+                self._region = self._fit_region(request)  # type: ignore[arg-type]
+                self._region_applied(self._region)
             image = self.renderer.render(self.diameter_mm, self._frame_id)
+            origin = None
+            if self._region is not None:
+                x, y, w, h = self._region
+                image, origin = np.ascontiguousarray(image[y:y + h, x:x + w]), (x, y)
             if self.config.pixel_format in ("Mono12", "Mono16"):
                 image = image.astype(np.uint16) * np.uint16(257)
-            frame = Frame(image, self._frame_id, time.monotonic_ns(), time.monotonic_ns())
+            frame = Frame(image, self._frame_id, time.monotonic_ns(), time.monotonic_ns(),
+                          origin)
             self._frame_id += 1
             self._deliver(frame)

@@ -12,6 +12,13 @@ The diameter (with a wear drift), the packet loss ratio and the frame rate can b
 it runs, and it can show a calibration board instead of the shaft (``show_board``: a pose in
 front of the camera, with or without the laser line, or clamped between the centres), so that a
 calibration session can capture its images from the live camera.
+
+It honours the sensor region a client sets (GenICam ``OffsetX``/``OffsetY``/``Width``/
+``Height``: the frames sent are that window of the sensor, stamped as whole frames are) and,
+as a real sensor, cannot run faster than its rows can be read (``replay.min_frame_period_us``:
+fewer rows, a higher frame rate). With ``replay_frames`` it renders a ring of frames at start
+and then only sends them (``replay.FrameRing``), so that it does not compete with the gauge
+for the CPU.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.sim.board import Board, BoardRenderer, Shot
+from drivers.sim.replay import FrameRing, crop, min_frame_period_us
 from drivers.sim.rig import RigConfig, ShaftRenderer
 
 log = logging.getLogger("shaftgauge.sim.gige")
@@ -34,6 +42,7 @@ log = logging.getLogger("shaftgauge.sim.gige")
 _REG_WIDTH, _REG_HEIGHT = 0x100, 0x104
 _REG_SENSOR_HEIGHT, _REG_SENSOR_WIDTH = 0x118, 0x11C
 _REG_FRAME_PERIOD_US = 0x138
+_REG_OFFSET_X, _REG_OFFSET_Y = 0x130, 0x134
 STAMP_BYTES = 12
 
 _FillPattern = CFUNCTYPE(None, c_void_p, c_void_p, c_uint32, c_uint32, c_uint32)
@@ -49,6 +58,7 @@ def _libs() -> tuple[ctypes.CDLL, ctypes.CDLL]:
     lib.arv_gv_fake_camera_get_fake_camera.restype = c_void_p
     lib.arv_gv_fake_camera_get_fake_camera.argtypes = [c_void_p]
     lib.arv_fake_camera_write_register.argtypes = [c_void_p, c_uint32, c_uint32]
+    lib.arv_fake_camera_read_register.argtypes = [c_void_p, c_uint32, POINTER(c_uint32)]
     lib.arv_fake_camera_set_fill_pattern.argtypes = [c_void_p, _FillPattern, c_void_p]
     lib.arv_buffer_get_data.restype = c_void_p
     lib.arv_buffer_get_data.argtypes = [c_void_p, POINTER(c_size_t)]
@@ -84,6 +94,8 @@ class SimCameraSettings:
     lost_ratio: float = 0.0
     seed: int = 0
     rig: RigConfig = field(default_factory=RigConfig)
+    replay_frames: int = 0
+    """0: render every frame; N: render a ring of N frames and send them in turn."""
 
 
 class SimGigECamera:
@@ -107,12 +119,19 @@ class SimGigECamera:
         self._scene_image: tuple[tuple[Shot, Board], np.ndarray] | None = None
         self._gv: int | None = None
         self._callback = _FillPattern(self._fill)  # keep a reference: C holds the pointer
+        self._ring = FrameRing(self.renderer, settings.replay_frames, self.current_diameter) \
+            if settings.replay_frames > 0 else None
+        self._requested_period_us = 0   # the period the client asked for (before clamping)
+        self._written_period_us = 0     # ... and the one written to the register
         self._thread = threading.Thread(target=self._render_loop, name="sim-render", daemon=True)
 
     # ---- life cycle ------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Render the first frame, then start serving GVCP/GVSP on the address."""
+        """Render the first frame (or the replay ring), then start serving GVCP/GVSP on the
+        address."""
+        if self._ring is not None:
+            self._ring.fill()
         self._ready = self._render_next()
         w, h = self.settings.rig.image_size
         gv = self._lib.arv_gv_fake_camera_new_full(
@@ -186,17 +205,54 @@ class SimGigECamera:
             raise ValueError("fps must be within [0.1, 1000]")
         self.settings.fps = fps
         if self._gv:
+            period = round(1e6 / fps)
             fake = self._lib.arv_gv_fake_camera_get_fake_camera(self._gv)
-            self._lib.arv_fake_camera_write_register(fake, _REG_FRAME_PERIOD_US,
-                                                     round(1e6 / fps))
+            self._lib.arv_fake_camera_write_register(fake, _REG_FRAME_PERIOD_US, period)
+            self._requested_period_us = self._written_period_us = period
+            self._clamp_frame_period()
 
     def stats(self) -> dict[str, float]:
         """Frames rendered (the stamp counter of the next frame) and sent, frames sent again
         because the renderer was behind, the current diameter."""
+        x, y, w, h = self.region()
         return {"rendered": self._counter, "sent": self._sent, "repeats": self._repeats,
                 "diameter_mm": round(self.current_diameter(), 7),
                 "lost_ratio": self.settings.lost_ratio, "fps": self.settings.fps,
-                "scene": self.scene()}
+                "scene": self.scene(), "region": [x, y, w, h],
+                "frame_period_us": self._written_period_us,
+                "replay_frames": self.settings.replay_frames,
+                "rerendered": self._ring.rerendered if self._ring else 0}
+
+    # ---- sensor -------------------------------------------------------------------------
+
+    def _register(self, address: int) -> int:
+        value = c_uint32(0)
+        if self._gv:
+            fake = self._lib.arv_gv_fake_camera_get_fake_camera(self._gv)
+            self._lib.arv_fake_camera_read_register(fake, address, byref(value))
+        return int(value.value)
+
+    def region(self) -> tuple[int, int, int, int]:
+        """The sensor region clients set: (OffsetX, OffsetY, Width, Height), px."""
+        if not self._gv:
+            w, h = self.settings.rig.image_size
+            return 0, 0, w, h
+        return (self._register(_REG_OFFSET_X), self._register(_REG_OFFSET_Y),
+                self._register(_REG_WIDTH), self._register(_REG_HEIGHT))
+
+    def _clamp_frame_period(self) -> None:
+        """Keep the frame period no shorter than the sensor's readout of the current rows
+        (a client's new frame rate is taken as asked, then clamped)."""
+        if not self._gv:
+            return
+        current = self._register(_REG_FRAME_PERIOD_US)
+        if current != self._written_period_us:  # written by a client since
+            self._requested_period_us = current
+        period = max(self._requested_period_us, min_frame_period_us(self._register(_REG_HEIGHT)))
+        if period != current:
+            fake = self._lib.arv_gv_fake_camera_get_fake_camera(self._gv)
+            self._lib.arv_fake_camera_write_register(fake, _REG_FRAME_PERIOD_US, period)
+        self._written_period_us = period
 
     # ---- frames --------------------------------------------------------------------------
 
@@ -218,23 +274,27 @@ class SimGigECamera:
 
     def _render_loop(self) -> None:
         while not self._stop.is_set():
-            self._want.wait()
-            self._want.clear()
+            wanted = self._want.wait(0.05)
+            self._clamp_frame_period()
             if self._stop.is_set():
                 break
+            if self._ring is not None and self.scene() == "shaft":
+                self._ring.refresh(self._stop)
+                self._want.clear()
+                continue
+            if not wanted:
+                continue
+            self._want.clear()
             image = self._render_next()
             with self._lock:
                 self._ready = image
 
     def _fill(self, buffer: int, _data: int, _exposure: int, _gain: int, fmt: int) -> None:
-        """Called by Aravis's streaming thread for every frame: copy the ready frame (8-bit,
-        or scaled to 16 bits when the client chose a 16-bit pixel format)."""
+        """Called by Aravis's streaming thread for every frame: copy the frame to send into
+        the buffer, cut to the sensor region (8-bit, or scaled to 16 bits when the client
+        chose a 16-bit pixel format)."""
         try:
-            with self._lock:
-                image = self._ready
-                fresh = image is not None and image.flags.writeable
-                if image is not None:
-                    image.flags.writeable = False  # mark as sent
+            image = self._frame_to_send()
             if image is None:
                 return
             size = c_size_t(0)
@@ -244,9 +304,35 @@ class SimGigECamera:
                     image = image.astype("<u2") * 257
                 ctypes.memmove(ptr, image.ctypes.data, image.nbytes)
             self._sent += 1
-            if fresh:
-                self._want.set()  # render the next one; never overwrite an unsent frame
-            else:
-                self._repeats += 1
         except Exception:  # pragma: no cover - never let an exception into C
             log.exception("fill callback")
+
+    def _frame_to_send(self) -> np.ndarray | None:
+        """The next frame, cut to the region and stamped (a frame of its own)."""
+        x, y, w, h = self.region()
+        full = (x, y, w, h) == (0, 0, *self.settings.rig.image_size)
+        if self._ring is not None and self.scene() == "shaft":
+            image, slot = self._ring.take()
+            out = image.copy() if full else crop(image, x, y, w, h)
+            crc = self._ring.full_crc(slot, image) if full else zlib.crc32(out[1:].tobytes())
+            flat = out.reshape(-1)
+            flat[:8] = np.frombuffer(self._counter.to_bytes(8, "little"), np.uint8)
+            flat[8:12] = np.frombuffer(crc.to_bytes(4, "little"), np.uint8)
+            self._counter += 1
+            return out
+        with self._lock:
+            image = self._ready
+            fresh = image is not None and image.flags.writeable
+            if image is not None:
+                image.flags.writeable = False  # mark as sent
+        if image is None:
+            return None
+        if fresh:
+            self._want.set()  # render the next one; never overwrite an unsent frame
+        else:
+            self._repeats += 1
+        if full:
+            return image
+        out = crop(image, x, y, w, h)
+        stamp_frame(out, check_stamp(image)[0])
+        return out

@@ -11,7 +11,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
 from service.config import ApiSettings
-from service.measure.overlay import draw_overlay
+from service.measure.overlay import draw_overlay, on_sensor
 from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
 
@@ -47,8 +47,10 @@ def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings) -> API
         if measured is None:
             raise HTTPException(404, "no measured frame yet: " + _why(health))
         frame, m, geometry = measured
-        picture = draw_overlay(frame.image, m if overlay else None, geometry,
-                               min(width, frame.image.shape[1]))
+        # A region of interest is shown where it lies on the sensor.
+        image = on_sensor(frame.image, frame.origin, geometry.image_size)
+        picture = draw_overlay(image, m if overlay else None, geometry,
+                               min(width, image.shape[1]))
         ok, jpg = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, 85])
         if not ok:
             raise HTTPException(500, "could not encode the frame")

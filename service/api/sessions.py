@@ -88,11 +88,12 @@ def router(sessions: CalibrationSessions, context: CalibrationContext,
         s = find(sid)
         # The camera now looks at a board, not a part: no offset from what it measures.
         comp.hold_offsets(CAPTURE_HOLD_S, f"calibration session {sid} is capturing", owner=sid)
+        pipeline.read_whole_sensor(CAPTURE_HOLD_S)  # a region of interest is no calibration image
         asked = time.monotonic_ns()
         deadline = time.monotonic() + CAPTURE_TIMEOUT_S
-        while True:  # a frame taken after the request, never one from before it
+        while True:  # a whole frame taken after the request, never one from before it
             frame = pipeline.latest_frame
-            if frame is not None and frame.received_ns > asked:
+            if frame is not None and frame.received_ns > asked and frame.origin is None:
                 return await store(s, kind, frame.image)
             if time.monotonic() > deadline:
                 raise HTTPException(409, "no new frame from the camera within "

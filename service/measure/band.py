@@ -55,7 +55,7 @@ def full_scale(image: np.ndarray) -> float:
     return 1.0
 
 
-def image_statistics(image: np.ndarray, decimation: int, spacing: int = 4
+def image_statistics(image: np.ndarray, decimation: int, spacing: int = 8
                      ) -> tuple[float, float]:
     """The image's background grey level and noise, from the means of ``decimation``-square
     blocks, one block in ``spacing`` each way.

@@ -3,7 +3,7 @@ it can fail (no stripe, too few points, arc too short, fit failed, wrong image).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -91,15 +91,23 @@ class SectionPoints:
     section: np.ndarray
 
 
-def check_image(image: np.ndarray, geometry: RigGeometry) -> str:
-    """Why ``image`` cannot be measured with ``geometry`` ('' when it can)."""
+def check_image(image: np.ndarray, geometry: RigGeometry,
+                origin: tuple[int, int] | None = None) -> str:
+    """Why ``image`` cannot be measured with ``geometry`` ('' when it can): a whole frame of
+    the calibrated sensor, or with ``origin`` (x, y, px) a region of it (the camera's region
+    of interest) that lies within the sensor."""
     if not isinstance(image, np.ndarray) or image.ndim != 2:
         shape = getattr(image, "shape", None)
         return f"expected a single-channel (grey) image, got shape {shape}"
     w, h = geometry.image_size
-    if image.shape != (h, w):
+    if origin is None and image.shape != (h, w):
         return (f"image is {image.shape[1]}x{image.shape[0]} px but the calibration is for "
                 f"{w}x{h} px")
+    if origin is not None:
+        x0, y0 = origin
+        if x0 < 0 or y0 < 0 or x0 + image.shape[1] > w or y0 + image.shape[0] > h:
+            return (f"region {image.shape[1]}x{image.shape[0]} px at ({x0}, {y0}) is not "
+                    f"within the calibrated {w}x{h} px sensor")
     if not (np.issubdtype(image.dtype, np.integer) or np.issubdtype(image.dtype, np.floating)):
         return f"image has unsupported pixel type {image.dtype}"
     return ""
@@ -252,6 +260,7 @@ def measure_frame(
     params: MeasureParams | None = None,
     center_prior: tuple[np.ndarray, float] | None = None,
     near: np.ndarray | None = None,
+    origin: tuple[int, int] | None = None,
 ) -> Measurement:
     """Measure the shaft diameter in one stripe image.
 
@@ -271,6 +280,10 @@ def measure_frame(
     near : ndarray, shape (N, 2), optional
         The previous frame's stripe centres, px (its ``points_px``): the stripe is looked for
         near them first (``extract_stripe``).
+    origin : (int, int), optional
+        Where ``image`` lies on the calibrated sensor (x, y of its top-left pixel, px) when
+        it is a region of it (the camera's region of interest); every position in and out
+        (``near``, ``points_px``) is in the whole sensor's pixels.
 
     Returns
     -------
@@ -280,12 +293,15 @@ def measure_frame(
     """
     params = params or MeasureParams()
     method = Method(method)
-    problem = check_image(image, geometry)
+    problem = check_image(image, geometry, origin)
     if problem:
         return Measurement.failed(Status.BAD_IMAGE, method, problem)
-    stripe = extract_stripe(image, params.stripe, near)
+    shift = np.zeros(2) if origin is None else np.asarray(origin, np.float64)
+    stripe = extract_stripe(image, params.stripe, None if near is None else near - shift)
     if not stripe:
         return Measurement.failed(Status.NO_STRIPE, method, stripe.reason or "no stripe found")
+    if origin is not None:
+        stripe = replace(stripe, xy=stripe.xy + shift)
     points = drop_grazing(section_points(stripe, geometry), geometry, params)
     if len(points.section) < params.min_points:
         return Measurement.failed(

@@ -14,6 +14,21 @@ STRIPE_BGR = (60, 220, 60)
 SECTION_BGR = (40, 60, 255)
 
 
+def on_sensor(image: np.ndarray, origin: tuple[int, int] | None,
+              sensor_size: tuple[int, int]) -> np.ndarray:
+    """A region of the sensor (``origin`` its top-left, px) placed on a black frame of the
+    whole sensor (``sensor_size``: width, height), so that sensor positions draw where they
+    belong; the image itself when it is a whole frame."""
+    if origin is None:
+        return image
+    w, h = sensor_size
+    canvas = np.zeros((h, w), image.dtype)
+    x0, y0 = origin
+    part = image[:max(0, h - y0), :max(0, w - x0)]
+    canvas[y0:y0 + part.shape[0], x0:x0 + part.shape[1]] = part
+    return canvas
+
+
 def draw_overlay(image: np.ndarray, m: Measurement | None, geometry: RigGeometry | None,
                  width: int | None = None) -> np.ndarray:
     """A BGR picture of ``image`` (8 or 16 bit grey) with the measurement drawn over it.

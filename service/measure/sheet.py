@@ -178,12 +178,12 @@ def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndar
     e1, e2 = orthonormal_basis(geometry.axis_direction)
     rel = section[ok] - center
     rel /= np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)[:, None]
-    normals = rel[:, :1] * e1 + rel[:, 1:] * e2
     n = geometry.plane_normal / np.linalg.norm(geometry.plane_normal)
     u1 = e1 - (e1 @ n) * n
     u1 /= np.linalg.norm(u1)
     u2 = np.cross(n, u1)
-    design = np.column_stack([normals @ u1, normals @ u2])
+    # normals = rel_x e1 + rel_y e2, so normals . u = rel . (e1 . u, e2 . u)
+    design = rel @ np.array([[e1 @ u1, e1 @ u2], [e2 @ u1, e2 @ u2]])
     coef, *_ = np.linalg.lstsq(design, b[ok], rcond=None)
     v = coef[0] * u1 + coef[1] * u2
     norm = float(np.linalg.norm(v))
@@ -191,7 +191,7 @@ def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndar
         return None
     v /= norm
     # Every point seen lit must face the source.
-    return v if float(np.mean(normals @ v > 0)) > 0.9 else None
+    return v if float(np.mean(design @ (coef / norm) > 0)) > 0.9 else None
 
 
 def sheet_sigma_from_profile(peak: np.ndarray, curvature: np.ndarray, slope_mm_per_px: np.ndarray,
@@ -211,11 +211,22 @@ def sheet_sigma_from_profile(peak: np.ndarray, curvature: np.ndarray, slope_mm_p
     slope = np.asarray(slope_mm_per_px, np.float64)
     ok = np.isfinite(peak) & np.isfinite(curv) & (curv > 0) & np.isfinite(slope)
     idx = np.nonzero(ok)[0]
-    sigmas = []
-    for run in np.array_split(idx, max(1, min(groups, len(idx) // 5))):
-        if len(run) == 0:
+    n_runs = max(1, min(groups, len(idx) // 5))
+    if len(idx) < n_runs:
+        return math.nan
+    # np.array_split's runs: the first len % n_runs are one longer. Each block of equal
+    # runs is one 2-D array, so the sums and medians are one call per block.
+    size, extra = divmod(len(idx), n_runs)
+    cut = extra * (size + 1)
+    w2, slopes = [], []
+    for block, length in ((idx[:cut], size + 1), (idx[cut:], size)):
+        if block.size == 0:
             continue
-        w2 = peak[run].sum() / curv[run].sum() - filter_px**2 - blur_px**2
-        if w2 > 0:
-            sigmas.append(math.sqrt(w2) * float(np.median(slope[run])))
-    return float(np.median(sigmas)) if sigmas else math.nan
+        rows = block.reshape(-1, length)
+        w2.append(peak[rows].sum(axis=1) / curv[rows].sum(axis=1) - filter_px**2 - blur_px**2)
+        slopes.append(np.median(slope[rows], axis=1))
+    w2_all, slope_all = np.concatenate(w2), np.concatenate(slopes)
+    good = w2_all > 0
+    if not good.any():
+        return math.nan
+    return float(np.median(np.sqrt(w2_all[good]) * slope_all[good]))

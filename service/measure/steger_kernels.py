@@ -31,76 +31,80 @@ def band_hessian(roi: np.ndarray, band: np.ndarray, g: np.ndarray, g1: np.ndarra
     band : ndarray of bool, shape (H, W)
         Pixels to evaluate; those nearer the border than the kernels' radius are skipped.
     g, g1, g2 : ndarray of float32, shape (2r + 1,)
-        Sampled Gaussian and its derivatives (``stripe._gaussian_kernels``), applied as
+        Sampled Gaussian and its derivatives (``band.gaussian_kernels``), applied as
         OpenCV's ``sepFilter2D`` applies them (correlation).
 
     Returns
     -------
     iy, ix : ndarray of int64
-        Band pixels evaluated.
+        Band pixels evaluated, row by row.
     d : ndarray of float64, shape (N, 6)
         ``v, x, y, xx, yy, xy`` at each.
+
+    Each row is filtered only over the span of columns its band pixels (and those of the r
+    rows around it, for the vertical pass) occupy, with the column loop innermost so that it
+    vectorises.
     """
     h, w = roi.shape
     r = (g.shape[0] - 1) // 2
-    # Rows the column pass reads: the band's pixels and r rows above and below them.
-    need = np.zeros((h, w), np.bool_)
+    m = 2 * r + 1
+    lo = np.full(h, w, np.int64)   # band span of each row: [lo, hi)
+    hi = np.zeros(h, np.int64)
     count = 0
     for y in range(r, h - r):
         for x in range(r, w - r):
             if band[y, x]:
                 count += 1
-                for k in range(-r, r + 1):
-                    need[y + k, x] = True
-    rows0 = np.empty((h, w), np.float32)
-    rows1 = np.empty((h, w), np.float32)
-    rows2 = np.empty((h, w), np.float32)
+                lo[y] = min(lo[y], x)
+                hi[y] = x + 1
+    # The horizontal pass is needed wherever a band pixel within r rows needs it.
+    nlo = np.full(h, w, np.int64)
+    nhi = np.zeros(h, np.int64)
+    for y in range(r, h - r):
+        if hi[y] > lo[y]:
+            for k in range(-r, r + 1):
+                nlo[y + k] = min(nlo[y + k], lo[y])
+                nhi[y + k] = max(nhi[y + k], hi[y])
+    rows0 = np.zeros((h, w), np.float32)
+    rows1 = np.zeros((h, w), np.float32)
+    rows2 = np.zeros((h, w), np.float32)
     for y in range(h):
-        for x in range(r, w - r):
-            if need[y, x]:
-                a0 = np.float32(0.0)
-                a1 = np.float32(0.0)
-                a2 = np.float32(0.0)
-                for k in range(2 * r + 1):
-                    p = roi[y, x + k - r]
-                    a0 += g[k] * p
-                    a1 += g1[k] * p
-                    a2 += g2[k] * p
-                rows0[y, x] = a0
-                rows1[y, x] = a1
-                rows2[y, x] = a2
+        for k in range(m):
+            gk, g1k, g2k = g[k], g1[k], g2[k]
+            for x in range(nlo[y], nhi[y]):
+                p = roi[y, x + k - r]
+                rows0[y, x] += gk * p
+                rows1[y, x] += g1k * p
+                rows2[y, x] += g2k * p
     iy = np.empty(count, np.int64)
     ix = np.empty(count, np.int64)
     d = np.empty((count, 6), np.float64)
+    acc = np.zeros((6, w), np.float32)
     n = 0
     for y in range(r, h - r):
-        for x in range(r, w - r):
-            if not band[y, x]:
-                continue
-            v = np.float32(0.0)
-            dx = np.float32(0.0)
-            dy = np.float32(0.0)
-            dxx = np.float32(0.0)
-            dyy = np.float32(0.0)
-            dxy = np.float32(0.0)
-            for k in range(2 * r + 1):
-                c0 = rows0[y + k - r, x]
-                c1 = rows1[y + k - r, x]
-                v += g[k] * c0
-                dx += g[k] * c1
-                dy += g1[k] * c0
-                dxx += g[k] * rows2[y + k - r, x]
-                dyy += g2[k] * c0
-                dxy += g1[k] * c1
-            iy[n] = y
-            ix[n] = x
-            d[n, 0] = v
-            d[n, 1] = dx
-            d[n, 2] = dy
-            d[n, 3] = dxx
-            d[n, 4] = dyy
-            d[n, 5] = dxy
-            n += 1
+        a, b = lo[y], hi[y]
+        if b <= a:
+            continue
+        acc[:, a:b] = 0.0
+        for k in range(m):
+            gk, g1k, g2k = g[k], g1[k], g2[k]
+            yy = y + k - r
+            for x in range(a, b):
+                c0 = rows0[yy, x]
+                c1 = rows1[yy, x]
+                acc[0, x] += gk * c0
+                acc[1, x] += gk * c1
+                acc[2, x] += g1k * c0
+                acc[3, x] += gk * rows2[yy, x]
+                acc[4, x] += g2k * c0
+                acc[5, x] += g1k * c1
+        for x in range(a, b):
+            if band[y, x]:
+                iy[n] = y
+                ix[n] = x
+                for j in range(6):
+                    d[n, j] = acc[j, x]
+                n += 1
     return iy, ix, d
 
 

@@ -4,24 +4,28 @@ The camera's own thread fills a bounded drop-oldest queue; the intake task takes
 it and hands each to a thread pool (numpy and OpenCV release the GIL), at most ``workers`` in
 flight, each with the calibration in force when it was taken and the stripe of the last frame
 measured (it is looked for there first: ``service.measure.stripe.extract_stripe``); the
-publisher task hands the results on in frame order. Nothing downstream can stall
+publisher task hands the results on in frame order, and tells the camera where the stripe is
+(its region of interest follows it: ``service.runtime.roi``). Nothing downstream can stall
 acquisition."""
 
 from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import logging
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from drivers.camera.base import Camera, Frame
+from drivers.camera.base import Camera, CameraError, Frame
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement, Method, Status
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
+from service.runtime.roi import KEEP, RegionFollower
 
 log = logging.getLogger("shaftgauge.pipeline")
 
@@ -44,11 +48,18 @@ class FramePipeline:
         Frames measured at once.
     on_result : callable
         ``on_result(frame, measurement, calibration_in_use)``, in frame order, on the loop.
+    roi_margin_px : int or None
+        The camera's region of interest follows the stripe with this margin; None reads the
+        whole sensor.
     """
 
     def __init__(self, camera: Camera, context: CalibrationContext, method: Method,
-                 params: MeasureParams, workers: int, on_result: OnResult) -> None:
+                 params: MeasureParams, workers: int, on_result: OnResult,
+                 roi_margin_px: int | None = None) -> None:
         self.camera, self.context = camera, context
+        self.roi_margin_px = roi_margin_px
+        self._follower: RegionFollower | None = None
+        self._whole_until = 0.0
         self.method, self.params, self.workers = method, params, workers
         self.on_result = on_result
         self.latest_frame: Frame | None = None
@@ -62,14 +73,24 @@ class FramePipeline:
         self._near: np.ndarray | None = None
 
     def image_size(self) -> tuple[int, int] | None:
-        """(width, height) of the camera's images: the latest frame's, else the active
-        calibration's (None when neither is known)."""
+        """(width, height) of the camera's whole frames: the latest whole frame's, else the
+        active calibration's (None when neither is known)."""
         frame = self.latest_frame
-        if frame is not None:
+        if frame is not None and frame.origin is None:
             return frame.image.shape[1], frame.image.shape[0]
         if self.context.geometry is not None:
             return self.context.geometry.image_size
         return None
+
+    def read_whole_sensor(self, hold_s: float) -> None:
+        """Read the whole sensor for ``hold_s`` (a calibration capture wants whole frames):
+        the region of interest stops following the stripe meanwhile."""
+        self._whole_until = time.monotonic() + hold_s
+        if self._follower is not None:
+            self._follower.requested = None
+        # A camera without regions reads the whole sensor anyway.
+        with contextlib.suppress(CameraError):
+            self.camera.set_region(None)
 
     def start(self) -> list[asyncio.Task]:
         """Start the camera; returns the intake and publisher tasks."""
@@ -91,7 +112,27 @@ class FramePipeline:
     def _measure(self, frame: Frame, geometry: RigGeometry,
                  prior: tuple[np.ndarray, float] | None, near: np.ndarray | None
                  ) -> Measurement:
-        return measure_frame(frame.image, geometry, self.method, self.params, prior, near)
+        return measure_frame(frame.image, geometry, self.method, self.params, prior, near,
+                             frame.origin)
+
+    def _follow_stripe(self, frame: Frame, m: Measurement, in_use: CalibrationInUse) -> None:
+        """Tell the camera where to read next (its region of interest follows the stripe)."""
+        sensor = in_use.geometry.image_size
+        if self._follower is None or self._follower.sensor != sensor:
+            self._follower = RegionFollower(sensor, self.roi_margin_px or 32)
+        region = None if frame.origin is None else (
+            *frame.origin, frame.image.shape[1], frame.image.shape[0])
+        points = m.points_px if m.status is Status.OK else None
+        change = self._follower.update(points, region, time.monotonic())
+        if change is KEEP:
+            return
+        try:
+            self.camera.set_region(change)  # type: ignore[arg-type]
+        except CameraError as err:  # a camera without regions: read the whole sensor
+            log.warning("region of interest off: %s", err)
+            self.roi_margin_px = None
+            return
+        self.counters["region_requests"] += 1
 
     async def _intake(self) -> None:
         """Frames from the camera to the worker pool, at most ``workers`` in flight."""
@@ -142,6 +183,8 @@ class FramePipeline:
             finally:
                 self._slots.release()
             self._near = m.points_px if m.status is Status.OK else None
+            if self.roi_margin_px is not None and time.monotonic() > self._whole_until:
+                self._follow_stripe(frame, m, in_use)
             try:
                 self.on_result(frame, m, in_use)
             except Exception:

@@ -6,15 +6,21 @@ the simulated GigE camera at several frame rates.
 The client-side figures: two threads poll ``/api/v1/measurements/latest`` and the
 ``measurement_seq`` register every 5 ms and note when each sequence number first appears;
 the frame's arrival is the record's publication time less its ``latency_ms`` (same machine,
-same wall clock). Polling adds up to 5 ms (2.5 ms on average).
+same wall clock). Polling adds up to 5 ms (2.5 ms on average). The simulated camera replays a
+ring of pre-rendered frames (``sim_replay_frames``), so that it does not compete with the
+service for the CPU; each frame rate runs with the camera's region of interest following the
+stripe and with the whole sensor. "CPU" is the service process's (not its children's) user
+and system time over the run, in % of one core.
 
-Run: ``.venv/bin/python -m tests.bench.service_throughput [--seconds S] [--fps F ...]``.
+Run: ``.venv/bin/python -m tests.bench.service_throughput [--seconds S] [--fps F ...]
+[--roi on off]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import tempfile
 import threading
@@ -69,15 +75,24 @@ def client_latencies(svc, seen: dict[int, float]) -> list[float]:
     return [(t - arrival[s]) * 1000.0 for s, t in seen.items() if s in arrival]
 
 
-def run(fps: float, seconds: float) -> dict:
+def cpu_seconds(pid: int) -> float:
+    """User and system CPU time of a process so far, s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run(fps: float, seconds: float, roi: bool) -> dict:
     rest_seen: dict[int, float] = {}
     modbus_seen: dict[int, float] = {}
+    env = {"SHAFTGAUGE_CAMERA__AUTO_ROI": "true" if roi else "false",
+           "SHAFTGAUGE_CAMERA__QUEUE_SIZE": "8"}
     with tempfile.TemporaryDirectory() as tmp:
-        svc = start_service(Path(tmp), diameter=30.0, fps=fps)
+        svc = start_service(Path(tmp), diameter=30.0, fps=fps, env=env)
         try:
             assert control(svc.control_port, {"get": "stats"})["ok"]
             time.sleep(5.0)  # warm up
             s0 = svc.get("/api/v1/status").json()
+            cpu0, t0 = cpu_seconds(svc.proc.pid), time.monotonic()
             stop = threading.Event()
             pollers = [threading.Thread(target=poll_rest, args=(svc.url, rest_seen, stop)),
                        threading.Thread(target=poll_modbus,
@@ -89,6 +104,8 @@ def run(fps: float, seconds: float) -> dict:
             for t in pollers:
                 t.join(10)
             s1 = svc.get("/api/v1/status").json()
+            cpu = (cpu_seconds(svc.proc.pid) - cpu0) / (time.monotonic() - t0) * 100.0
+            region = s1["camera"]["region"]
             rest = percentiles(client_latencies(svc, rest_seen))
             modbus = percentiles(client_latencies(svc, modbus_seen))
         finally:
@@ -96,7 +113,7 @@ def run(fps: float, seconds: float) -> dict:
     p0, p1 = s0["pipeline"], s1["pipeline"]
     return {
         "client_rest": rest, "client_modbus": modbus,
-        "asked_fps": fps,
+        "asked_fps": fps, "roi": roi, "region": region, "service_cpu_pct": cpu,
         "measurements_per_s": (p1["measured"] - p0["measured"]) / seconds,
         "ok_per_s": (p1["ok"] - p0["ok"]) / seconds,
         "frames_in_per_s": (p1["frames_in"] - p0["frames_in"]) / seconds,
@@ -109,20 +126,25 @@ def run(fps: float, seconds: float) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=30.0)
-    ap.add_argument("--fps", type=float, nargs="+", default=[10.0, 25.0, 50.0])
+    ap.add_argument("--fps", type=float, nargs="+", default=[25.0, 50.0, 100.0, 200.0])
+    ap.add_argument("--roi", nargs="+", choices=["on", "off"], default=["on", "off"])
     ap.add_argument("--json", default="bench-results/service_throughput.json")
     args = ap.parse_args()
     results = []
     for fps in args.fps:
-        r = run(fps, args.seconds)
-        results.append(r)
-        print(f"camera at {fps:4.0f} fps: {r['measurements_per_s']:5.1f} measurements/s "
-              f"({r['ok_per_s']:.1f} ok), {r['camera_dropped']} frames dropped, latency "
-              f"frame -> registers median {r['latency_median_ms']:.0f} ms, p99 "
-              f"{r['latency_p99_ms']:.0f} ms; as a client sees it: REST median "
-              f"{r['client_rest']['median_ms']:.0f} ms, p99 {r['client_rest']['p99_ms']:.0f} ms,"
-              f" Modbus median {r['client_modbus']['median_ms']:.0f} ms, p99 "
-              f"{r['client_modbus']['p99_ms']:.0f} ms ({args.seconds:g} s)")
+        for roi in args.roi:
+            r = run(fps, args.seconds, roi == "on")
+            results.append(r)
+            print(f"camera at {fps:4.0f} fps, region of interest {roi:>3}: "
+                  f"{r['measurements_per_s']:5.1f} measurements/s ({r['ok_per_s']:.1f} ok), "
+                  f"{r['camera_dropped']} frames dropped, frame -> registers median "
+                  f"{r['latency_median_ms']:.1f} ms, p99 {r['latency_p99_ms']:.1f} ms, service "
+                  f"CPU {r['service_cpu_pct']:.0f} %; as a client sees it: REST median "
+                  f"{r['client_rest']['median_ms']:.0f} ms, p99 "
+                  f"{r['client_rest']['p99_ms']:.0f} ms, Modbus median "
+                  f"{r['client_modbus']['median_ms']:.0f} ms, p99 "
+                  f"{r['client_modbus']['p99_ms']:.0f} ms ({args.seconds:g} s; region "
+                  f"{r['region']})", flush=True)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(results, indent=2))
 

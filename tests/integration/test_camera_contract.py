@@ -112,3 +112,25 @@ def test_software_trigger_gives_one_frame_per_trigger(make_camera) -> None:
     for _ in range(3):
         cam.software_trigger()
         assert cam.get_frame(5.0) is not None
+
+
+def test_a_region_of_interest_is_read_and_the_whole_sensor_again(make_camera) -> None:
+    cam = make_camera()
+    cam.start()
+    cam.set_region(None)  # Aravis's fake starts on a 512x512 region of a larger sensor
+    whole = [f for f in take_frames(cam, 40) if f.origin is None][-1]
+    assert cam.status().region is None
+    h, w = whole.image.shape
+    cam.set_region((64, 32, 200, 120))
+    frames = take_frames(cam, 40)
+    region = [f for f in frames if f.origin is not None]
+    assert region, cam.status()
+    f = region[-1]
+    # The camera rounds to its increments; the frame says what it read.
+    assert f.origin == (64, 32) and f.image.shape == (120, 200), (f.origin, f.image.shape)
+    assert cam.status().region == (64, 32, 200, 120)
+    assert frames[-1].origin is not None  # every frame after the change is a region
+    cam.set_region(None)
+    back = [f for f in take_frames(cam, 40) if f.origin is None]
+    assert back and back[-1].image.shape == (h, w)
+    assert cam.status().region is None and cam.status().counters.region_changes >= 2

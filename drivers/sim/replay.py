@@ -1,0 +1,126 @@
+"""A ring of pre-rendered frames for the simulated camera, and the sensor's region of interest.
+
+Rendering a frame of the simulated rig costs tens of milliseconds of CPU: a simulated camera
+that renders every frame it sends steals the gauge's CPU in a benchmark. In replay mode it
+renders ``size`` frames at start (fresh speckle in each, as the shaft turns) and then only
+sends them in turn; when the diameter changes (a jump, or the tool-wear drift) the frames
+that show an old diameter are rendered again in the background, one at a time, so the
+diameter and the drift stay changeable.
+
+``crop`` applies a GenICam region (``OffsetX``, ``OffsetY``, ``Width``, ``Height``) to a
+full-sensor frame; ``min_frame_period_us`` is the sensor's readout time, which makes the frame
+rate rise as rows are taken away, as a real CMOS sensor's does.
+"""
+
+from __future__ import annotations
+
+import threading
+import zlib
+from collections.abc import Callable
+
+import numpy as np
+
+from drivers.sim.rig import ShaftRenderer
+
+ROW_TIME_US = 6.0
+"""Readout time of one sensor row, microseconds: 1024 rows take 6.1 ms (about 160 frames/s
+at full height), 400 rows 2.4 ms (about 380 frames/s)."""
+FRAME_OVERHEAD_US = 200.0
+
+
+def min_frame_period_us(height: int) -> int:
+    """Shortest frame period (us) of a sensor reading ``height`` rows."""
+    return round(max(1, height) * ROW_TIME_US + FRAME_OVERHEAD_US)
+
+
+def crop(image: np.ndarray, offset_x: int, offset_y: int, width: int, height: int
+         ) -> np.ndarray:
+    """The region of ``image`` (a contiguous copy), clipped to the image."""
+    h, w = image.shape[:2]
+    x0, y0 = min(max(0, offset_x), w - 1), min(max(0, offset_y), h - 1)
+    return np.ascontiguousarray(image[y0:min(h, y0 + max(1, height)),
+                                      x0:min(w, x0 + max(1, width))])
+
+
+class FrameRing:
+    """Pre-rendered frames of the shaft, sent in turn.
+
+    Parameters
+    ----------
+    renderer : ShaftRenderer
+        The rig.
+    size : int
+        Frames in the ring.
+    diameter_mm : callable
+        The diameter to show now, mm (the camera's, with its drift).
+    tolerance_mm : float
+        A frame whose diameter is this far from the current one is rendered again.
+    """
+
+    def __init__(self, renderer: ShaftRenderer, size: int, diameter_mm: Callable[[], float],
+                 tolerance_mm: float = 5e-5) -> None:
+        if size < 1:
+            raise ValueError("a replay ring needs at least one frame")
+        self.renderer, self.size = renderer, int(size)
+        self._diameter, self._tolerance = diameter_mm, tolerance_mm
+        self._lock = threading.Lock()
+        self._frames: list[np.ndarray] = []
+        self._shown: list[float] = []
+        self._crc: dict[int, int] = {}   # slot -> CRC-32 of its rows 1.. (full frame)
+        self._next = 0
+        self._rendered = 0
+        self.rerendered = 0
+
+    def fill(self) -> None:
+        """Render every frame of the ring (at start)."""
+        d = self._diameter()
+        frames = [self._render(d) for _ in range(self.size)]
+        with self._lock:
+            self._frames, self._shown, self._crc = frames, [d] * self.size, {}
+
+    def refresh(self, stop: threading.Event) -> int:
+        """Render again, one at a time, the frames that show an old diameter, starting with
+        those to be sent next (rendering outruns sending at up to ~25 frames/s, so a new
+        diameter reaches the frames sent almost at once); returns how many (stops early
+        when ``stop`` is set)."""
+        done = 0
+        with self._lock:
+            first = self._next + 1
+        for k in range(self.size):
+            slot = (first + k) % self.size
+            if stop.is_set():
+                break
+            d = self._diameter()
+            with self._lock:
+                stale = abs(self._shown[slot] - d) > self._tolerance
+            if not stale:
+                continue
+            image = self._render(d)
+            with self._lock:
+                self._frames[slot], self._shown[slot] = image, d
+                self._crc.pop(slot, None)
+            done += 1
+        self.rerendered += done
+        return done
+
+    def take(self) -> tuple[np.ndarray, int]:
+        """The next frame to send (not to be written to) and its slot."""
+        with self._lock:
+            slot = self._next
+            self._next = (self._next + 1) % self.size
+            return self._frames[slot], slot
+
+    def full_crc(self, slot: int, image: np.ndarray) -> int:
+        """CRC-32 of rows 1.. of a slot's full frame (computed once per rendering)."""
+        with self._lock:
+            crc = self._crc.get(slot)
+        if crc is None:
+            crc = zlib.crc32(image[1:].tobytes())
+            with self._lock:
+                self._crc[slot] = crc
+        return crc
+
+    def _render(self, diameter_mm: float) -> np.ndarray:
+        image = self.renderer.render(diameter_mm, self._rendered)
+        self._rendered += 1
+        return image

@@ -1,0 +1,38 @@
+"""The simulated camera's replay ring, region cut and sensor readout time."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from drivers.sim.replay import FrameRing, crop, min_frame_period_us
+from drivers.sim.rig import RigConfig, ShaftRenderer
+
+
+def test_the_ring_sends_its_frames_in_turn_and_renders_again_only_on_a_new_diameter() -> None:
+    diameter = [30.0]
+    ring = FrameRing(ShaftRenderer(RigConfig(image_size=(320, 240)), seed=1), 3,
+                     lambda: diameter[0])
+    ring.fill()
+    first = [ring.take() for _ in range(3)]
+    assert [slot for _, slot in first] == [0, 1, 2]
+    assert ring.take()[1] == 0
+    # Fresh speckle in every frame of the ring.
+    assert not np.array_equal(first[0][0], first[1][0])
+    stop = threading.Event()
+    assert ring.refresh(stop) == 0            # nothing changed: nothing rendered
+    diameter[0] = 30.5
+    assert ring.refresh(stop) == 3            # every frame shows the old diameter
+    assert ring.rerendered == 3
+    assert not np.array_equal(ring.take()[0], first[1][0])
+
+
+def test_crop_and_readout_time() -> None:
+    image = np.arange(100 * 80, dtype=np.uint32).reshape(100, 80)
+    part = crop(image, 10, 20, 30, 40)
+    assert part.shape == (40, 30) and part[0, 0] == image[20, 10] and part.flags.c_contiguous
+    assert crop(image, 70, 90, 30, 40).shape == (10, 10)   # clipped to the sensor
+    # Fewer rows, a shorter frame period: a higher frame rate.
+    assert min_frame_period_us(1024) > 2 * min_frame_period_us(400)
+    assert 1e6 / min_frame_period_us(1024) < 170
