@@ -122,19 +122,20 @@ def section_points(stripe: StripePoints, geometry: RigGeometry) -> SectionPoints
     return SectionPoints(stripe, pts3, project_to_section(pts3, geometry.axis_direction))
 
 
-def view_angles_deg(points: SectionPoints, center: np.ndarray, axis_direction: np.ndarray
-                    ) -> np.ndarray:
+def view_angles_deg(points: SectionPoints, center: np.ndarray) -> np.ndarray:
     """Angle between the surface normal and the line of sight at each point, degrees.
 
-    The normal of a cylinder is radial: in the section it points from ``center`` to the point;
-    in 3-D that is ``dx e1 + dy e2``. The camera sits at the origin of the camera frame.
+    The normal of a cylinder is radial: in the section it points from ``center`` to the point,
+    in 3-D ``(dx e1 + dy e2) / |d|``; the camera sits at the origin of the camera frame, so the
+    line of sight is ``-X / |X|``, and ``X . e1``, ``X . e2`` are the point's own section
+    coordinates: the cosine is ``-(d . section) / (|d| |X|)``.
     """
-    e1, e2 = orthonormal_basis(axis_direction)
-    radial = points.section - center
-    normal = radial[:, :1] * e1 + radial[:, 1:] * e2
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    sight = -points.points3d / np.linalg.norm(points.points3d, axis=1, keepdims=True)
-    return np.degrees(np.arccos(np.clip(np.sum(normal * sight, axis=1), -1.0, 1.0)))
+    sec = points.section
+    radial = sec - center
+    dot = radial[:, 0] * sec[:, 0] + radial[:, 1] * sec[:, 1]
+    norms = np.hypot(radial[:, 0], radial[:, 1]) * np.linalg.norm(points.points3d, axis=1)
+    cos = -dot / np.maximum(norms, 1e-300)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasureParams
@@ -143,8 +144,7 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
     prelim = fits.fit_hyper(points.section, uncertainty=False)
     if not prelim:
         return points
-    keep = view_angles_deg(points, prelim.center, geometry.axis_direction) \
-        <= params.max_view_angle_deg
+    keep = view_angles_deg(points, prelim.center) <= params.max_view_angle_deg
     if keep.mean() < 0.5:
         # A preliminary circle that calls most points grazing is itself wrong (a short or
         # broken stripe): leave the judgement to the fit and its checks.

@@ -18,6 +18,7 @@ triangulates it as the measurement does. Pure numerics; no image is read.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -160,6 +161,23 @@ def _plane_distance_on_cylinder(rays_xy: np.ndarray, center: np.ndarray, radius:
     return hit @ geometry.plane_normal - geometry.plane_d, normals
 
 
+def light_plane_directions(geometry: RigGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """An orthonormal basis (u1, u2) of the directions within the light plane, u1 along the
+    section's first axis as far as the plane allows (the same for every frame of a
+    calibration: kept)."""
+    key = tuple(float(v) for v in (*geometry.axis_direction, *geometry.plane_normal))
+    return _light_plane_directions(key)
+
+
+@functools.lru_cache(maxsize=16)
+def _light_plane_directions(key: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    e1, _ = orthonormal_basis(np.array(key[:3]))
+    n = np.array(key[3:]) / np.linalg.norm(key[3:])
+    u1 = e1 - (e1 @ n) * n
+    u1 /= np.linalg.norm(u1)
+    return u1, np.cross(n, u1)
+
+
 def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndarray,
                     geometry: RigGeometry) -> np.ndarray | None:
     """Direction toward the laser (unit, camera frame) from the stripe's brightness along the
@@ -178,10 +196,7 @@ def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndar
     e1, e2 = orthonormal_basis(geometry.axis_direction)
     rel = section[ok] - center
     rel /= np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)[:, None]
-    n = geometry.plane_normal / np.linalg.norm(geometry.plane_normal)
-    u1 = e1 - (e1 @ n) * n
-    u1 /= np.linalg.norm(u1)
-    u2 = np.cross(n, u1)
+    u1, u2 = light_plane_directions(geometry)
     # normals = rel_x e1 + rel_y e2, so normals . u = rel . (e1 . u, e2 . u)
     design = rel @ np.array([[e1 @ u1, e1 @ u2], [e2 @ u1, e2 @ u2]])
     coef, *_ = np.linalg.lstsq(design, b[ok], rcond=None)

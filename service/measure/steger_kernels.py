@@ -65,10 +65,14 @@ def band_hessian(roi: np.ndarray, band: np.ndarray, g: np.ndarray, g1: np.ndarra
             for k in range(-r, r + 1):
                 nlo[y + k] = min(nlo[y + k], lo[y])
                 nhi[y + k] = max(nhi[y + k], hi[y])
-    rows0 = np.zeros((h, w), np.float32)
-    rows1 = np.zeros((h, w), np.float32)
-    rows2 = np.zeros((h, w), np.float32)
+    rows0 = np.empty((h, w), np.float32)  # written only where they are read
+    rows1 = np.empty((h, w), np.float32)
+    rows2 = np.empty((h, w), np.float32)
     for y in range(h):
+        for x in range(nlo[y], nhi[y]):
+            rows0[y, x] = 0.0
+            rows1[y, x] = 0.0
+            rows2[y, x] = 0.0
         for k in range(m):
             gk, g1k, g2k = g[k], g1[k], g2[k]
             for x in range(nlo[y], nhi[y]):
@@ -147,7 +151,7 @@ def steger_test(d: np.ndarray, min_curvature: float, search: float
     return index[:m], nxs[:m], nys[:m], ts[:m]
 
 
-@numba.njit(**_OPTS)
+@numba.njit(**_FAST)
 def derivatives_at(image: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float
                    ) -> np.ndarray:
     """``stripe.derivatives_at`` compiled: the continuous-Gaussian derivatives at float
@@ -380,3 +384,57 @@ def chain_sizes(xy: np.ndarray, gap: float) -> np.ndarray:
     for i in range(n):
         out[i] = sizes[_root(parent, i)]
     return out
+
+
+@numba.njit(**_OPTS)
+def refine_centres(roi: np.ndarray, iy: np.ndarray, ix: np.ndarray, nx: np.ndarray,
+                   ny: np.ndarray, t: np.ndarray, sigma: float, background: float,
+                   half_pixel: float) -> tuple[np.ndarray, ...]:
+    """One Newton step along each normal with the derivatives at the first estimate, and the
+    centres that stay within ``half_pixel`` of their pixel on a ridge.
+
+    Returns
+    -------
+    x, y, nx, ny, strength, width, peak : ndarray
+        Centres (roi px), unit normals, curvature across the line, the line's own Gaussian
+        sigma (px) and the smoothed profile's height above ``background``.
+    """
+    n = iy.shape[0]
+    at = derivatives_at(roi, ix + t * nx, iy + t * ny, sigma)
+    out = np.empty((7, n))
+    m = 0
+    for i in range(n):
+        a, b = nx[i], ny[i]
+        g_n = a * at[i, 1] + b * at[i, 2]
+        h_nn = a * a * at[i, 3] + 2.0 * a * b * at[i, 4] + b * b * at[i, 5]
+        if not h_nn < 0.0:
+            continue
+        ti = t[i] - g_n / h_nn
+        if abs(ti * a) > half_pixel or abs(ti * b) > half_pixel:
+            continue
+        peak = at[i, 0] - background
+        # Smoothed profile of a Gaussian line of sigma w: V'' = -V / (w^2 + s^2) there.
+        w2 = peak / -h_nn - sigma * sigma
+        out[0, m] = ix[i] + ti * a
+        out[1, m] = iy[i] + ti * b
+        out[2, m] = a
+        out[3, m] = b
+        out[4, m] = -h_nn
+        out[5, m] = math.sqrt(w2) if w2 > 0.0 else 0.0
+        out[6, m] = peak
+        m += 1
+    return (out[0, :m], out[1, :m], out[2, :m], out[3, :m], out[4, :m], out[5, :m],
+            out[6, :m])
+
+
+@numba.njit(**_OPTS)
+def not_weak(strength: np.ndarray, width: np.ndarray, min_relative: float, lo: float,
+             hi: float) -> np.ndarray:
+    """Centres whose curvature reaches ``min_relative`` of the 90th percentile and whose
+    width lies within [lo, hi] times the median width of those (``stripe.reject_weak``)."""
+    keep = strength >= min_relative * np.percentile(strength, 90.0)
+    if keep.any():
+        med = np.median(width[keep])
+        if med > 0.0:
+            keep &= (width >= lo * med) & (width <= hi * med)
+    return keep

@@ -216,39 +216,23 @@ def steger_centres(
     if ok.size == 0:
         return StripePoints.empty("no stripe: no line centre passed Steger's test", background,
                                   noise)
-    iy, ix = iy[ok], ix[ok]
     # One Newton refinement with the derivatives at the first estimate (evaluated there, not
     # interpolated): a single step from a pixel centre overshoots a Gaussian profile by up
     # to ~0.02 px.
-    at = kernels.derivatives_at(roi, ix + t * nx, iy + t * ny, s)
-    g_n = nx * at[:, 1] + ny * at[:, 2]
-    h_nn = nx * nx * at[:, 3] + 2 * nx * ny * at[:, 4] + ny * ny * at[:, 5]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = t - g_n / h_nn
-    keep = (np.abs(t * nx) <= _HALF_PIXEL) & (np.abs(t * ny) <= _HALF_PIXEL) & (h_nn < 0)
-    ix, iy, nx, ny, t = ix[keep], iy[keep], nx[keep], ny[keep], t[keep]
-    rv, strength = at[keep, 0], -h_nn[keep]
-    # Smoothed profile of a Gaussian line of sigma w: V'' = -V / (w^2 + s^2) at the centre.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s_eff2 = (rv - background) / strength
-    width = np.sqrt(np.clip(s_eff2 - s * s, 0.0, None))
+    x, y, nx, ny, strength, width, peak = kernels.refine_centres(
+        roi, iy[ok], ix[ok], nx, ny, t, s, background, _HALF_PIXEL)
     return StripePoints(
-        xy=np.column_stack([ix + x0 + t * nx, iy + y0 + t * ny]),
-        normal=np.column_stack([nx, ny]), strength=strength, width_px=width,
-        background=background, noise=noise, peak=rv - background,
-    )
+        xy=np.column_stack([x + x0, y + y0]), normal=np.column_stack([nx, ny]),
+        strength=strength, width_px=width, background=background, noise=noise, peak=peak)
 
 
 def reject_weak(points: StripePoints, params: StripeParams) -> StripePoints:
     """Drop weak (low curvature) and smeared or split (odd width) centres."""
     if not points:
         return points
-    keep = points.strength >= params.min_relative_strength * np.percentile(points.strength, 90)
-    med_w = float(np.median(points.width_px[keep])) if keep.any() else 0.0
-    if med_w > 0:
-        lo, hi = params.width_range
-        keep &= (points.width_px >= lo * med_w) & (points.width_px <= hi * med_w)
-    return points.subset(keep)
+    lo, hi = params.width_range
+    return points.subset(kernels.not_weak(points.strength, points.width_px,
+                                          params.min_relative_strength, lo, hi))
 
 
 def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int) -> StripePoints:

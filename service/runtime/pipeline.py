@@ -17,6 +17,7 @@ import logging
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from service.runtime.roi import KEEP, RegionFollower
 log = logging.getLogger("shaftgauge.pipeline")
 
 OnResult = Callable[[Frame, Measurement, CalibrationInUse], None]
+FREE_FIT_HZ = 12.0
 
 
 class FramePipeline:
@@ -60,6 +62,10 @@ class FramePipeline:
         self.roi_margin_px = roi_margin_px
         self._follower: RegionFollower | None = None
         self._whole_until = 0.0
+        # The free circle for the axis tracker is fitted at most FREE_FIT_HZ times a second:
+        # the axis moves over minutes, and the fit costs a fifth of a frame's measurement.
+        self._without_free = replace(params, free_fit=False)
+        self._free_fit_s = -1e9
         self.method, self.params, self.workers = method, params, workers
         self.on_result = on_result
         self.latest_frame: Frame | None = None
@@ -110,10 +116,18 @@ class FramePipeline:
         self._intake_pool.shutdown(wait=True, cancel_futures=True)
 
     def _measure(self, frame: Frame, geometry: RigGeometry,
-                 prior: tuple[np.ndarray, float] | None, near: np.ndarray | None
-                 ) -> Measurement:
-        return measure_frame(frame.image, geometry, self.method, self.params, prior, near,
+                 prior: tuple[np.ndarray, float] | None, near: np.ndarray | None,
+                 params: MeasureParams) -> Measurement:
+        return measure_frame(frame.image, geometry, self.method, params, prior, near,
                              frame.origin)
+
+    def _params_now(self) -> MeasureParams:
+        """The settings for the next frame: with the free fit when it is due."""
+        now = time.monotonic()
+        if not self.params.free_fit or now - self._free_fit_s < 1.0 / FREE_FIT_HZ:
+            return self._without_free
+        self._free_fit_s = now
+        return self.params
 
     def _follow_stripe(self, frame: Frame, m: Measurement, in_use: CalibrationInUse) -> None:
         """Tell the camera where to read next (its region of interest follows the stripe)."""
@@ -154,7 +168,7 @@ class FramePipeline:
                     continue
                 prior = in_use.tracker.center() if in_use.tracker is not None else None
                 fut = loop.run_in_executor(self._pool, self._measure, frame, in_use.geometry,
-                                           prior, self._near)
+                                           prior, self._near, self._params_now())
                 await self._in_flight.put((frame, in_use, fut))
                 submitted = True
             except asyncio.CancelledError:

@@ -119,3 +119,47 @@ def test_the_correction_takes_out_most_of_the_error(az: float, diameter: float) 
     assert off and on
     e_off, e_on = off.diameter_mm - diameter, on.diameter_mm - diameter
     assert abs(e_on) < 0.5 * abs(e_off), (e_off, e_on)
+
+
+def test_kept_sheet_model_matches_the_exact_evaluation(rig) -> None:
+    """The correction from the kept grid of the model against the model evaluated at the
+    fitted circle itself, densely (64 samples over the arc; the estimated thickness)."""
+    import service.measure.sheet_correction as sc
+    from service.measure import fit as fits
+    from service.measure.diameter import MeasureParams, drop_grazing, section_points
+    from service.measure.sheet import arc_angles
+    from service.measure.stripe import extract_stripe
+
+    r, geo = rig
+    params = MeasureParams()
+    worst = points = 0.0
+    for d in (21.3, 33.8, 45.1):
+        pts = drop_grazing(section_points(extract_stripe(r.render(d, 2)), geo), geo, params)
+        circ = fits.fit_geometric(pts.section)
+        kept = sc.correct_sheet_bias(pts, circ.center, circ.radius, geo, params)
+        st, smoothing = pts.stripe, float(np.hypot(params.stripe.sigma_px, 0.7))
+        angles, _ = arc_angles(pts.section, circ.center)
+        samples = np.linspace(angles.min(), angles.max(), 64)
+        crossings = cross_the_stripe(circ.center, circ.radius, samples, geo, smoothing)
+        order = np.argsort(angles)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            brightness = st.peak * np.sqrt(st.width_px**2 + 1.5**2) / st.width_px
+        slope = np.interp(angles, samples, crossings.slope_mm_per_px)
+        sigma = sheet_sigma_from_profile(st.peak[order], st.strength[order], slope[order],
+                                         1.5, 0.7)
+        radial = ridge_bias(crossings, geo, circ.center, circ.radius, sigma, smoothing,
+                            light_direction(pts.section, circ.center, brightness, geo))
+        known = np.isfinite(radial)
+        dr = np.interp(angles, samples[known], radial[known])
+        rel = pts.section - circ.center
+        dist = np.hypot(rel[:, 0], rel[:, 1])
+        exact = circ.center + rel * ((dist - dr) / dist)[:, None]
+        points = max(points, float(np.abs(np.hypot(*(kept - circ.center).T)
+                                          - np.hypot(*(exact - circ.center).T)).max()))
+        worst = max(worst, abs(fits.fit_geometric(kept).radius
+                               - fits.fit_geometric(exact).radius))
+    # mm; the corrections themselves are about a micrometre
+    # Measured: 19 nm at a point, 14 nm on the radius (16 samples, as before the model's
+    # answers were kept, were 50 nm off on the radius).
+    assert points < 5e-5, points   # any point: under 50 nm
+    assert worst < 2e-5, worst     # the fitted radius: under 20 nm
