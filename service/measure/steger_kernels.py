@@ -139,8 +139,14 @@ def steger_test(d: np.ndarray, min_curvature: float, search: float
         lam_hi = half_tr + root
         if not (lam_lo < 0.0 and abs(lam_lo) > abs(lam_hi) and -lam_lo > min_curvature):
             continue
-        theta = 0.5 * math.atan2(2.0 * hxy, hxx - hyy)  # direction of the high eigenvalue
-        nx, ny = -math.sin(theta), math.cos(theta)      # ... and of the low one
+        # The eigenvector of the low eigenvalue, (-sin theta, cos theta) with theta =
+        # atan2(2 hxy, hxx - hyy) / 2 (so ny >= 0), from half-angle formulas: no trigonometry.
+        c2 = 0.5 * (hxx - hyy) / root if root > 0.0 else 1.0   # cos 2 theta
+        s2 = hxy / root if root > 0.0 else 0.0                  # sin 2 theta
+        ny = math.sqrt(max(0.0, 0.5 * (1.0 + c2)))
+        nx = -math.copysign(math.sqrt(max(0.0, 0.5 * (1.0 - c2))), s2)
+        if ny == 0.0:
+            nx = -1.0
         t = -(nx * gx + ny * gy) / lam_lo
         if abs(t * nx) <= search and abs(t * ny) <= search:
             index[m] = i
