@@ -138,13 +138,16 @@ def view_angles_deg(points: SectionPoints, center: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasureParams
-                 ) -> SectionPoints:
-    """Drop points seen at a grazing angle, judged on a preliminary (Hyper) circle."""
-    prelim = fits.fit_hyper(points.section, uncertainty=False)
-    if not prelim:
-        return points
-    keep = view_angles_deg(points, prelim.center) <= params.max_view_angle_deg
+def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasureParams,
+                 center: np.ndarray | None = None) -> SectionPoints:
+    """Drop points seen at a grazing angle, judged about ``center`` (section mm: the axis,
+    when it is known) or else about a preliminary (Hyper) circle's centre."""
+    if center is None:
+        prelim = fits.fit_hyper(points.section, uncertainty=False)
+        if not prelim:
+            return points
+        center = prelim.center
+    keep = view_angles_deg(points, center) <= params.max_view_angle_deg
     if keep.mean() < 0.5:
         # A preliminary circle that calls most points grazing is itself wrong (a short or
         # broken stripe): leave the judgement to the fit and its checks.
@@ -302,7 +305,11 @@ def measure_frame(
         return Measurement.failed(Status.NO_STRIPE, method, stripe.reason or "no stripe found")
     if origin is not None:
         stripe = replace(stripe, xy=stripe.xy + shift)
-    points = drop_grazing(section_points(stripe, geometry), geometry, params)
+    # With ``axis`` the section's centre is known beforehand: grazing is judged about it.
+    known = None
+    if method is Method.AXIS:
+        known = center_prior[0] if center_prior is not None else axis_center(geometry)
+    points = drop_grazing(section_points(stripe, geometry), geometry, params, known)
     if len(points.section) < params.min_points:
         return Measurement.failed(
             Status.TOO_FEW_POINTS, method,

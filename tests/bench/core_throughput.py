@@ -145,7 +145,7 @@ def tracked_ours(seq: Sequence, params: StripeParams) -> list[StripePoints]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shafts", type=int, default=5)
-    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--json", default="bench-results/core_throughput.json")
