@@ -176,9 +176,13 @@ def robust_rounds(x: np.ndarray, y: np.ndarray, sw_all: np.ndarray, cx: float, c
     ``fit.fit_axis_prior`` (True), from the start (cx, cy, r) and ``inliers``.
 
     Returns the circle, the inliers it was fitted with, and a status: 0 done, 1 fewer than 3
-    inliers left, 2 the fit did not converge.
+    inliers left, 2 the fit did not converge. The points' order along the arc (for the
+    correlation of the residuals) is taken once, about the start: the centre moves by
+    micrometres between rounds.
     """
     inl = inliers.copy()
+    order_all = order_along_arc(x, y, cx, cy) if with_prior else np.empty(0, np.int64)
+    pos = np.empty(x.shape[0], np.int64)
     for k in range(max_rounds):
         last = k == max_rounds - 1
         idx = np.flatnonzero(inl)
@@ -188,9 +192,16 @@ def robust_rounds(x: np.ndarray, y: np.ndarray, sw_all: np.ndarray, cx: float, c
         if with_prior:
             dist0 = np.hypot(ux - cx, uy - cy)
             res0 = (dist0 - np.median(dist0)) * usw
-            order = order_along_arc(ux, uy, cx, cy)
+            for i in range(idx.shape[0]):
+                pos[idx[i]] = i
+            in_arc = np.empty(idx.shape[0])
+            m = 0
+            for j in order_all:
+                if inl[j]:
+                    in_arc[m] = res0[pos[j]]
+                    m += 1
             noise = _mad(res0)[1]
-            noise = max(noise, 1e-6) * math.sqrt(correlation_factor(res0[order]))
+            noise = max(noise, 1e-6) * math.sqrt(correlation_factor(in_arc))
             w = usw * usw / (noise * noise)
             cx, cy, r, ok = solve_circle(ux, uy, w, cx, cy, r, c0x, c0y, sigma ** -2.0)
         else:

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from service.measure import fit
+from service.measure import fit, sheet_kernels
 from service.measure.stripe import extract_stripe
 
 
@@ -37,6 +37,9 @@ def compile_kernels() -> float:
     free = fit.fit_geometric(pts)
     fit.fit_axis_prior(pts, np.zeros(2), 0.001, start=free)
     fit.circle_covariance(pts, free.center, free.radius, center_prior_sigma=0.001)
+    ones = np.ones(len(pts))
+    sheet_kernels.light_coefficients(pts, 0.0, 0.0, ones, np.eye(2))
+    sheet_kernels.profile_sigma(ones, ones, ones, 12, 0.5)
     return time.perf_counter() - t0
 
 

@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from service.measure import sheet_kernels
 from service.measure.geometry import RigGeometry
 from service.measure.section import first_hit_on_cylinder, orthonormal_basis
 from service.measure.triangulate import intersect_plane, undistort_to_rays
@@ -189,24 +190,19 @@ def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndar
     away compared with the section (its direction the same over the arc). None when the
     points do not fix it (too few, or brightness that does not follow any direction).
     """
-    b = np.asarray(brightness, np.float64)
-    ok = np.isfinite(b) & (b > 0)
-    if ok.sum() < 10:
-        return None
     e1, e2 = orthonormal_basis(geometry.axis_direction)
-    rel = section[ok] - center
-    rel /= np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-300)[:, None]
     u1, u2 = light_plane_directions(geometry)
     # normals = rel_x e1 + rel_y e2, so normals . u = rel . (e1 . u, e2 . u)
-    design = rel @ np.array([[e1 @ u1, e1 @ u2], [e2 @ u1, e2 @ u2]])
-    coef, *_ = np.linalg.lstsq(design, b[ok], rcond=None)
-    v = coef[0] * u1 + coef[1] * u2
+    basis = np.array([[e1 @ u1, e1 @ u2], [e2 @ u1, e2 @ u2]])
+    c0, c1, n, facing = sheet_kernels.light_coefficients(
+        np.ascontiguousarray(section, np.float64), float(center[0]), float(center[1]),
+        np.asarray(brightness, np.float64), basis)
+    v = c0 * u1 + c1 * u2
     norm = float(np.linalg.norm(v))
-    if not norm > 0 or not np.isfinite(norm):
+    if n < 10 or not norm > 0 or not np.isfinite(norm):
         return None
-    v /= norm
     # Every point seen lit must face the source.
-    return v if float(np.mean(design @ (coef / norm) > 0)) > 0.9 else None
+    return v / norm if facing > 0.9 else None
 
 
 def sheet_sigma_from_profile(peak: np.ndarray, curvature: np.ndarray, slope_mm_per_px: np.ndarray,
@@ -221,27 +217,6 @@ def sheet_sigma_from_profile(peak: np.ndarray, curvature: np.ndarray, slope_mm_p
     the width is ``sigma / slope``, ``slope_mm_per_px`` the model's distance from the plane per
     pixel. Median over the groups; NaN when no group gives a width.
     """
-    peak = np.asarray(peak, np.float64)
-    curv = np.asarray(curvature, np.float64)
-    slope = np.asarray(slope_mm_per_px, np.float64)
-    ok = np.isfinite(peak) & np.isfinite(curv) & (curv > 0) & np.isfinite(slope)
-    idx = np.nonzero(ok)[0]
-    n_runs = max(1, min(groups, len(idx) // 5))
-    if len(idx) < n_runs:
-        return math.nan
-    # np.array_split's runs: the first len % n_runs are one longer. Each block of equal
-    # runs is one 2-D array, so the sums and medians are one call per block.
-    size, extra = divmod(len(idx), n_runs)
-    cut = extra * (size + 1)
-    w2, slopes = [], []
-    for block, length in ((idx[:cut], size + 1), (idx[cut:], size)):
-        if block.size == 0:
-            continue
-        rows = block.reshape(-1, length)
-        w2.append(peak[rows].sum(axis=1) / curv[rows].sum(axis=1) - filter_px**2 - blur_px**2)
-        slopes.append(np.median(slope[rows], axis=1))
-    w2_all, slope_all = np.concatenate(w2), np.concatenate(slopes)
-    good = w2_all > 0
-    if not good.any():
-        return math.nan
-    return float(np.median(np.sqrt(w2_all[good]) * slope_all[good]))
+    return float(sheet_kernels.profile_sigma(
+        np.asarray(peak, np.float64), np.asarray(curvature, np.float64),
+        np.asarray(slope_mm_per_px, np.float64), groups, filter_px**2 + blur_px**2))
