@@ -104,8 +104,8 @@ class StripeParams:
     curvature_window_px: float = 5.0
     optics_blur_px: float = 0.7
     background_px: int = 11
-    track_px: int = 4
-    track_reach_px: float = 30.0
+    track_px: int = 3
+    track_reach_px: float = 15.0
     track_keep: float = 0.9
 
 
