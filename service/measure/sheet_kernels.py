@@ -21,22 +21,26 @@ def light_coefficients(section: np.ndarray, cx: float, cy: float, brightness: np
     Returns ``c`` (two numbers), how many points took part, and the share of them whose
     ``rel_i @ basis`` points the way of ``c`` (they face the source).
     """
+    n_all = section.shape[0]
+    p = np.empty(n_all)   # the unit radial direction of each point, in the basis
+    q = np.empty(n_all)
+    use = np.zeros(n_all, np.bool_)
     a00 = a01 = a11 = r0 = r1 = 0.0
     n = 0
-    for i in range(section.shape[0]):
+    for i in range(n_all):
         b = brightness[i]
         if not (math.isfinite(b) and b > 0.0):
             continue
         dx, dy = section[i, 0] - cx, section[i, 1] - cy
         d = max(math.hypot(dx, dy), 1e-300)
-        dx, dy = dx / d, dy / d
-        p = dx * basis[0, 0] + dy * basis[1, 0]
-        q = dx * basis[0, 1] + dy * basis[1, 1]
-        a00 += p * p
-        a01 += p * q
-        a11 += q * q
-        r0 += p * b
-        r1 += q * b
+        p[i] = (dx * basis[0, 0] + dy * basis[1, 0]) / d
+        q[i] = (dx * basis[0, 1] + dy * basis[1, 1]) / d
+        use[i] = True
+        a00 += p[i] * p[i]
+        a01 += p[i] * q[i]
+        a11 += q[i] * q[i]
+        r0 += p[i] * b
+        r1 += q[i] * b
         n += 1
     det = a00 * a11 - a01 * a01
     if n < 2 or det == 0.0:
@@ -44,14 +48,8 @@ def light_coefficients(section: np.ndarray, cx: float, cy: float, brightness: np
     c0 = (a11 * r0 - a01 * r1) / det
     c1 = (a00 * r1 - a01 * r0) / det
     facing = 0
-    for i in range(section.shape[0]):
-        b = brightness[i]
-        if not (math.isfinite(b) and b > 0.0):
-            continue
-        dx, dy = section[i, 0] - cx, section[i, 1] - cy
-        p = dx * basis[0, 0] + dy * basis[1, 0]
-        q = dx * basis[0, 1] + dy * basis[1, 1]
-        if p * c0 + q * c1 > 0.0:
+    for i in range(n_all):
+        if use[i] and p[i] * c0 + q[i] * c1 > 0.0:
             facing += 1
     return c0, c1, n, facing / n
 
