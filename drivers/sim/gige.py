@@ -66,12 +66,16 @@ def _libs() -> tuple[ctypes.CDLL, ctypes.CDLL]:
     return lib, gobject
 
 
+def stamp(counter: int, image: np.ndarray, crc: int | None = None) -> bytes:
+    """The 12 stamp bytes of a frame: its counter and the CRC-32 of its rows 1.. (given when
+    known), little-endian."""
+    crc = zlib.crc32(image[1:].tobytes()) if crc is None else crc
+    return int(counter).to_bytes(8, "little") + crc.to_bytes(4, "little")
+
+
 def stamp_frame(image: np.ndarray, counter: int) -> None:
     """Write the frame counter and the CRC-32 of rows 1.. into the first 12 bytes, in place."""
-    flat = image.reshape(-1)
-    crc = zlib.crc32(image[1:].tobytes())
-    flat[:8] = np.frombuffer(int(counter).to_bytes(8, "little"), np.uint8)
-    flat[8:12] = np.frombuffer(crc.to_bytes(4, "little"), np.uint8)
+    image.reshape(-1)[:STAMP_BYTES] = np.frombuffer(stamp(counter, image), np.uint8)
 
 
 def check_stamp(image: np.ndarray) -> tuple[int, bool]:
@@ -292,47 +296,51 @@ class SimGigECamera:
     def _fill(self, buffer: int, _data: int, _exposure: int, _gain: int, fmt: int) -> None:
         """Called by Aravis's streaming thread for every frame: copy the frame to send into
         the buffer, cut to the sensor region (8-bit, or scaled to 16 bits when the client
-        chose a 16-bit pixel format)."""
+        chose a 16-bit pixel format), and its stamp over its first bytes."""
         try:
-            image = self._frame_to_send()
+            image, stamped = self._frame_to_send()
             if image is None:
                 return
             size = c_size_t(0)
             ptr = self._lib.arv_buffer_get_data(buffer, byref(size))
             if ptr:
                 if (fmt >> 16) & 0xFF == 16:
+                    if stamped:
+                        image = image.copy()
+                        image.reshape(-1)[:STAMP_BYTES] = np.frombuffer(stamped, np.uint8)
                     image = image.astype("<u2") * 257
-                ctypes.memmove(ptr, image.ctypes.data, image.nbytes)
+                    ctypes.memmove(ptr, image.ctypes.data, image.nbytes)
+                else:
+                    ctypes.memmove(ptr, image.ctypes.data, image.nbytes)
+                    if stamped:  # written into the buffer: the ring's frame is not copied
+                        ctypes.memmove(ptr, stamped, STAMP_BYTES)
             self._sent += 1
         except Exception:  # pragma: no cover - never let an exception into C
             log.exception("fill callback")
 
-    def _frame_to_send(self) -> np.ndarray | None:
-        """The next frame, cut to the region and stamped (a frame of its own)."""
+    def _frame_to_send(self) -> tuple[np.ndarray | None, bytes]:
+        """The next frame, cut to the region, and the stamp to send over its first bytes
+        (empty when the frame carries its own)."""
         x, y, w, h = self.region()
         full = (x, y, w, h) == (0, 0, *self.settings.rig.image_size)
         if self._ring is not None and self.scene() == "shaft":
             image, slot = self._ring.take()
-            out = image.copy() if full else crop(image, x, y, w, h)
-            crc = self._ring.full_crc(slot, image) if full else zlib.crc32(out[1:].tobytes())
-            flat = out.reshape(-1)
-            flat[:8] = np.frombuffer(self._counter.to_bytes(8, "little"), np.uint8)
-            flat[8:12] = np.frombuffer(crc.to_bytes(4, "little"), np.uint8)
-            self._counter += 1
-            return out
+            out = image if full else crop(image, x, y, w, h)
+            crc = self._ring.full_crc(slot, image) if full else None
+            counter, self._counter = self._counter, self._counter + 1
+            return out, stamp(counter, out, crc)
         with self._lock:
             image = self._ready
             fresh = image is not None and image.flags.writeable
             if image is not None:
                 image.flags.writeable = False  # mark as sent
         if image is None:
-            return None
+            return None, b""
         if fresh:
             self._want.set()  # render the next one; never overwrite an unsent frame
         else:
             self._repeats += 1
         if full:
-            return image
+            return image, b""
         out = crop(image, x, y, w, h)
-        stamp_frame(out, check_stamp(image)[0])
-        return out
+        return out, stamp(int.from_bytes(image.reshape(-1)[:8].tobytes(), "little"), out)
