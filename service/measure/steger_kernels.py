@@ -14,6 +14,8 @@ import math
 import numba
 import numpy as np
 
+from service.measure.circle_kernels import MAD_TO_SIGMA
+
 _OPTS = dict(cache=True, nogil=True)
 # The filter loops may be reordered and vectorised (sums of 13 products, rounding at 1e-7).
 _FAST = dict(_OPTS, fastmath=True)
@@ -286,7 +288,7 @@ def background_and_noise(image: np.ndarray, k: int, spacing: int) -> tuple[float
     means = block_means(image, k, spacing)
     background = np.median(means)
     dark = means[means <= np.percentile(means, 75.0)]
-    return background, 1.4826 * np.median(np.abs(dark - np.median(dark))) * k
+    return background, MAD_TO_SIGMA * np.median(np.abs(dark - np.median(dark))) * k
 
 
 @numba.njit(**_OPTS)
