@@ -121,6 +121,9 @@ class ApiSettings(_Section):
     """Connections and requests served at once (uvicorn's limit_concurrency; 503 past it)."""
     max_streams: int = Field(32, ge=1)
     """Live streams (SSE) open at once; 503 past it."""
+    shutdown_s: float = Field(3.0, gt=0)
+    """On SIGTERM, open connections (a dashboard's live stream never ends by itself) get this
+    long before they are closed and the service stops."""
     max_calibration_sessions: int = Field(4, ge=1)
     """Calibration sessions open at once (409 past it; expired ones are deleted first)."""
     max_session_images: int = Field(200, ge=1)

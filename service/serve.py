@@ -192,6 +192,20 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                  sessions, writer, comp_log)
 
 
+class _Server(uvicorn.Server):
+    """uvicorn's server that, told to stop, ends the live streams first (they never end by
+    themselves, and uvicorn waits for open connections before it stops)."""
+
+    def __init__(self, feed: MeasurementFeed, config: uvicorn.Config) -> None:
+        super().__init__(config)
+        self._feed = feed
+
+    def handle_exit(self, sig: int, frame: object) -> None:
+        with contextlib.suppress(RuntimeError):  # no loop running: nothing streams
+            asyncio.get_running_loop().call_soon(self._feed.closing.set)
+        super().handle_exit(sig, frame)
+
+
 async def serve(settings: Settings) -> int:
     """Run until SIGINT or SIGTERM."""
     children = Children()
@@ -201,9 +215,10 @@ async def serve(settings: Settings) -> int:
         children.stop()
         raise
     app = create_app(gauge)
-    server = uvicorn.Server(uvicorn.Config(app, host=settings.api.host, port=settings.api.port,
+    server = _Server(gauge.feed, uvicorn.Config(app, host=settings.api.host, port=settings.api.port,
                                            log_level=settings.log_level, access_log=False,
-                                           limit_concurrency=settings.api.max_connections))
+                                           limit_concurrency=settings.api.max_connections,
+                                           timeout_graceful_shutdown=settings.api.shutdown_s))
 
     async def announce() -> None:
         while not server.started:

@@ -100,17 +100,18 @@ def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings) -> API
             nonlocal open_streams
             q = feed.subscribers.add()
             dq = feed.decisions.add()
+            closing = asyncio.ensure_future(feed.closing.wait())
             try:
                 yield "retry: 2000\n\n"
                 if feed.latest is not None:
                     yield _event("measurement", feed.latest.as_dict())
-                while not await request.is_disconnected():
+                while not await request.is_disconnected() and not feed.closing.is_set():
                     get_m = asyncio.ensure_future(q.get())
                     get_d = asyncio.ensure_future(dq.get())
-                    done, pending = await asyncio.wait({get_m, get_d},
+                    done, pending = await asyncio.wait({get_m, get_d, closing},
                                                        timeout=SSE_KEEPALIVE_S,
                                                        return_when=asyncio.FIRST_COMPLETED)
-                    for p in pending:
+                    for p in pending - {closing}:
                         p.cancel()
                     if not done:
                         yield ": keep-alive\n\n"
@@ -119,6 +120,7 @@ def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings) -> API
                     if get_d in done:
                         yield _event("decision", get_d.result().as_dict())
             finally:
+                closing.cancel()
                 open_streams -= 1
                 feed.subscribers.remove(q)
                 feed.decisions.remove(dq)

@@ -105,6 +105,8 @@ class MeasurementFeed:
         self.history: collections.deque[MeasurementRecord] = collections.deque(maxlen=history)
         self.subscribers = Subscribers()
         self.decisions = Subscribers()
+        # Set when the service stops: live streams end instead of holding the shutdown.
+        self.closing = asyncio.Event()
         self._window: collections.deque[Measurement] = collections.deque(maxlen=fuse_frames)
         self._times: collections.deque[float] = collections.deque(maxlen=2000)
         self.latency_ms: collections.deque[float] = collections.deque(maxlen=2000)

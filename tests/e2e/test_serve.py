@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
+import socket
 import time
 
 import httpx
@@ -11,7 +14,7 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.plc.registers import RegisterType, WordOrder, from_words, mm_to_units, units_to_mm
 from drivers.sim.control import control
-from tests.e2e.conftest import TECH_KEY
+from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_ready
 
 
 def wait_for(predicate, timeout_s: float, step_s: float = 0.2):
@@ -95,3 +98,21 @@ def test_drift_beyond_the_deadband_sends_an_offset_to_the_plc(service) -> None:
     r = httpx.put(service.url + "/api/v1/compensation/shadow", json={"shadow": True},
                   headers={"X-API-Key": TECH_KEY}, timeout=10)
     assert r.status_code == 200
+
+
+def test_sigterm_stops_the_service_with_a_live_stream_open(tmp_path) -> None:
+    """A dashboard's live stream never ends by itself: on SIGTERM it gets ``api.shutdown_s``
+    (3 s) and the service stops (systemd would otherwise wait and kill it)."""
+    svc = start_service(tmp_path)
+    try:
+        assert wait_ready(svc)
+        with socket.create_connection(svc.url.removeprefix("http://").split(":")) as s:
+            s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: x\r\n\r\n")
+            assert s.recv(64).startswith(b"HTTP/1.1 200")
+            t0 = time.monotonic()
+            os.killpg(svc.proc.pid, signal.SIGTERM)
+            # uvicorn shuts down, then raises the signal it caught again: ends by SIGTERM.
+            assert svc.proc.wait(20) in (0, -signal.SIGTERM)
+            assert time.monotonic() - t0 < 10.0
+    finally:
+        stop_service(svc)
