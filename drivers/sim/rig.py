@@ -12,7 +12,10 @@ The model, in the *lathe frame* (spindle axis = X, through the origin):
 - a cylinder of the given diameter; Lambertian shading from the laser source; a faint ambient
   light on the shaft body; ray casting per pixel (the first hit on the cylinder);
 - laser speckle (a multiplicative, spatially correlated field of given contrast and grain that
-  changes from frame to frame as the shaft turns), optical blur, shot and read noise.
+  changes from frame to frame as the shaft turns), optical blur, shot and read noise;
+- optionally the shop floor's disturbances (``drivers.sim.disturb``: glints, a ghost stripe,
+  coolant droplets, stray light, over-exposure, feed marks), drawn from their own generator so
+  that a disturbed frame has the same speckle and noise as its clean twin.
 
 Everything is deterministic for a given seed and frame index.
 """
@@ -27,6 +30,7 @@ import cv2
 import numpy as np
 
 from calib_store.model import SCHEMA, Calibration, parse_calibration
+from drivers.sim.disturb import Disturbances, disturb_frame, disturb_stripe, feed_mark_shift_mm
 from service.measure.section import first_hit_on_cylinder, orthonormal_basis
 
 
@@ -69,6 +73,8 @@ class RigConfig:
     axis_offset_mm: tuple[float, float] = (0.0, 0.0)
     """Where the shaft's axis actually is (Y, Z in the lathe frame) relative to the calibrated
     spindle axis: zero for a part turned on this lathe."""
+    disturbances: Disturbances = field(default_factory=Disturbances)
+    """The shop floor's disturbances (none by default)."""
 
     @property
     def focal_px(self) -> float:
@@ -177,7 +183,8 @@ class ShaftRenderer:
     def __post_init__(self) -> None:
         self._pose = _pose(self.config)
         self._calibration = rig_calibration(self.config)
-        self._base_cache: dict[float, tuple[np.ndarray, tuple[int, int, int, int]]] = {}
+        self._base_cache: dict[tuple[float, float],
+                               tuple[np.ndarray, tuple[int, int, int, int]]] = {}
         self._ambient_cache: dict[float, np.ndarray] = {}
 
     @property
@@ -222,10 +229,11 @@ class ShaftRenderer:
         y1 = int(min(h, math.ceil(img[:, 1].max() + margin)))
         return x0, y0, max(x0, x1), max(y0, y1)
 
-    def _stripe_radiance(self, diameter_mm: float) -> tuple[np.ndarray, tuple[int, int, int,
-                                                                                  int]]:
-        """Noise-free stripe radiance in DN over its ROI (cached per diameter)."""
-        key = round(float(diameter_mm), 9)
+    def _stripe_radiance(self, diameter_mm: float, phase: float = 0.0
+                         ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+        """Noise-free stripe radiance in DN over its ROI (cached per diameter and feed-mark
+        phase, rad)."""
+        key = (round(float(diameter_mm), 9), round(phase, 6))
         if key in self._base_cache:
             return self._base_cache[key]
         cfg, p = self.config, self._pose
@@ -233,13 +241,21 @@ class ShaftRenderer:
         x0, y0, x1, y1 = self._stripe_roi(radius)
         rays = self._rays(1)[y0:y1, x0:x1]
         hit, pts, nrm = self._hit(rays, radius)
+        marks = cfg.disturbances.feed_marks
+        if marks.amplitude_um:
+            # The surface lies dr further out: a ray meets it dr / cos(view angle) earlier.
+            a0 = p.R @ (np.array([0.0, *cfg.axis_offset_mm]) - p.C)
+            dr = feed_mark_shift_mm((pts - a0) @ p.axis_direction, marks, phase)
+            ray = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+            cos_view = np.maximum(-np.sum(nrm * ray, axis=-1), 0.05)
+            pts = pts - ray * (dr / cos_view)[..., None]
         dist = pts @ p.plane_normal - p.plane_d
         to_src = p.laser_source - pts
         to_src /= np.linalg.norm(to_src, axis=-1, keepdims=True)
         cos_inc = np.clip(np.sum(nrm * to_src, axis=-1), 0.0, None)
         rad = cfg.peak_dn * np.exp(-0.5 * (dist / cfg.sheet_sigma_mm) ** 2) * cos_inc
         rad = np.where(hit, rad, 0.0).astype(np.float32)
-        if len(self._base_cache) > 8:
+        if len(self._base_cache) > 16:
             self._base_cache.clear()
         self._base_cache[key] = (rad, (x0, y0, x1, y1))
         return rad, (x0, y0, x1, y1)
@@ -274,8 +290,12 @@ class ShaftRenderer:
         ndarray of uint8, shape (H, W)
         """
         cfg = self.config
+        spec = cfg.disturbances
         rng = np.random.default_rng([self.seed, int(frame_index)])
-        rad, (x0, y0, x1, y1) = self._stripe_radiance(diameter_mm)
+        # The feed marks' helix turns with the shaft: one of 8 phases per frame.
+        phase = 2 * math.pi * (int(frame_index) % 8) / 8 if spec.feed_marks.amplitude_um else 0.0
+        rad, (x0, y0, x1, y1) = self._stripe_radiance(diameter_mm, phase)
+        rng_shop = np.random.default_rng([self.seed, int(frame_index), 1])
         img = self._ambient(diameter_mm).copy()
         if rad.size:
             roi = rad
@@ -285,9 +305,13 @@ class ShaftRenderer:
                 field_ = cv2.GaussianBlur(field_, (0, 0), g)
                 field_ /= max(float(field_.std()), 1e-6)
                 roi = rad * np.clip(1.0 + cfg.speckle_contrast * field_, 0.0, None)
+            if spec:
+                roi = disturb_stripe(roi, spec, rng_shop)
             if cfg.blur_px > 0:
                 roi = cv2.GaussianBlur(roi, (0, 0), cfg.blur_px)
             img[y0:y1, x0:x1] += roi
+        if spec:
+            disturb_frame(img, rad, (x0, y0), spec, rng_shop)
         sigma = np.sqrt(img / cfg.electrons_per_dn + cfg.read_noise_dn**2)
         img += sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
