@@ -9,7 +9,10 @@ tracker follows *changes*: for each diameter band it takes the median of the fir
 later ones (time constant ``time_constant_frames``) tells how far the axis moved since. Frames
 whose free centre lies beyond ``gate`` sigmas (Mahalanobis) of that mean are rejected, so no
 single bad frame moves it. A change of band starts a new reference and carries the drift so
-far over.
+far over. While a reference is being made, a free centre that disagrees with the centre
+tracked so far beyond ``gate`` sigmas (its covariance and the tracked centre's sigma) is not
+taken either: a frame whose free fit went astray (a ghost, a glint) does not become a
+reference.
 """
 
 from __future__ import annotations
@@ -69,6 +72,10 @@ class AxisTracker:
             self._carried = self._drift.copy()
             self._band, self._ref, self._ref_buf, self._mean = band, None, [], None
         if self._ref is None:
+            tracked, sigma = self.center()
+            if not self._within_gate(c - tracked, cov + sigma**2 * np.eye(2)):
+                self.rejected += 1
+                return False
             self._ref_buf.append(c)
             if len(self._ref_buf) >= self.reference_frames:
                 self._ref = np.median(np.array(self._ref_buf), axis=0)
@@ -77,12 +84,7 @@ class AxisTracker:
             self.accepted += 1
             return True
         innovation = c - self._mean
-        s = cov + self._mean_cov
-        try:
-            m2 = float(innovation @ np.linalg.solve(s, innovation))
-        except np.linalg.LinAlgError:
-            m2 = math.inf
-        if not m2 <= self.gate**2:
+        if not self._within_gate(innovation, cov + self._mean_cov):
             self.rejected += 1
             return False
         k = 1.0 / self.time_constant_frames
@@ -91,6 +93,13 @@ class AxisTracker:
         self._drift = self._carried + (self._mean - self._ref)
         self.accepted += 1
         return True
+
+    def _within_gate(self, innovation: np.ndarray, cov: np.ndarray) -> bool:
+        try:
+            m2 = float(innovation @ np.linalg.solve(cov, innovation))
+        except np.linalg.LinAlgError:
+            return False
+        return m2 <= self.gate**2
 
     def center(self) -> tuple[np.ndarray, float]:
         """(tracked centre in section mm, its standard deviation mm)."""

@@ -16,6 +16,10 @@ import numpy as np
 
 from service.measure import steger_kernels as kernels
 
+_TOPHAT_PX = 5
+"""Disc of the coarse pass's top-hat, decimated px (20 full-resolution px at decimation 4):
+wider than a stripe, narrower than a machine edge or a light gradient."""
+
 
 @dataclass(frozen=True)
 class Band:
@@ -110,14 +114,23 @@ def coarse_band(image: np.ndarray, decimation: int, min_contrast: float,
     small = cv2.resize(image.astype(np.float32), (max(1, w // k), max(1, h // k)),
                        interpolation=cv2.INTER_AREA)
     background, noise = image_statistics(image, k)
+    # What stands out of its surroundings as a thin structure: the white top-hat (the image
+    # less its opening by a disc wider than a stripe) leaves out light gradients, bright
+    # machine parts and anything else wider than the disc.
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (_TOPHAT_PX, _TOPHAT_PX))
+    small = cv2.morphologyEx(small, cv2.MORPH_TOPHAT, disc, borderType=cv2.BORDER_REPLICATE)
     peak = float(cv2.GaussianBlur(small, (3, 3), 0).max())
-    contrast = peak - background
-    if contrast < min_contrast * full_scale(image):
+    if peak < min_contrast * full_scale(image):
         return None, background, noise, (
-            f"no stripe: peak {peak:.1f} is only {contrast:.1f} grey levels above the background"
-            f" {background:.1f} (need {min_contrast * full_scale(image):.1f})"
+            f"no stripe: the brightest thin structure stands only {peak:.1f} grey levels above"
+            f" its surroundings (need {min_contrast * full_scale(image):.1f})"
         )
-    threshold = background + max(coarse_fraction * contrast, 4.0 * noise / k)
+    # The stripe's level: the median of what clearly stands out (a few glints, however
+    # bright, are fewer pixels than the stripe and do not raise it).
+    floor = 4.0 * noise / k
+    standing = small[small > max(floor, 0.5 * min_contrast * full_scale(image))]
+    level = float(np.median(standing)) if standing.size else peak
+    threshold = max(coarse_fraction * level, floor)
     mask = (small > threshold).astype(np.uint8)
     _, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     # Drop specks (hot pixels, glints) of a few decimated pixels.

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from service.measure import consensus
 from service.measure import fit as fits
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement, Method, Status
@@ -58,6 +59,14 @@ class MeasureParams:
     sheet_sigma_mm : float or None
         The sheet's thickness (Gaussian sigma, mm) for that correction; None estimates it from
         the stripe's width in each frame.
+    max_uncertainty_mm : float
+        A diameter whose standard uncertainty exceeds this is refused (``uncertain``): three
+        of them must stay within 20 um, the most a frame may be off. A free circle on a short
+        arc trades centre against radius and is often this uncertain; ``axis`` is not.
+    consensus_mm : float
+        With ``axis`` and ``geometric``, section points farther than this from the circle that
+        most points share (plus three sigmas of the axis prior, with ``axis``) are not the
+        shaft's (``service.measure.consensus``): a ghost, an edge, a glint.
     """
 
     stripe: StripeParams = field(default_factory=StripeParams)
@@ -70,6 +79,8 @@ class MeasureParams:
     free_fit: bool = False
     sheet_correction: bool = True
     sheet_sigma_mm: float | None = None
+    max_uncertainty_mm: float = 0.0065
+    consensus_mm: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -89,6 +100,10 @@ class SectionPoints:
     stripe: StripePoints
     points3d: np.ndarray
     section: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> SectionPoints:
+        """The points selected by a boolean mask or index array."""
+        return SectionPoints(self.stripe.subset(keep), self.points3d[keep], self.section[keep])
 
 
 def check_image(image: np.ndarray, geometry: RigGeometry,
@@ -152,8 +167,24 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
         # A preliminary circle that calls most points grazing is itself wrong (a short or
         # broken stripe): leave the judgement to the fit and its checks.
         return points
-    return SectionPoints(points.stripe.subset(keep), points.points3d[keep],
-                         points.section[keep])
+    return points.subset(keep)
+
+
+def on_the_shaft(points: SectionPoints, params: MeasureParams,
+                 known: tuple[np.ndarray, float] | None) -> SectionPoints:
+    """The points of the circle that most points share, by whole chains: about the ``known``
+    centre (section mm, its sigma mm) when there is one, else by RANSAC
+    (``service.measure.consensus``)."""
+    if len(points.section) < 3:
+        return points
+    if known is not None:
+        window = params.consensus_mm + 3.0 * known[1]
+        inside = consensus.ring_consensus(points.section, known[0], window)
+    else:
+        inside = consensus.circle_consensus(points.section, params.consensus_mm,
+                                            params.max_diameter_mm / 2.0)
+    keep = consensus.by_chain(inside, points.stripe.chain)
+    return points if keep.all() else points.subset(keep)
 
 
 def axis_center(geometry: RigGeometry) -> np.ndarray | None:
@@ -255,6 +286,11 @@ def fit_section(
                                   f"points scatter {rms * 1000:.0f} um RMS about the fit (limit "
                                   f"{params.max_rms_mm * 1000:.0f} um): not a clean section",
                                   **common)
+    if not (np.isfinite(std) and std <= params.max_uncertainty_mm):
+        return Measurement.failed(Status.UNCERTAIN, method,
+                                  f"diameter uncertain by {std * 1000:.1f} um (limit "
+                                  f"{params.max_uncertainty_mm * 1000:.1f} um): a short arc or "
+                                  f"scattered points", **common)
     return Measurement(status=Status.OK, method=method, diameter_mm=float(diameter), **common)
 
 
@@ -305,11 +341,16 @@ def measure_frame(
         return Measurement.failed(Status.NO_STRIPE, method, stripe.reason or "no stripe found")
     if origin is not None:
         stripe = replace(stripe, xy=stripe.xy + shift)
-    # With ``axis`` the section's centre is known beforehand: grazing is judged about it.
+    # With ``axis`` the section's centre is known beforehand: the shaft's circle is sought
+    # and grazing judged about it.
     known = None
     if method is Method.AXIS:
-        known = center_prior[0] if center_prior is not None else axis_center(geometry)
-    points = drop_grazing(section_points(stripe, geometry), geometry, params, known)
+        known = center_prior if center_prior is not None else (
+            None if (c0 := axis_center(geometry)) is None else (c0, params.axis_sigma_mm))
+    points = section_points(stripe, geometry)
+    if method in (Method.AXIS, Method.GEOMETRIC):
+        points = on_the_shaft(points, params, known)
+    points = drop_grazing(points, geometry, params, None if known is None else known[0])
     if len(points.section) < params.min_points:
         return Measurement.failed(
             Status.TOO_FEW_POINTS, method,

@@ -18,6 +18,7 @@ class Status(enum.StrEnum):
     TOO_FEW_POINTS = "too_few_points"
     ARC_TOO_SHORT = "arc_too_short"
     FIT_FAILED = "fit_failed"
+    UNCERTAIN = "uncertain"
     BAD_IMAGE = "bad_image"
 
 

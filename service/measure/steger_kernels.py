@@ -14,8 +14,6 @@ import math
 import numba
 import numpy as np
 
-from service.measure.circle_kernels import MAD_TO_SIGMA
-
 _OPTS = dict(cache=True, nogil=True)
 # The filter loops may be reordered and vectorised (sums of 13 products, rounding at 1e-7).
 _FAST = dict(_OPTS, fastmath=True)
@@ -283,12 +281,36 @@ def disc_mask(h: int, w: int, ys: np.ndarray, xs: np.ndarray, radius: int) -> np
 
 @numba.njit(**_OPTS)
 def background_and_noise(image: np.ndarray, k: int, spacing: int) -> tuple[float, float]:
-    """Median of the block means (``block_means``) and the robust standard deviation
-    (scaled MAD) of the darker three quarters of them, times ``k``."""
-    means = block_means(image, k, spacing)
+    """The median of the means of ``k``-square blocks (one block in ``spacing`` each way), and
+    the pixels' noise: from the differences of horizontally paired pixels within each block
+    (half their mean square is the block's variance), the median over the darker three
+    quarters of the blocks, made unbiased for the median of a chi-square (Wilson-Hilferty).
+    Differences of neighbours leave out whatever varies slowly (a light gradient, shading,
+    a wide bright part), which block means would count as noise."""
+    hb, wb = image.shape[0] // k, image.shape[1] // k
+    ny, nx = (hb + spacing - 1) // spacing, (wb + spacing - 1) // spacing
+    means = np.empty(ny * nx)
+    variances = np.empty(ny * nx)
+    pairs = k * (k // 2)
+    m = 0
+    for by in range(0, hb, spacing):
+        for bx in range(0, wb, spacing):
+            acc = 0.0
+            sq = 0.0
+            for y in range(by * k, by * k + k):
+                for x in range(bx * k, bx * k + k):
+                    acc += image[y, x]
+                for x in range(bx * k, bx * k + k - 1, 2):
+                    d = float(image[y, x + 1]) - float(image[y, x])
+                    sq += d * d
+            means[m] = acc / (k * k)
+            variances[m] = sq / (2.0 * pairs) if pairs > 0 else 0.0
+            m += 1
+    means, variances = means[:m], variances[:m]
     background = np.median(means)
-    dark = means[means <= np.percentile(means, 75.0)]
-    return background, MAD_TO_SIGMA * np.median(np.abs(dark - np.median(dark))) * k
+    dark = variances[means <= np.percentile(means, 75.0)]
+    median_of_chi2 = (1.0 - 2.0 / (9.0 * max(pairs, 1))) ** 3
+    return background, math.sqrt(np.median(dark) / median_of_chi2)
 
 
 @numba.njit(**_OPTS)
@@ -366,9 +388,9 @@ def _root(parent: np.ndarray, i: int) -> int:
 
 
 @numba.njit(**_OPTS)
-def chain_sizes(xy: np.ndarray, gap: float) -> np.ndarray:
-    """For each point, the number of points in its chain: points linked when no farther apart
-    than ``gap`` (px), chains the connected sets (union-find over a sweep)."""
+def chain_labels(xy: np.ndarray, gap: float) -> np.ndarray:
+    """For each point, its chain's label (the index of one of its points): points linked when
+    no farther apart than ``gap`` (px), chains the connected sets (union-find over a sweep)."""
     n = xy.shape[0]
     order, axis = _sweep_order(xy)
     parent = np.arange(n)
@@ -385,12 +407,21 @@ def chain_sizes(xy: np.ndarray, gap: float) -> np.ndarray:
                 ri, rq = _root(parent, i), _root(parent, q)
                 if ri != rq:
                     parent[ri] = rq
-    sizes = np.zeros(n, np.int64)
-    for i in range(n):
-        sizes[_root(parent, i)] += 1
     out = np.empty(n, np.int64)
     for i in range(n):
-        out[i] = sizes[_root(parent, i)]
+        out[i] = _root(parent, i)
+    return out
+
+
+@numba.njit(**_OPTS)
+def chain_sizes(labels: np.ndarray) -> np.ndarray:
+    """For each point, the number of points with its label (``chain_labels``)."""
+    sizes = np.zeros(labels.shape[0], np.int64)
+    for i in range(labels.shape[0]):
+        sizes[labels[i]] += 1
+    out = np.empty(labels.shape[0], np.int64)
+    for i in range(labels.shape[0]):
+        out[i] = sizes[labels[i]]
     return out
 
 

@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from service.measure import steger_kernels as kernels
 from service.measure.band import (
@@ -50,8 +51,10 @@ class StripeParams:
     decimation : int
         Down-sampling factor of the coarse pass.
     min_contrast : float
-        Least stripe peak above background, as a fraction of the image's full scale (255 for
-        8-bit, 65535 for 16-bit), for a frame to hold a stripe at all.
+        Least height of the stripe above its surroundings on the decimated copy (where a thin
+        stripe is averaged with its neighbours: a third to a half of its full-resolution
+        peak), as a fraction of the image's full scale (255 for 8-bit, 65535 for 16-bit), for
+        a frame to hold a stripe at all.
     coarse_fraction : float
         Coarse threshold between background (0) and peak (1).
     band_px : int
@@ -67,6 +70,9 @@ class StripeParams:
         Centres closer than this belong to the same line (Steger's linking).
     min_chain : int
         Shortest line, in centres, that is kept: shorter chains are noise or specks.
+    max_chain_density : float
+        A chain with more centres than this per pixel of its extent is a patch (a glint's
+        blob), not a line (``keep_long_chains``).
     curvature_correction : bool
         Undo the shift of a curved stripe's smoothed ridge toward its centre of curvature
         (``correct_curvature_bias``).
@@ -92,7 +98,7 @@ class StripeParams:
 
     sigma_px: float = 1.5
     decimation: int = 4
-    min_contrast: float = 0.06
+    min_contrast: float = 0.04
     coarse_fraction: float = 0.2
     band_px: int = 10
     min_strength_sigma: float = 6.0
@@ -100,6 +106,7 @@ class StripeParams:
     width_range: tuple[float, float] = (0.4, 2.5)
     link_gap_px: float = 2.0
     min_chain: int = 10
+    max_chain_density: float = 3.0
     curvature_correction: bool = True
     curvature_window_px: float = 5.0
     optics_blur_px: float = 0.7
@@ -133,6 +140,9 @@ class StripePoints:
         Height of the smoothed profile above the background at each centre, grey levels:
         ``peak / strength`` is ``w^2 + s^2``, and sums of both over many points give a width
         that the noise does not inflate.
+    chain : ndarray of int, shape (N,), or None
+        Which chain of linked centres each belongs to (a label shared by the chain's points),
+        once chains are formed (``keep_long_chains``).
     """
 
     xy: np.ndarray
@@ -143,6 +153,7 @@ class StripePoints:
     noise: float = 0.0
     reason: str = ""
     peak: np.ndarray | None = None
+    chain: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -156,6 +167,7 @@ class StripePoints:
             self.xy[keep], self.normal[keep], self.strength[keep], self.width_px[keep],
             self.background, self.noise, self.reason,
             None if self.peak is None else self.peak[keep],
+            None if self.chain is None else self.chain[keep],
         )
 
     @classmethod
@@ -235,15 +247,44 @@ def reject_weak(points: StripePoints, params: StripeParams) -> StripePoints:
                                           params.min_relative_strength, lo, hi))
 
 
-def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int) -> StripePoints:
-    """Link centres closer than ``gap_px`` into lines; keep lines of ``min_chain`` or more.
+def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int,
+                     max_density: float = 3.0) -> StripePoints:
+    """Link centres closer than ``gap_px`` into lines; keep lines of ``min_chain`` or more
+    that are lines, not patches.
 
     A laser stripe gives about one centre per pixel along its length, so its centres form long
-    chains; noise and specks that pass Steger's test give isolated centres or short chains.
+    chains; noise and specks that pass Steger's test give isolated centres or short chains. A
+    glint's blob passes Steger's test all over its shoulder (there the Hessian looks like a
+    line running outward), so its centres fill a patch: more than ``max_density`` centres per
+    pixel of the chain's extent (the diagonal of its box) is a blob, not a line, unless it
+    touches a long line (the fat end of a stripe seen at a grazing angle looks the same; a
+    glint on the stripe is left to the section's consensus).
     """
     if len(points) == 0:
         return points
-    return points.subset(kernels.chain_sizes(points.xy, float(gap_px)) >= min_chain)
+    labels = kernels.chain_labels(points.xy, float(gap_px))
+    keep = kernels.chain_sizes(labels) >= min_chain
+    if keep.any():
+        order = np.argsort(labels, kind="stable")
+        lab, xy = labels[order], points.xy[order]
+        starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
+        lo = np.minimum.reduceat(xy, starts, axis=0)
+        hi = np.maximum.reduceat(xy, starts, axis=0)
+        counts = np.diff(np.r_[starts, len(lab)])
+        extent = np.hypot(*(hi - lo).T)
+        patch = counts > max_density * np.maximum(extent, 1.0)
+        if patch.any():
+            is_patch = np.zeros(len(lab), bool)
+            is_patch[order] = np.repeat(patch, counts)
+            long_line = (kernels.chain_sizes(labels) >= 5 * min_chain) & ~is_patch
+            is_patch &= keep
+            if is_patch.any() and long_line.any():
+                near, _ = cKDTree(points.xy[long_line]).query(points.xy[is_patch],
+                                                              distance_upper_bound=2 * gap_px)
+                touching = np.unique(labels[is_patch][np.isfinite(near)])
+                is_patch &= ~np.isin(labels, touching)
+            keep &= ~is_patch
+    return replace(points, chain=labels).subset(keep)
 
 
 def correct_curvature_bias(points: StripePoints, sigma_px: float, window_px: float = 5.0
@@ -328,7 +369,8 @@ def extract_stripe(image: np.ndarray, params: StripeParams | None = None,
 def _centres_in(image: np.ndarray, band: Band, params: StripeParams, background: float,
                 noise: float) -> StripePoints:
     points = reject_weak(steger_centres(image, band, params, background, noise), params)
-    points = keep_long_chains(points, params.link_gap_px, params.min_chain)
+    points = keep_long_chains(points, params.link_gap_px, params.min_chain,
+                              params.max_chain_density)
     if not points:
         return StripePoints.empty("no stripe: no line of centres long enough", background,
                                   noise)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import time
 from pathlib import Path
@@ -22,10 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
-from service.measure.diameter import measure_frame
+from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import geometry_of
 from service.measure.result import Method
 
+COMPARE = MeasureParams(max_uncertainty_mm=math.inf)
+"""Every frame measured, none refused as uncertain: the paper's comparison has no refusal."""
 SHAFTS = {
     "shaft 1": (47.062, 39.76, 34.924, 29.8),
     "shaft 2": (24.753, 27.664, 31.473, 27.492, 24.621, 21.687, 20.113),
@@ -52,7 +55,7 @@ def run_condition(config: RigConfig, frames: int, seed: int, added_noise_dn: flo
                     img = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
                 for method in Method:
                     t0 = time.perf_counter()
-                    m = measure_frame(img, geometry, method)
+                    m = measure_frame(img, geometry, method, COMPARE)
                     out["timing_ms"][method.value].append((time.perf_counter() - t0) * 1e3)
                     row["results"][method.value].append(m.diameter_mm)
             out["per_diameter"].append(row)

@@ -11,7 +11,7 @@ import pytest
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure import fit as F  # noqa: N812
 from service.measure.axis_track import AxisTracker
-from service.measure.diameter import measure_frame
+from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.fuse import fuse, master_offset
 from service.measure.geometry import geometry_of
 from service.measure.result import Measurement, Method, Status
@@ -140,10 +140,24 @@ def test_axis_without_an_axis_point_falls_back_and_says_so() -> None:
     r = ShaftRenderer(RigConfig(), seed=4)
     geo = replace(geometry_of(r.calibration), axis_point=None)
     res = measure_frame(r.render(30.0), geo, Method.AXIS)
-    assert res and res.method is Method.GEOMETRIC and "axis point" in res.note
+    assert res.method is Method.GEOMETRIC and "axis point" in res.note
+    # A free circle on this rig's 100-degree arc is uncertain by about 16 um: refused as such
+    # (three of them would not stay within the 20 um a frame may be off), and said why.
+    assert res.status is Status.UNCERTAIN and "uncertain by" in res.reason
+    assert res.uncertainty_mm > MeasureParams().max_uncertainty_mm
+    lenient = measure_frame(r.render(30.0), geo, Method.AXIS,
+                            MeasureParams(max_uncertainty_mm=0.05))
+    assert lenient and abs(lenient.diameter_mm - 30.0) < 0.1
+
+
+def test_a_long_arc_makes_a_free_circle_certain_enough() -> None:
+    r = ShaftRenderer(RigConfig(laser_azimuth_deg=0.0, triangulation_deg=45.0), seed=4)
+    res = measure_frame(r.render(30.0), geometry_of(r.calibration), Method.GEOMETRIC)
+    assert res and res.arc_deg > 130 and abs(res.diameter_mm - 30.0) < 0.02
 
 
 @pytest.mark.parametrize("method", list(Method))
 def test_every_method_reports_an_uncertainty(renderer, method) -> None:
     res = measure_frame(renderer.render(30.0, 1), geometry_of(renderer.calibration), method)
-    assert res and 0 < res.uncertainty_mm < 1.0
+    assert 0 < res.uncertainty_mm < 1.0
+    assert res or res.status is Status.UNCERTAIN

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -10,13 +12,21 @@ from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import geometry_of
 from service.measure.result import Method, Status
 
+COMPARE = MeasureParams(max_uncertainty_mm=math.inf)
+"""Every frame measured, none refused as uncertain (as the paper's comparison measures)."""
+
 
 @pytest.mark.parametrize("diameter", [20.113, 34.924, 47.062])
 @pytest.mark.parametrize("method", list(Method))
 def test_every_method_measures_rendered_frames(renderer, diameter: float, method: Method) -> None:
     geo = geometry_of(renderer.calibration)
-    m = measure_frame(renderer.render(diameter, 1), geo, method)
+    m = measure_frame(renderer.render(diameter, 1), geo, method, COMPARE)
     assert m.status is Status.OK, m.reason
+    # By default a diameter more uncertain than the limit is refused, and only such a one.
+    default = measure_frame(renderer.render(diameter, 1), geo, method)
+    limit = MeasureParams().max_uncertainty_mm
+    assert default.status is (Status.UNCERTAIN if m.uncertainty_mm > limit else Status.OK)
+    assert method is not Method.AXIS or default.status is Status.OK
     assert m.n_points > 100
     assert 60 < m.arc_deg < 140
     # Per frame: the ellipse fit is off by up to a millimetre (as in the paper); the circle fits
@@ -94,8 +104,9 @@ def test_gross_reflections_are_rejected_by_the_geometric_fit(renderer) -> None:
     # A bright glint line beside the stripe, as a stray reflection would make.
     x = int(xs.max()) + 25
     img[int(np.percentile(ys, 30)):int(np.percentile(ys, 40)), x - 1:x + 2] = 200
-    m = measure_frame(img, geo, Method.GEOMETRIC)
+    m = measure_frame(img, geo, Method.GEOMETRIC, COMPARE)
     assert m and abs(m.diameter_mm - 30.0) < 0.03
+    assert np.abs(m.points_px[:, 0] - x).min() >= 3  # none of the glint line kept
 
 
 def test_low_contrast_stripe_still_measures() -> None:

@@ -90,7 +90,10 @@ def test_chain_sizes_are_the_connected_components(seed: int, n: int) -> None:
     pairs = cKDTree(xy).query_pairs(2.0, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
-    assert np.array_equal(sk.chain_sizes(xy, 2.0), np.bincount(labels)[labels])
+    chains = sk.chain_labels(xy, 2.0)
+    assert np.array_equal(sk.chain_sizes(chains), np.bincount(labels)[labels])
+    # The same partition: each chain is one component and each component one chain.
+    assert len(set(zip(chains, labels, strict=True))) == len(set(labels)) == len(set(chains))
 
 
 @settings(max_examples=40, deadline=None)

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
-from service.measure.diameter import measure_frame
+from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import geometry_of
 from service.measure.overlay import SECTION_BGR, STRIPE_BGR, draw_overlay
 from service.measure.result import Measurement, Method, Status
@@ -28,7 +30,7 @@ def test_overlay_section_passes_through_the_stripe_points() -> None:
     rig = ShaftRenderer(RigConfig(), seed=2)
     g = geometry_of(rig.calibration)
     image = rig.render(30.0, 0)
-    m = measure_frame(image, g, Method.GEOMETRIC)
+    m = measure_frame(image, g, Method.GEOMETRIC, MeasureParams(max_uncertainty_mm=math.inf))
     assert m, m.reason
     curve = section_circle_on_plane(m.center_mm, m.diameter_mm / 2, g.axis_direction,
                                     g.plane_normal, g.plane_d, n=3600)

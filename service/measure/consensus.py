@@ -1,0 +1,119 @@
+"""Which section points belong to the shaft, before any fit: the geometry decides between the
+stripe and what else drew lines in the image (a ghost reflection, a bright machine edge, a
+chip's glint).
+
+The stripe of a cylinder cut by the calibrated plane projects onto the section as a circle
+about the shaft's axis; a ghost, an edge or a glint does not lie on it. With the axis known
+(method ``axis``) the circle's centre is known and only its radius is sought: the ring about
+the centre that holds the most points (``ring_consensus``). Without it (``geometric``), RANSAC
+over circles through three points (``circle_consensus``). Either way whole chains of linked
+image centres are judged together (``by_chain``): a chain that mostly lies off the circle is
+something else crossing it.
+
+Pure functions: section coordinates in mm, no I/O.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: float
+                   ) -> np.ndarray:
+    """The points within ``window_mm`` of the radius about ``center_mm`` that most points
+    share.
+
+    Parameters
+    ----------
+    section_mm : ndarray, shape (N, 2)
+        Section points, mm.
+    center_mm : ndarray, shape (2,)
+        The section's centre (the spindle axis), mm.
+    window_mm : float
+        Half-width of the ring, mm: the stripe's own radial scatter plus how far the centre
+        may be off.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        The ring's points (all False for no points).
+    """
+    n = len(section_mm)
+    if n == 0:
+        return np.zeros(0, bool)
+    rho = np.hypot(section_mm[:, 0] - center_mm[0], section_mm[:, 1] - center_mm[1])
+    s = np.sort(rho)
+    # The window [s_i, s_i + 2 w] holding the most radii; the ring's radius is their median.
+    ends = np.searchsorted(s, s + 2.0 * window_mm, side="right")
+    i = int(np.argmax(ends - np.arange(n)))
+    radius = float(np.median(s[i:ends[i]]))
+    return np.abs(rho - radius) <= window_mm
+
+
+def circle_consensus(section_mm: np.ndarray, tol_mm: float, max_radius_mm: float,
+                     hypotheses: int = 300, seed: int = 0) -> np.ndarray:
+    """RANSAC: the points within ``tol_mm`` of the circle through three of them that most
+    points lie near.
+
+    Parameters
+    ----------
+    section_mm : ndarray, shape (N, 2)
+        Section points, mm.
+    tol_mm : float
+        Distance from a circle within which a point supports it, mm.
+    max_radius_mm : float
+        Circles larger than this are not a shaft.
+    hypotheses : int
+        Circles tried.
+    seed : int
+        Seed of the draws (the same points always give the same answer).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        The best circle's points (all True when there are fewer than 3 points or no circle
+        was found: the fit decides then).
+    """
+    n = len(section_mm)
+    if n < 3:
+        return np.ones(n, bool)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, n, (hypotheses, 3))
+    a, b, c = section_mm[idx[:, 0]], section_mm[idx[:, 1]], section_mm[idx[:, 2]]
+    # The circumcentre of each triple.
+    d = 2.0 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1])
+               + c[:, 0] * (a[:, 1] - b[:, 1]))
+    ok = np.abs(d) > 1e-12
+    a2, b2, c2 = (a**2).sum(1), (b**2).sum(1), (c**2).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (a2 * (b[:, 1] - c[:, 1]) + b2 * (c[:, 1] - a[:, 1]) + c2 * (a[:, 1] - b[:, 1])) / d
+        uy = (a2 * (c[:, 0] - b[:, 0]) + b2 * (a[:, 0] - c[:, 0]) + c2 * (b[:, 0] - a[:, 0])) / d
+    r = np.hypot(a[:, 0] - ux, a[:, 1] - uy)
+    ok &= np.isfinite(r) & (r <= max_radius_mm)
+    if not ok.any():
+        return np.ones(n, bool)
+    ux, uy, r = ux[ok], uy[ok], r[ok]
+    dist = np.abs(np.hypot(section_mm[None, :, 0] - ux[:, None],
+                           section_mm[None, :, 1] - uy[:, None]) - r[:, None])
+    support = dist <= tol_mm
+    return support[int(np.argmax(support.sum(axis=1)))]
+
+
+def by_chain(inside: np.ndarray, chain: np.ndarray | None, min_share: float = 0.5
+             ) -> np.ndarray:
+    """``inside``, less the points of chains of which fewer than ``min_share`` are inside.
+
+    Parameters
+    ----------
+    inside : ndarray of bool, shape (N,)
+        Points on the shaft's circle.
+    chain : ndarray of int, shape (N,), or None
+        Each point's chain label (``StripePoints.chain``); None judges points alone.
+    min_share : float
+        Least share of a chain's points on the circle for the chain to count.
+    """
+    if chain is None or len(chain) == 0:
+        return inside
+    _, inverse = np.unique(chain, return_inverse=True)
+    share = np.bincount(inverse, weights=inside.astype(np.float64)) / np.bincount(inverse)
+    return inside & (share[inverse] >= min_share)

@@ -1,0 +1,176 @@
+"""The shop floor: the simulated rig's disturbances, and what the extractor and the fits do
+about them (blob rejection, the top-hat coarse pass, the noise estimate, the section's
+consensus, the refusal of uncertain diameters, the tracker's gate)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drivers.sim.disturb import FAMILIES, Disturbances, Glints
+from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.measure import consensus
+from service.measure import steger_kernels as sk
+from service.measure.axis_track import AxisTracker
+from service.measure.diameter import MeasureParams, measure_frame
+from service.measure.geometry import geometry_of
+from service.measure.result import Method, Status
+from service.measure.stripe import StripeParams, extract_stripe
+
+
+def test_disturbances_are_seeded_and_leave_the_clean_twin_alone() -> None:
+    clean = ShaftRenderer(RigConfig(), seed=5).render(30.0, 2)
+    off = ShaftRenderer(RigConfig(disturbances=Disturbances()), seed=5).render(30.0, 2)
+    assert np.array_equal(clean, off)
+    for name, spec in FAMILIES.items():
+        if name == "clean":
+            continue
+        a = ShaftRenderer(RigConfig(disturbances=spec), seed=5).render(30.0, 2)
+        b = ShaftRenderer(RigConfig(disturbances=spec), seed=5).render(30.0, 2)
+        assert np.array_equal(a, b), name
+        assert not np.array_equal(a, clean), name
+
+
+def test_disturbances_from_a_dict_name_what_is_unknown() -> None:
+    spec = Disturbances.from_dict({"glints": {"count": 4, "sigma_px": [1, 2]}, "exposure": 2})
+    assert spec.glints.count == 4 and spec.glints.sigma_px == (1, 2) and spec.exposure == 2.0
+    with pytest.raises(ValueError, match="unknown disturbance 'smoke'"):
+        Disturbances.from_dict({"smoke": {}})
+    with pytest.raises(ValueError, match="unknown glints setting"):
+        Disturbances.from_dict({"glints": {"colour": 1}})
+
+
+def test_feed_marks_ripple_the_stripe_but_not_its_circle() -> None:
+    """A 4 um helical ripple moves the stripe's section points about the circle; the fit
+    averages it out."""
+    spec = Disturbances.from_dict({"feed_marks": {"amplitude_um": 4.0, "period_mm": 0.1}})
+    r = ShaftRenderer(RigConfig(disturbances=spec), seed=3)
+    g = geometry_of(r.calibration)
+    errs = [measure_frame(r.render(30.0, i), g).diameter_mm - 30.0 for i in range(4)]
+    assert np.mean(np.abs(errs)) < 0.004, errs
+
+
+def _blobs(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = np.full((300, 300), 6.0, np.float32)
+    yy, xx = np.mgrid[0:300, 0:300]
+    for x, y, s in zip(rng.uniform(20, 280, n), rng.uniform(20, 280, n), rng.uniform(1, 2.5, n),
+                       strict=True):
+        img += 200 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * s**2))
+    img += rng.normal(0, 1.2, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_glints_are_not_lines() -> None:
+    """Steger's test passes all over a blob's shoulder (the Hessian looks like a line running
+    outward there): its centres fill a patch, which is not kept as a line."""
+    img = _blobs(30, 1)
+    assert len(extract_stripe(img, StripeParams())) == 0
+    assert len(extract_stripe(img, StripeParams(max_chain_density=math.inf))) > 300
+
+
+@pytest.mark.parametrize(("contrast", "grain"), [(0.1, 0.8), (0.5, 0.8), (0.5, 2.0)])
+def test_a_speckled_stripe_is_a_line_not_a_patch(contrast: float, grain: float) -> None:
+    r = ShaftRenderer(RigConfig(speckle_contrast=contrast, speckle_grain_px=grain), seed=2)
+    img = r.render(30.0, 0)
+    every = extract_stripe(img, StripeParams(max_chain_density=math.inf))
+    assert len(extract_stripe(img)) == len(every) > 300
+
+
+@pytest.mark.parametrize("family", ["glints", "droplets", "background", "overexposed"])
+def test_axis_measures_through_the_disturbance(family: str) -> None:
+    r = ShaftRenderer(RigConfig(disturbances=FAMILIES[family]), seed=11)
+    g = geometry_of(r.calibration)
+    for i, d in enumerate((21.7, 30.0, 44.0)):
+        m = measure_frame(r.render(d, i), g)
+        assert m.status is Status.OK, (family, d, m.reason)
+        assert abs(m.diameter_mm - d) < 0.008, (family, d, m.diameter_mm)
+
+
+def test_a_bright_machine_edge_is_not_the_stripe() -> None:
+    """A lit band crossing the frame (sharp sides: Steger sees lines along them) and a light
+    gradient: the top-hat coarse pass and the section's consensus keep to the stripe."""
+    spec = Disturbances.from_dict({"background": {"edge_dn": 120.0, "gradient_dn": 50.0,
+                                                  "edge_width_px": [12, 30]}})
+    r = ShaftRenderer(RigConfig(disturbances=spec), seed=12)
+    g = geometry_of(r.calibration)
+    for i in range(4):
+        m = measure_frame(r.render(30.0, i), g)
+        assert m.status is Status.OK, m.reason
+        assert abs(m.diameter_mm - 30.0) < 0.008
+
+
+def test_noise_is_the_pixels_not_the_light_gradient() -> None:
+    rng = np.random.default_rng(2)
+    yy, xx = np.mgrid[0:1024, 0:1376].astype(np.float32)
+    flat = 20 + 1.5 * rng.standard_normal((1024, 1376)).astype(np.float32)
+    sloped = flat + 60 * xx / 1376 + 40 * (yy > 600)
+    _, n_flat = sk.background_and_noise(flat, 4, 8)
+    _, n_sloped = sk.background_and_noise(sloped, 4, 8)
+    assert n_flat == pytest.approx(1.5, rel=0.08)
+    assert n_sloped == pytest.approx(n_flat, rel=0.08)
+
+
+def _arc(n: int, r: float, c=(0.0, 0.0), a0=0.3, a1=2.0, noise=0.002, seed=0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(a0, a1, n)
+    return np.column_stack([c[0] + r * np.cos(a), c[1] + r * np.sin(a)]) \
+        + rng.normal(0, noise, (n, 2))
+
+
+def test_ring_consensus_takes_the_circle_about_the_axis() -> None:
+    stripe = _arc(300, 15.0)
+    ghost = _arc(150, 15.4, seed=1)        # a ghost 0.4 mm out
+    edge = np.column_stack([np.linspace(-5, 20, 200), np.linspace(30, -5, 200)])
+    pts = np.vstack([stripe, ghost, edge])
+    keep = consensus.ring_consensus(pts, np.zeros(2), 0.05)
+    assert keep[:300].mean() > 0.99 and keep[300:450].sum() == 0 and keep[450:].sum() < 10
+
+
+def test_circle_consensus_finds_the_shaft_among_more_outliers_than_points() -> None:
+    stripe = _arc(200, 12.0, c=(3.0, -2.0))
+    rng = np.random.default_rng(4)
+    clutter = rng.uniform(-20, 20, (300, 2))
+    keep = consensus.circle_consensus(np.vstack([stripe, clutter]), 0.02, 500.0)
+    assert keep[:200].mean() > 0.95 and keep[200:].mean() < 0.05
+
+
+def test_a_chain_mostly_off_the_circle_goes_whole() -> None:
+    inside = np.array([True, True, True, False, True, False, False, True])
+    chain = np.array([0, 0, 0, 0, 1, 1, 1, 2])
+    assert list(consensus.by_chain(inside, chain)) == [True, True, True, False, False,
+                                                      False, False, True]
+    assert list(consensus.by_chain(inside, None)) == list(inside)
+
+
+def test_uncertain_diameters_are_refused_with_the_figure() -> None:
+    r = ShaftRenderer(RigConfig(), seed=4)
+    g = geometry_of(r.calibration)
+    strict = measure_frame(r.render(30.0), g, Method.AXIS, MeasureParams(
+        max_uncertainty_mm=0.0005))
+    assert strict.status is Status.UNCERTAIN and "limit 0.5 um" in strict.reason
+    assert strict.diameter_mm is None and strict.uncertainty_mm > 0.0005
+
+
+def test_glints_never_make_a_confident_wrong_diameter() -> None:
+    """Many glints (a chip shower): every frame is either refused or within 20 um, by both
+    methods."""
+    spec = Disturbances(glints=Glints(count=25, spread_px=20.0, on_stripe=0.5))
+    r = ShaftRenderer(RigConfig(disturbances=spec), seed=13)
+    g = geometry_of(r.calibration)
+    for i in range(4):
+        img = r.render(30.0, i)
+        for method in (Method.AXIS, Method.GEOMETRIC):
+            m = measure_frame(img, g, method)
+            assert not m or abs(m.diameter_mm - 30.0) < 0.020, (method, m.diameter_mm)
+
+
+def test_the_tracker_does_not_take_a_stray_free_centre_into_its_reference() -> None:
+    t = AxisTracker(np.zeros(2), base_sigma_mm=0.001, reference_frames=5)
+    cov = np.diag([1e-4, 1e-6])            # 10 um along the bisector, 1 um across
+    assert not t.update(np.array([0.0, 0.05]), cov, 30.0)   # 50 um across: astray
+    for _ in range(5):
+        assert t.update(np.array([0.002, 0.0]), cov, 30.0)
+    assert t.rejected == 1 and math.isfinite(t.center()[1])
