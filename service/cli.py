@@ -9,7 +9,7 @@ import tempfile
 from collections.abc import Sequence
 
 from calib_store.model import CalibrationError, load_calibration
-from service.measure.diameter import DEFAULT_METHOD
+from service.measure.diameter import DEFAULT_METHOD, MeasureParams
 from service.measure.result import Method
 
 # The shafts of the reference paper's Tables 3-6 (mm).
@@ -27,9 +27,11 @@ def _fail(message: str) -> int:
 def cmd_measure(args: argparse.Namespace) -> int:
     """Print one JSON line per image (or one fused line); exit 2 on bad input files."""
     from service.offline import (
+        CorrectionError,
         ImageError,
         add_temperature,
         fused_record,
+        load_correction,
         measure_images,
         measurement_record,
     )
@@ -41,9 +43,14 @@ def cmd_measure(args: argparse.Namespace) -> int:
             diameter_at_reference(1.0, args.part_temp, args.alpha)
         except ValueError as err:
             return _fail(str(err))
+    if not args.max_uncertainty_um > 0:
+        return _fail(f"--max-uncertainty-um must be positive, got {args.max_uncertainty_um}")
+    params = MeasureParams(max_uncertainty_mm=args.max_uncertainty_um / 1000.0)
     try:
+        correction = load_correction(args.correction) if args.correction else None
         calibration = load_calibration(args.calibration)
-        results = measure_images(args.images, calibration, Method(args.method))
+        results = measure_images(args.images, calibration, Method(args.method), params,
+                                 correction)
         if args.fuse:
             paths, ms = [], []
             for path, m in results:
@@ -56,7 +63,7 @@ def cmd_measure(args: argparse.Namespace) -> int:
             if args.part_temp is not None:
                 add_temperature(record, args.part_temp, args.alpha)
             print(json.dumps(record), flush=True)
-    except (CalibrationError, ImageError) as err:
+    except (CalibrationError, ImageError, CorrectionError) as err:
         return _fail(str(err).replace("\n", " "))
     return EXIT_OK
 
@@ -312,6 +319,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="part temperature: adds the diameter at 20 C")
     p.add_argument("--alpha", type=float, default=11.5e-6, metavar="PER_K",
                    help="linear expansion coefficient (default steel, 11.5e-6 1/K)")
+    p.add_argument("--correction", metavar="MASTER.json",
+                   help="the master correction (`calibrate master --output`), applied as the "
+                   "service applies it")
+    p.add_argument("--max-uncertainty-um", type=float,
+                   default=MeasureParams().max_uncertainty_mm * 1000.0, metavar="UM",
+                   help="refuse a diameter more uncertain than this (status `uncertain`; "
+                   "default %(default)g um; `inf` reports every fit)")
     p.add_argument("images", nargs="+", metavar="IMAGE", help="8- or 16-bit grey image files")
     p.set_defaults(func=cmd_measure)
 

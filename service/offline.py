@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -10,6 +12,7 @@ import cv2
 import numpy as np
 
 from calib_store.model import Calibration
+from service.calibrate.master import DiameterCorrection, corrected
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.fuse import fuse
 from service.measure.geometry import geometry_of
@@ -19,6 +22,43 @@ from service.measure.thermal import diameter_at_reference
 
 class ImageError(ValueError):
     """An image file that cannot be measured at all (unreadable, or of the wrong size)."""
+
+
+class CorrectionError(ValueError):
+    """A master correction file that cannot be used."""
+
+
+def load_correction(path: str | Path) -> DiameterCorrection:
+    """The diameter correction written by ``shaftgauge calibrate master --output FILE``.
+
+    Raises
+    ------
+    CorrectionError
+        Naming what is wrong: a missing or unreadable file, not JSON, a missing or
+        non-numeric ``offset_mm`` or ``scale``, or a scale more than 1 % from 1.
+    """
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except OSError as err:
+        raise CorrectionError(f"{p}: cannot read it ({err.strerror})") from None
+    except json.JSONDecodeError as err:
+        raise CorrectionError(f"{p}: not JSON ({err.msg} at line {err.lineno})") from None
+    if not isinstance(doc, dict):
+        raise CorrectionError(f"{p}: expected the JSON object `calibrate master` writes")
+    values = {}
+    for key in ("offset_mm", "scale"):
+        v = doc.get(key)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise CorrectionError(f"{p}: {key} must be a finite number, got {v!r} (the "
+                                  "output of `shaftgauge calibrate master --output FILE`)")
+        values[key] = float(v)
+    if not 0.99 < values["scale"] < 1.01:
+        raise CorrectionError(f"{p}: scale {values['scale']} is more than 1% from 1")
+    if abs(values["offset_mm"]) > 1.0:
+        raise CorrectionError(f"{p}: offset_mm {values['offset_mm']} is more than 1 mm")
+    return DiameterCorrection(values["offset_mm"], values["scale"],
+                              float(doc.get("created", 0.0) or 0.0))
 
 
 def read_grey_image(path: str | Path) -> np.ndarray:
@@ -75,10 +115,11 @@ def measurement_record(image: str, m: Measurement) -> dict[str, Any]:
 
 def measure_images(
     paths: list[str], calibration: Calibration, method: Method,
-    params: MeasureParams | None = None,
+    params: MeasureParams | None = None, correction: DiameterCorrection | None = None,
 ) -> Iterator[tuple[str, Measurement]]:
     """Check every file first (so that a bad one stops the run before any output), then yield
-    ``(path, measurement)`` per image, in order.
+    ``(path, measurement)`` per image, in order, with the master ``correction`` applied as the
+    service applies it.
 
     Raises
     ------
@@ -89,7 +130,8 @@ def measure_images(
         check_image_file(p, calibration)
     geometry = geometry_of(calibration)
     for p in paths:
-        yield p, measure_frame(read_grey_image(p), geometry, method, params)
+        yield p, corrected(measure_frame(read_grey_image(p), geometry, method, params),
+                           correction)
 
 
 def measure_files(

@@ -8,7 +8,9 @@ the current correction and passes when the error is within a limit.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+
+from service.measure.result import Measurement
 
 
 @dataclass(frozen=True)
@@ -22,6 +24,15 @@ class DiameterCorrection:
     def apply(self, diameter_mm: float) -> float:
         """The corrected diameter, mm."""
         return self.scale * diameter_mm + self.offset_mm
+
+
+def corrected(m: Measurement, correction: DiameterCorrection | None) -> Measurement:
+    """The measurement with the master correction applied (its uncertainty scaled too)."""
+    if not m or correction is None:
+        return m
+    return replace(m, diameter_mm=correction.apply(m.diameter_mm),
+                   uncertainty_mm=None if m.uncertainty_mm is None
+                   else m.uncertainty_mm * abs(correction.scale))
 
 
 def correction_from_masters(masters: list[tuple[float, float]]) -> DiameterCorrection:

@@ -8,12 +8,13 @@ import time
 import numpy as np
 
 from drivers.camera.base import Frame
+from service.calibrate.master import corrected
 from service.measure.result import Measurement
 from service.runtime.calibration import CalibrationInUse
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed, SequenceCounter
 from service.runtime.modbus import ModbusFacade
-from service.runtime.record import corrected, make_record
+from service.runtime.record import make_record
 
 
 class Publisher:

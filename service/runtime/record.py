@@ -4,10 +4,9 @@ function of the frame's measurement and what was in force when the frame was tak
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Any
 
-from service.calibrate.master import DiameterCorrection
 from service.measure.result import Measurement
 from service.measure.thermal import diameter_at_reference
 
@@ -55,15 +54,6 @@ class Feature:
     nominal_mm: float | None
     tol_lower_mm: float
     tol_upper_mm: float
-
-
-def corrected(m: Measurement, correction: DiameterCorrection | None) -> Measurement:
-    """The measurement with the master correction applied (its uncertainty scaled too)."""
-    if not m or correction is None:
-        return m
-    return replace(m, diameter_mm=correction.apply(m.diameter_mm),
-                   uncertainty_mm=None if m.uncertainty_mm is None
-                   else m.uncertainty_mm * abs(correction.scale))
 
 
 def make_record(*, seq: int, wall_time: float, frame_id: int, raw: Measurement,

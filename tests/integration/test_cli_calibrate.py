@@ -43,12 +43,22 @@ def test_the_whole_chain(session) -> None:
     assert np.allclose(cal.camera_matrix[0][0], truth.camera_matrix[0][0], rtol=0.002)
     r = run("calibrate", "master", "--calibration", s / "cal.json",
             "--master", 30, *sorted((s / "master30").glob("*.png")),
-            "--master", 40, *sorted((s / "master40").glob("*.png")))
+            "--master", 40, *sorted((s / "master40").glob("*.png")),
+            "--output", s / "master.json")
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout)
     assert abs(m["scale"] - 1) < 0.001 and abs(m["offset_mm"]) < 0.05
     for master in m["masters"]:  # the recovered calibration measures within 15 um
         assert abs(master["measured_mm"] - master["certified_mm"]) < 0.015
+    # The offline chain is the service's: calibrate, master, measure with the correction.
+    for certified in (30, 40):
+        images = sorted((s / f"master{certified}").glob("*.png"))
+        plain, fixed = (json.loads(run("measure", "--calibration", s / "cal.json", "--fuse",
+                                       *extra, *images).stdout)
+                        for extra in ((), ("--correction", s / "master.json")))
+        assert fixed["diameter_mm"] == pytest.approx(
+            m["scale"] * plain["diameter_mm"] + m["offset_mm"], abs=2e-6)
+        assert abs(fixed["diameter_mm"] - certified) < 0.001
 
 
 def test_bad_steps_exit_2_saying_what_to_do(session, tmp_path) -> None:

@@ -36,6 +36,12 @@ def lines(stdout: str) -> list[dict]:
 def test_measure_prints_one_json_line_per_image(frames, method) -> None:
     cal, paths = frames
     extra = ["--method", method] if method else []
+    if method not in ("axis", None):  # these fits are more uncertain than the default limit
+        refused = lines(run("measure", "--calibration", str(cal), *extra,
+                            *map(str, paths)).stdout)
+        assert all(r["status"] == "uncertain" and "uncertain by" in r["reason"]
+                   for r in refused)
+        extra += ["--max-uncertainty-um", "inf"]
     res = run("measure", "--calibration", str(cal), *extra, *map(str, paths))
     assert res.returncode == 0, res.stderr
     recs = lines(res.stdout)
@@ -58,6 +64,30 @@ def test_a_frame_without_stripe_is_reported_and_the_run_still_exits_0(frames, tm
     first, second = lines(res.stdout)
     assert first["status"] == "no_stripe" and first["diameter_mm"] is None
     assert second["status"] == "ok"
+
+
+@pytest.mark.parametrize(("content", "says"), [
+    ("{not json", "not JSON"),
+    ('{"offset_mm": "0.1", "scale": 1}', "offset_mm must be a finite number"),
+    ('{"offset_mm": 0.001}', "scale must be a finite number"),
+    ('{"offset_mm": 0.001, "scale": 1.2}', "more than 1% from 1"),
+    ("[1, 2]", "expected the JSON object"),
+])
+def test_a_bad_correction_file_is_refused_naming_what_is_wrong(frames, tmp_path, content,
+                                                               says) -> None:
+    cal, paths = frames
+    bad = tmp_path / "master.json"
+    bad.write_text(content)
+    err = one_line_error(run("measure", "--calibration", str(cal), "--correction", str(bad),
+                             str(paths[0])))
+    assert says in err and "master.json" in err
+
+
+def test_a_missing_correction_file_is_refused(frames, tmp_path) -> None:
+    cal, paths = frames
+    err = one_line_error(run("measure", "--calibration", str(cal), "--correction",
+                             str(tmp_path / "none.json"), str(paths[0])))
+    assert "none.json" in err and "cannot read" in err
 
 
 def one_line_error(res: subprocess.CompletedProcess) -> str:
