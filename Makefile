@@ -29,6 +29,8 @@ bench: setup
 	$(PY) -m tests.bench.paper_comparison
 	$(PY) -m tests.bench.beyond_paper
 	$(PY) -m tests.bench.principal_point
+	$(PY) -m tests.bench.robustness
+	$(PY) -m tests.bench.rig_range
 	$(PY) -m tests.bench.camera_throughput
 	$(PY) -m tests.bench.service_throughput
 

@@ -157,6 +157,8 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
                  center: np.ndarray | None = None) -> SectionPoints:
     """Drop points seen at a grazing angle, judged about ``center`` (section mm: the axis,
     when it is known) or else about a preliminary (Hyper) circle's centre."""
+    if len(points.section) == 0:
+        return points
     if center is None:
         prelim = fits.fit_hyper(points.section, uncertainty=False)
         if not prelim:
@@ -348,12 +350,16 @@ def measure_frame(
         known = center_prior if center_prior is not None else (
             None if (c0 := axis_center(geometry)) is None else (c0, params.axis_sigma_mm))
     points = section_points(stripe, geometry)
+    found = len(points.section)
     if method in (Method.AXIS, Method.GEOMETRIC):
         points = on_the_shaft(points, params, known)
+    on_circle = len(points.section)
     points = drop_grazing(points, geometry, params, None if known is None else known[0])
     if len(points.section) < params.min_points:
+        why = "" if on_circle == found else \
+            f" ({on_circle} of the {found} found lie on one circle about the shaft's axis)"
         return Measurement.failed(
             Status.TOO_FEW_POINTS, method,
-            f"{len(points.section)} stripe points, need {params.min_points}",
+            f"{len(points.section)} stripe points, need {params.min_points}{why}",
             n_points=len(points.section), points_px=points.stripe.xy)
     return fit_section(points, geometry, method, params, center_prior)

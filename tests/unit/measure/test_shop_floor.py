@@ -174,3 +174,16 @@ def test_the_tracker_does_not_take_a_stray_free_centre_into_its_reference() -> N
     for _ in range(5):
         assert t.update(np.array([0.002, 0.0]), cov, 30.0)
     assert t.rejected == 1 and math.isfinite(t.center()[1])
+
+
+def test_a_frame_whose_points_are_all_off_the_circle_is_refused_quietly(recwarn) -> None:
+    """Lines that are not the shaft's (here: two straight bright bars) leave no point on the
+    circle about the axis: too few points, said so, and no warning on the way."""
+    r = ShaftRenderer(RigConfig(), seed=1)
+    g = geometry_of(r.calibration)
+    img = np.full((1024, 1376), 5, np.uint8)
+    img[100:900, 200:202] = 160
+    img[300:302, 300:1200] = 160
+    m = measure_frame(img, g)
+    assert m.status is Status.TOO_FEW_POINTS and "lie on one circle" in m.reason, m.reason
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
