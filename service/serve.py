@@ -248,4 +248,7 @@ def main(settings: Settings) -> int:
     logging.basicConfig(level=settings.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    return asyncio.run(serve(settings))
+    try:
+        return asyncio.run(serve(settings))
+    except KeyboardInterrupt:  # Ctrl-C: uvicorn stopped everything, then raised it again
+        return 130

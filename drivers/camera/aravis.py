@@ -34,6 +34,7 @@ from drivers.camera.base import (
 
 log = logging.getLogger("shaftgauge.camera")
 
+_STOP_WAIT_S = 1.0
 _POP_TIMEOUT_US = 100_000
 # A free-running stream that delivers nothing for this long gets its camera probed.
 _STALL_S = 2.0
@@ -383,20 +384,46 @@ class AravisCamera(ThreadedCamera):
                 setattr(self._counters, k, self._stream_base[k] + v)
 
     def _close(self, session: _Session, lost: bool) -> None:
-        """Stop and release everything of one connection, dead camera or not."""
+        """Stop and release everything of one connection, dead camera or not.
+
+        When the camera is being stopped (the service shuts down) this waits at most
+        ``_STOP_WAIT_S``: a camera that died a moment ago (a simulated one, stopped by the same
+        Ctrl-C) answers neither the stop nor the release of control that dropping the device
+        sends, and Aravis's retries would hold the shutdown for seconds. The release goes on
+        in the background; whatever is left running is stopped by the next open."""
         self._update_stream_counters(session)
         with self._lock:
             for k in session.infos:
                 self._stream_base[k] = getattr(self._counters, k)
-        if not lost:  # a lost camera would only make the command time out
-            try:
-                session.camera.stop_acquisition()
-            except Exception as err:
-                log.debug("stop_acquisition on %s: %s", self.device_id, _describe(err))
-        with contextlib.suppress(Exception):
-            session.device.disconnect(session.handler_id)
-        # Dropping the last references ends Aravis's stream and heartbeat threads.
+        parts = (session.camera, session.stream, session.device, session.handler_id)
         session.stream = session.camera = session.device = None
+        if not self._stop.is_set():
+            self._release(parts, lost)
+            return
+        done = threading.Event()
+        threading.Thread(target=self._release, args=(parts, lost, done), daemon=True,
+                         name="camera-release").start()
+        del parts
+        if not done.wait(_STOP_WAIT_S):
+            log.info("camera %s did not answer its release within %g s (gone already?)",
+                     self.device_id, _STOP_WAIT_S)
+
+    def _release(self, parts: tuple, lost: bool, done: threading.Event | None = None) -> None:
+        camera, stream, device, handler_id = parts
+        del parts
+        try:
+            if not lost:  # a lost camera would only make the command time out
+                try:
+                    camera.stop_acquisition()
+                except Exception as err:
+                    log.debug("stop_acquisition on %s: %s", self.device_id, _describe(err))
+            with contextlib.suppress(Exception):
+                device.disconnect(handler_id)
+            # Dropping the last references ends Aravis's stream and heartbeat threads.
+            del camera, stream, device
+        finally:
+            if done is not None:
+                done.set()
 
 
 def _describe(err: Exception) -> str:

@@ -92,7 +92,9 @@ def stop_service(svc: Service) -> None:
     """SIGTERM the service (it stops its simulators), then make sure nothing of its process
     group is left: a leftover simulated camera would hold the GigE Vision port."""
     if svc.proc.poll() is None:
-        os.killpg(svc.proc.pid, signal.SIGTERM)
+        # The service alone: it stops its simulated camera and PLC itself (signalled too, the
+        # camera would vanish under the gauge's feet and its stop wait for a dead device).
+        svc.proc.send_signal(signal.SIGTERM)
         with contextlib.suppress(subprocess.TimeoutExpired):
             svc.proc.wait(30)
     with contextlib.suppress(ProcessLookupError):

@@ -116,3 +116,20 @@ def test_sigterm_stops_the_service_with_a_live_stream_open(tmp_path) -> None:
             assert time.monotonic() - t0 < 10.0
     finally:
         stop_service(svc)
+
+
+def test_ctrl_c_stops_the_service_and_its_simulators_at_once(tmp_path) -> None:
+    """Ctrl-C in a terminal signals the whole process group: the simulated camera dies with
+    the service, which must not wait for it to answer (Aravis's retries took 12 s), and the
+    service ends without a traceback."""
+    svc = start_service(tmp_path)
+    try:
+        assert wait_ready(svc)
+        t0 = time.monotonic()
+        os.killpg(svc.proc.pid, signal.SIGINT)
+        assert svc.proc.wait(20) == 130
+        assert time.monotonic() - t0 < 6.0
+        err = svc.proc.stderr.read() if svc.proc.stderr else ""
+        assert "Traceback" not in err, err[-2000:]
+    finally:
+        stop_service(svc)
