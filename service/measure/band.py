@@ -155,22 +155,10 @@ def coarse_band(image: np.ndarray, decimation: int, min_contrast: float,
 def extend_ends(xy: np.ndarray, length_px: float, span: int = 15) -> np.ndarray:
     """The points and, beyond each end of the line they form, points every pixel for
     ``length_px`` along its direction there (the ends are the extremes along the points'
-    principal direction; the direction is from the ``span`` points nearest each end)."""
-    pts = np.asarray(xy, np.float64)
-    if len(pts) < 2 * span or length_px <= 0:
-        return pts
-    centred = pts - pts.mean(axis=0)
-    _, _, vt = np.linalg.svd(centred, full_matrices=False)
-    order = np.argsort(centred @ vt[0])
-    steps = np.arange(1.0, float(length_px) + 1.0)
-    extra = [pts]
-    for tip, end, inner in ((order[0], order[:span], order[span:2 * span]),
-                            (order[-1], order[-span:], order[-2 * span:-span])):
-        direction = pts[end].mean(axis=0) - pts[inner].mean(axis=0)
-        norm = float(np.hypot(*direction))
-        if norm > 0:
-            extra.append(pts[tip] + steps[:, None] * (direction / norm))
-    return np.concatenate(extra)
+    principal direction; the direction is from the ``span`` points nearest each end;
+    compiled: ``steger_kernels.end_extensions``)."""
+    pts = np.ascontiguousarray(xy, np.float64)
+    return np.concatenate([pts, kernels.end_extensions(pts, int(length_px), int(span))])
 
 
 def tube_band(near_xy: np.ndarray, shape: tuple[int, int], radius_px: int,

@@ -263,6 +263,57 @@ def _third_unknown(s: np.ndarray, rhs: np.ndarray) -> float:
 
 
 @numba.njit(**_OPTS)
+def end_extensions(xy: np.ndarray, length_px: int, span: int) -> np.ndarray:
+    """``band.extend_ends`` compiled: the points beyond each end of the line that ``xy``
+    forms, one a pixel for ``length_px`` along its direction there; the ends are the extremes
+    along the principal direction (the 2x2 covariance's major eigenvector), the direction the
+    mean of the ``span`` points nearest an end less that of the ``span`` next ones."""
+    n = xy.shape[0]
+    out = np.empty((2 * length_px, 2))
+    if n < 2 * span or length_px <= 0:
+        return out[:0]
+    mx, my = 0.0, 0.0
+    for i in range(n):
+        mx += xy[i, 0]
+        my += xy[i, 1]
+    mx /= n
+    my /= n
+    sxx, syy, sxy = 0.0, 0.0, 0.0
+    for i in range(n):
+        dx, dy = xy[i, 0] - mx, xy[i, 1] - my
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+    # The major axis of [[sxx, sxy], [sxy, syy]] at angle atan2(2 sxy, sxx - syy) / 2.
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    ux, uy = math.cos(theta), math.sin(theta)
+    proj = np.empty(n)
+    for i in range(n):
+        proj[i] = (xy[i, 0] - mx) * ux + (xy[i, 1] - my) * uy
+    order = np.argsort(proj)
+    m = 0
+    for side in range(2):
+        ax, ay, bx, by = 0.0, 0.0, 0.0, 0.0
+        for j in range(span):
+            e = order[j] if side == 0 else order[n - 1 - j]
+            q = order[span + j] if side == 0 else order[n - 1 - span - j]
+            ax += xy[e, 0]
+            ay += xy[e, 1]
+            bx += xy[q, 0]
+            by += xy[q, 1]
+        dx, dy = (ax - bx) / span, (ay - by) / span
+        norm = math.hypot(dx, dy)
+        if norm == 0.0:
+            continue
+        tip = order[0] if side == 0 else order[n - 1]
+        for k in range(1, length_px + 1):
+            out[m, 0] = xy[tip, 0] + k * dx / norm
+            out[m, 1] = xy[tip, 1] + k * dy / norm
+            m += 1
+    return out[:m]
+
+
+@numba.njit(**_OPTS)
 def disc_mask(h: int, w: int, ys: np.ndarray, xs: np.ndarray, radius: int) -> np.ndarray:
     """A (h, w) mask of the pixels within ``radius`` px of any of the points (``ys``, ``xs``,
     integer pixels, may lie outside)."""

@@ -120,6 +120,37 @@ def test_circle_solve_reaches_scipy_s_minimum(seed: int, arc: float, prior: bool
         np.testing.assert_allclose([cx, cy, r], ref, atol=1e-7)
 
 
+def _extend_ends_numpy(pts: np.ndarray, length_px: int, span: int = 15) -> np.ndarray:
+    """The form ``end_extensions`` replaced: the principal direction by SVD."""
+    centred = pts - pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    order = np.argsort(centred @ vt[0])
+    steps = np.arange(1.0, length_px + 1.0)
+    extra = []
+    for tip, end, inner in ((order[0], order[:span], order[span:2 * span]),
+                            (order[-1], order[-span:], order[-2 * span:-span])):
+        direction = pts[end].mean(axis=0) - pts[inner].mean(axis=0)
+        extra.append(pts[tip] + steps[:, None] * (direction / np.hypot(*direction)))
+    return np.concatenate(extra)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.floats(0.2, 2.5), st.integers(30, 400))
+def test_end_extensions_are_those_of_the_svd(seed: int, arc: float, n: int) -> None:
+    rng = np.random.default_rng(seed)
+    a = np.sort(rng.uniform(0.0, arc, n)) + rng.uniform(0, 6.3)
+    xy = np.column_stack([500 + 200 * np.cos(a), 400 + 150 * np.sin(a)]) \
+        + rng.normal(0, 0.3, (n, 2))
+    got = sk.end_extensions(xy, 15, 15)
+    want = _extend_ends_numpy(xy, 15)
+    # The same two runs of points (the ends may come in either order).
+    key = lambda p: tuple(np.round(p[0], 6))  # noqa: E731
+    assert sorted([got[:15], got[15:]], key=key)[0] == pytest.approx(
+        sorted([want[:15], want[15:]], key=key)[0], abs=1e-9)
+    assert sorted([got[:15], got[15:]], key=key)[1] == pytest.approx(
+        sorted([want[:15], want[15:]], key=key)[1], abs=1e-9)
+
+
 def test_tracked_frames_give_the_points_of_a_full_search(renderer) -> None:
     images = [renderer.render(33.0, i) for i in range(8)]
     params = StripeParams()
