@@ -87,6 +87,13 @@ class Measurement:
         """A measurement that carries only a failure status and its reason."""
         return cls(status=status, method=method, reason=reason, **kw)
 
+    @property
+    def stripe_px(self) -> np.ndarray | None:
+        """Where the stripe is, for the next frame to look near (and the camera's region to
+        follow): the centres of a fit that was made (``ok``, or refused only as
+        ``uncertain``), None when there was none."""
+        return self.points_px if self.status in (Status.OK, Status.UNCERTAIN) else None
+
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON-ready dict (no arrays); non-finite numbers become None."""
 

@@ -24,7 +24,7 @@ import numpy as np
 from drivers.camera.base import Camera, CameraError, Frame
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import RigGeometry
-from service.measure.result import Measurement, Method, Status
+from service.measure.result import Measurement, Method
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 from service.runtime.roi import KEEP, RegionFollower
 
@@ -136,7 +136,7 @@ class FramePipeline:
             self._follower = RegionFollower(sensor, self.roi_margin_px or 32)
         region = None if frame.origin is None else (
             *frame.origin, frame.image.shape[1], frame.image.shape[0])
-        points = m.points_px if m.status is Status.OK else None
+        points = m.stripe_px
         change = self._follower.update(points, region, time.monotonic())
         if change is KEEP:
             return
@@ -196,7 +196,7 @@ class FramePipeline:
                 continue
             finally:
                 self._slots.release()
-            self._near = m.points_px if m.status is Status.OK else None
+            self._near = m.stripe_px
             if self.roi_margin_px is not None and time.monotonic() > self._whole_until:
                 self._follow_stripe(frame, m, in_use)
             try:

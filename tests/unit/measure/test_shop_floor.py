@@ -187,3 +187,14 @@ def test_a_frame_whose_points_are_all_off_the_circle_is_refused_quietly(recwarn)
     m = measure_frame(img, g)
     assert m.status is Status.TOO_FEW_POINTS and "lie on one circle" in m.reason, m.reason
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_an_uncertain_frame_still_says_where_the_stripe_is() -> None:
+    """The next frame looks near it (and the camera's region follows it): a free circle
+    refused as uncertain frame after frame must not make every frame a full search."""
+    r = ShaftRenderer(RigConfig(), seed=4)
+    g = geometry_of(r.calibration)
+    m = measure_frame(r.render(30.0), g, Method.GEOMETRIC)
+    assert m.status is Status.UNCERTAIN and m.stripe_px is not None and len(m.stripe_px) > 100
+    blank = measure_frame(np.full((1024, 1376), 5, np.uint8), g)
+    assert blank.stripe_px is None
