@@ -176,15 +176,22 @@ def on_the_shaft(points: SectionPoints, params: MeasureParams,
                  known: tuple[np.ndarray, float] | None) -> SectionPoints:
     """The points of the circle that most points share, by whole chains: about the ``known``
     centre (section mm, its sigma mm) when there is one, else by RANSAC
-    (``service.measure.consensus``)."""
+    (``service.measure.consensus``) unless one algebraic circle through all of them already
+    holds nine in ten within ``consensus_mm`` (a clean frame: nothing to choose between)."""
     if len(points.section) < 3:
         return points
     if known is not None:
         window = params.consensus_mm + 3.0 * known[1]
         inside = consensus.ring_consensus(points.section, known[0], window)
     else:
-        inside = consensus.circle_consensus(points.section, params.consensus_mm,
-                                            params.max_diameter_mm / 2.0)
+        pre = fits.fit_hyper(points.section, uncertainty=False)
+        inside = np.zeros(len(points.section), bool)
+        if pre:
+            dist = np.hypot(*(points.section - pre.center).T) - pre.radius
+            inside = np.abs(dist) <= params.consensus_mm
+        if not inside.mean() >= 0.9:
+            inside = consensus.circle_consensus(points.section, params.consensus_mm,
+                                                params.max_diameter_mm / 2.0)
     keep = consensus.by_chain(inside, points.stripe.chain)
     return points if keep.all() else points.subset(keep)
 
