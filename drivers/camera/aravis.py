@@ -398,32 +398,34 @@ class AravisCamera(ThreadedCamera):
         parts = (session.camera, session.stream, session.device, session.handler_id)
         session.stream = session.camera = session.device = None
         if not self._stop.is_set():
-            self._release(parts, lost)
+            _release(parts, lost, self.device_id)
             return
         done = threading.Event()
-        threading.Thread(target=self._release, args=(parts, lost, done), daemon=True,
-                         name="camera-release").start()
+        threading.Thread(target=_release, args=(parts, lost, self.device_id, done),
+                         daemon=True, name="camera-release").start()
         del parts
         if not done.wait(_STOP_WAIT_S):
             log.info("camera %s did not answer its release within %g s (gone already?)",
                      self.device_id, _STOP_WAIT_S)
 
-    def _release(self, parts: tuple, lost: bool, done: threading.Event | None = None) -> None:
-        camera, stream, device, handler_id = parts
-        del parts
-        try:
-            if not lost:  # a lost camera would only make the command time out
-                try:
-                    camera.stop_acquisition()
-                except Exception as err:
-                    log.debug("stop_acquisition on %s: %s", self.device_id, _describe(err))
-            with contextlib.suppress(Exception):
-                device.disconnect(handler_id)
-            # Dropping the last references ends Aravis's stream and heartbeat threads.
-            del camera, stream, device
-        finally:
-            if done is not None:
-                done.set()
+def _release(parts: tuple, lost: bool, device_id: str,
+             done: threading.Event | None = None) -> None:
+    """Stop a connection's acquisition (unless the camera is lost: the command would only time
+    out) and drop its last references, which ends Aravis's stream and heartbeat threads."""
+    camera, stream, device, handler_id = parts
+    del parts
+    try:
+        if not lost:
+            try:
+                camera.stop_acquisition()
+            except Exception as err:
+                log.debug("stop_acquisition on %s: %s", device_id, _describe(err))
+        with contextlib.suppress(Exception):
+            device.disconnect(handler_id)
+        del camera, stream, device
+    finally:
+        if done is not None:
+            done.set()
 
 
 def _describe(err: Exception) -> str:
