@@ -16,9 +16,7 @@ Run: ``.venv/bin/python -m tests.bench.rig_range [--frames N] [--held-out] [--js
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -27,6 +25,7 @@ from service.measure.diameter import measure_frame
 from service.measure.fuse import fuse
 from service.measure.geometry import geometry_of
 from service.measure.result import Method
+from tests.bench.results import save_report
 
 ROWS: dict[str, dict[str, float]] = {
     "sheet 0.03 mm": {"sheet_sigma_mm": 0.03},
@@ -98,11 +97,7 @@ def main() -> None:
               f"{s['bias_um']:6.2f} {s['fused_mean_abs_um']:6.2f} {s['fused_max_abs_um']:9.2f} "
               f"{s['z_std']:6.2f}")
     report["seconds"] = time.perf_counter() - t0
-    path = Path(args.json or ("bench-results/rig_range" + ("_held_out" if args.held_out
-                                                            else "") + ".json"))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(report, indent=2))
-    print(f"\nWritten {path} ({report['seconds']:.0f} s)")
+    save_report(report, "rig_range", args.held_out, args.json)
 
 
 if __name__ == "__main__":

@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -28,6 +26,7 @@ from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import measure_frame
 from service.measure.geometry import geometry_of
 from service.measure.result import Method, Status
+from tests.bench.results import save_report
 
 DIAMETERS_MM = (21.7, 30.0, 44.0)
 METHODS = (Method.AXIS, Method.GEOMETRIC)
@@ -100,11 +99,7 @@ def main() -> None:
             print(f"{name:>12} {method:>9} {r['measured_pct']:7.1f}% {r['mean_abs_um']:8.2f} "
                   f"{r['max_abs_um']:7.1f} {r['over_limit']:5d}  {why}")
     report["seconds"] = time.perf_counter() - t0
-    path = Path(args.json or ("bench-results/robustness" + ("_held_out" if args.held_out
-                                                             else "") + ".json"))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(report, indent=2))
-    print(f"\nWritten {path} ({report['seconds']:.0f} s)")
+    save_report(report, "robustness", args.held_out, args.json)
 
 
 if __name__ == "__main__":
