@@ -63,6 +63,12 @@ class MeasureParams:
         A diameter whose standard uncertainty exceeds this is refused (``uncertain``): three
         of them must stay within 20 um, the most a frame may be off. A free circle on a short
         arc trades centre against radius and is often this uncertain; ``axis`` is not.
+    max_side_balance : float
+        A stripe whose centres' profiles are this lopsided (the median of
+        ``StripePoints.balance``; about 0.02 alone, 0.03-0.04 at low contrast or with a thick
+        sheet), beyond what the image noise makes of it, has a second line beside it, a
+        reflection, which pulls the centres toward it by up to tenths of a pixel: refused as
+        ``uncertain``.
     consensus_mm : float
         With ``axis`` and ``geometric``, section points farther than this from the circle that
         most points share (plus three sigmas of the axis prior, with ``axis``) are not the
@@ -80,6 +86,7 @@ class MeasureParams:
     sheet_correction: bool = True
     sheet_sigma_mm: float | None = None
     max_uncertainty_mm: float = 0.0065
+    max_side_balance: float = 0.05
     consensus_mm: float = 0.05
 
 
@@ -369,4 +376,26 @@ def measure_frame(
             Status.TOO_FEW_POINTS, method,
             f"{len(points.section)} stripe points, need {params.min_points}{why}",
             n_points=len(points.section), points_px=points.stripe.xy)
+    lopsided, limit = side_balance(points), side_balance_limit(points, params)
+    if lopsided > limit:
+        return Measurement.failed(
+            Status.UNCERTAIN, method,
+            f"the stripe's profile is lopsided (side balance {lopsided:.3f}, limit "
+            f"{limit:.3f}): a second line runs beside it, a reflection, and pulls its centres",
+            n_points=len(points.section), points_px=points.stripe.xy)
     return fit_section(points, geometry, method, params, center_prior)
+
+
+def side_balance(points: SectionPoints) -> float:
+    """The median lopsidedness of the points' profiles (0 when it was not measured)."""
+    b = points.stripe.balance
+    return float(np.median(np.abs(b))) if b is not None and len(b) else 0.0
+
+
+def side_balance_limit(points: SectionPoints, params: MeasureParams) -> float:
+    """``params.max_side_balance`` plus what the image noise alone makes of the median: each
+    balance is a mean of four differences of two bilinear samples, about 0.7 noise / height
+    in standard deviation, and the median of its magnitude 0.67 of that."""
+    st = points.stripe
+    height = float(np.median(st.peak)) if st.peak is not None and len(st.peak) else 0.0
+    return params.max_side_balance + (0.47 * st.noise / height if height > 0 else 0.0)

@@ -143,6 +143,9 @@ class StripePoints:
     chain : ndarray of int, shape (N,), or None
         Which chain of linked centres each belongs to (a label shared by the chain's points),
         once chains are formed (``keep_long_chains``).
+    balance : ndarray, shape (N,), or None
+        How lopsided each centre's profile is (``steger_kernels.side_balance``): a second
+        line beside the stripe, a reflection, pulls the centres toward it.
     """
 
     xy: np.ndarray
@@ -154,6 +157,7 @@ class StripePoints:
     reason: str = ""
     peak: np.ndarray | None = None
     chain: np.ndarray | None = None
+    balance: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -168,6 +172,7 @@ class StripePoints:
             self.background, self.noise, self.reason,
             None if self.peak is None else self.peak[keep],
             None if self.chain is None else self.chain[keep],
+            None if self.balance is None else self.balance[keep],
         )
 
     @classmethod
@@ -233,9 +238,12 @@ def steger_centres(
     # to ~0.02 px.
     x, y, nx, ny, strength, width, peak = kernels.refine_centres(
         roi, iy[ok], ix[ok], nx, ny, t, s, background, _HALF_PIXEL)
+    # A level cancels (one side less the other): the roi as it is.
+    balance = kernels.side_balance(roi, x, y, nx, ny, peak)
     return StripePoints(
         xy=np.column_stack([x + x0, y + y0]), normal=np.column_stack([nx, ny]),
-        strength=strength, width_px=width, background=background, noise=noise, peak=peak)
+        strength=strength, width_px=width, background=background, noise=noise, peak=peak,
+        balance=balance)
 
 
 def reject_weak(points: StripePoints, params: StripeParams) -> StripePoints:
