@@ -122,12 +122,19 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
 
     from calib_store.model import save_calibration
     from drivers.sim.control import serve_control
+    from drivers.sim.disturb import Disturbances
     from drivers.sim.gige import SimCameraSettings, SimGigECamera
+    from drivers.sim.rig import RigConfig
 
+    try:
+        spec = Disturbances.from_dict(json.loads(args.disturbances)) if args.disturbances \
+            else Disturbances()
+    except (ValueError, TypeError, AttributeError) as err:
+        return _fail(f"--disturbances: {err}")
     settings = SimCameraSettings(
         serial=args.serial, address=args.address, diameter_mm=args.diameter,
         drift_um_per_min=args.drift_um_per_min, fps=args.fps, lost_ratio=args.lost_ratio,
-        seed=args.seed, replay_frames=args.replay)
+        seed=args.seed, replay_frames=args.replay, rig=RigConfig(disturbances=spec))
     camera = SimGigECamera(settings)
     try:
         camera.start()
@@ -357,6 +364,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render a ring of N frames at start and only send them afterwards "
                    "(re-rendered in the background when the diameter changes); 0 renders "
                    "every frame")
+    p.add_argument("--disturbances", metavar="JSON",
+                   help="the shop floor's disturbances, e.g. '{\"glints\": {\"count\": 8}, "
+                   "\"ghost\": {\"gain\": 0.3}}' (drivers/sim/disturb.py; the control "
+                   "port's {\"set\": {\"disturbances\": ...}} changes them live)")
     p.add_argument("--control-port", type=int, default=0,
                    help="loopback TCP port of the JSON-lines control (0: any free port)")
     p.add_argument("--calibration-out", metavar="FILE",

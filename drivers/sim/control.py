@@ -1,9 +1,11 @@
 """A JSON-lines control port for a running simulated camera (loopback only).
 
 Requests, one JSON object per line: ``{"set": {"diameter_mm": 30.0, "drift_um_per_min": 5,
-"lost_ratio": 0.001, "fps": 10}}``, ``{"get": "stats"}``, or ``{"show": ...}`` for what the
-camera looks at: ``"shaft"``, a shot of the simulated calibration session by name
-(``{"show": {"shot": "view_00"}}``; ``{"get": "shots"}`` lists them), or a board set up by hand
+"lost_ratio": 0.001, "fps": 10}}``, ``{"set": {"disturbances": {"ghost": {"gain": 0.3}}}}``
+(the shop floor's disturbances, ``drivers.sim.disturb``; ``{}`` for none),
+``{"get": "stats"}``, or ``{"show": ...}`` for what the camera looks at: ``"shaft"``, a shot
+of the simulated calibration session by name (``{"show": {"shot": "view_00"}}``;
+``{"get": "shots"}`` lists them), or a board set up by hand
 (``{"show": {"tilt_x_deg": 20, "distance_mm": 380, "laser": true}}``, or ``"rotation_deg"`` for
 the board between the centres), with ``"board": "11x8x8"`` optional. Every reply is one line:
 ``{"ok": true, "stats": {...}}`` or ``{"ok": false, "error": "..."}``.
@@ -18,6 +20,7 @@ import threading
 from typing import Any
 
 from drivers.sim.board import Board, Shot, session_shots
+from drivers.sim.disturb import Disturbances
 from drivers.sim.gige import SimGigECamera
 
 _SETTERS = ("diameter_mm", "drift_um_per_min", "lost_ratio", "fps")
@@ -66,10 +69,17 @@ def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
             changes = request["set"]
             if not isinstance(changes, dict) or not changes:
                 raise ValueError("'set' takes an object of settings")
-            unknown = set(changes) - set(_SETTERS)
+            unknown = set(changes) - set(_SETTERS) - {"disturbances"}
             if unknown:
-                raise ValueError(f"unknown settings {sorted(unknown)}; known: {_SETTERS}")
-            values = {k: float(v) for k, v in changes.items()}
+                raise ValueError(f"unknown settings {sorted(unknown)}; known: "
+                                 f"{(*_SETTERS, 'disturbances')}")
+            if "disturbances" in changes:
+                spec = changes["disturbances"]
+                if not isinstance(spec, dict):
+                    raise ValueError("'disturbances' takes an object, e.g. "
+                                     "{\"ghost\": {\"gain\": 0.3}}; {} for none")
+                camera.set_disturbances(Disturbances.from_dict(spec))
+            values = {k: float(v) for k, v in changes.items() if k != "disturbances"}
             if "diameter_mm" in values or "drift_um_per_min" in values:
                 camera.set_diameter(values.get("diameter_mm", camera.current_diameter()),
                                     values.get("drift_um_per_min"))

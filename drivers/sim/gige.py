@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.sim.board import Board, BoardRenderer, Shot
+from drivers.sim.disturb import Disturbances
 from drivers.sim.replay import FrameRing, crop, min_frame_period_us
 from drivers.sim.rig import RigConfig, ShaftRenderer
 
@@ -177,6 +178,17 @@ class SimGigECamera:
             if drift_um_per_min is not None:
                 self.settings.drift_um_per_min = float(drift_um_per_min)
 
+    def set_disturbances(self, spec: Disturbances) -> None:
+        """Show the shop floor's disturbances (``drivers.sim.disturb``; ``Disturbances()`` for
+        none) from the next frame rendered on; a replay ring is rendered again."""
+        renderer = ShaftRenderer(self.settings.rig.with_(disturbances=spec),
+                                 seed=self.settings.seed)
+        with self._lock:
+            self.settings.rig = renderer.config
+            self.renderer = renderer
+        if self._ring is not None:
+            self._ring.set_renderer(renderer)
+
     def current_diameter(self) -> float:
         """The diameter being rendered now, mm (with the drift so far)."""
         with self._lock:
@@ -225,6 +237,7 @@ class SimGigECamera:
                 "scene": self.scene(), "region": [x, y, w, h],
                 "frame_period_us": self._written_period_us,
                 "replay_frames": self.settings.replay_frames,
+                "disturbances": bool(self.settings.rig.disturbances),
                 "rerendered": self._ring.rerendered if self._ring else 0}
 
     # ---- sensor -------------------------------------------------------------------------

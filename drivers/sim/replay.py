@@ -14,6 +14,7 @@ rate rise as rows are taken away, as a real CMOS sensor's does.
 
 from __future__ import annotations
 
+import math
 import threading
 import zlib
 from collections.abc import Callable
@@ -102,6 +103,13 @@ class FrameRing:
             done += 1
         self.rerendered += done
         return done
+
+    def set_renderer(self, renderer: ShaftRenderer) -> None:
+        """Render with ``renderer`` from now on; every frame is rendered again (``refresh``),
+        those to be sent next first."""
+        with self._lock:
+            self.renderer = renderer
+            self._shown = [math.inf] * self.size
 
     def take(self) -> tuple[np.ndarray, int]:
         """The next frame to send (not to be written to) and its slot."""

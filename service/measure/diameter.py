@@ -371,7 +371,7 @@ def measure_frame(
     points = drop_grazing(points, geometry, params, None if known is None else known[0])
     if len(points.section) < params.min_points:
         why = "" if on_circle == found else \
-            f" ({on_circle} of the {found} found lie on one circle about the shaft's axis)"
+            f" ({on_circle} of the {found} found lie on one circle, the shaft's)"
         return Measurement.failed(
             Status.TOO_FEW_POINTS, method,
             f"{len(points.section)} stripe points, need {params.min_points}{why}",

@@ -154,6 +154,25 @@ def test_plc_stopped_and_restarted(rig: Rig) -> None:
     assert_alive_and_nothing_written_from_bad(rig)
 
 
+def test_a_reflection_beside_the_stripe_holds_the_offsets(rig: Rig) -> None:
+    """A ghost of the stripe 3 px to its side (a reflection) pulls its centres by tens of
+    micrometres while the fit stays confident: the frames are refused as uncertain, saying
+    why, and an offset that falls due meanwhile is not written; once the reflection is gone,
+    it is."""
+    ghost = {"ghost": {"gain": 0.3, "offset_px": [3.0, 0.0], "blur_px": 1.5}}
+    assert control(rig.camera.control_port, {"set": {"disturbances": ghost}})["ok"]
+    until(lambda: any("lopsided" in p["text"] for p in rig.status()["problems"]), 20,
+          "the reflection is reported")
+    latest = rig.svc.get("/api/v1/measurements/latest").json()
+    assert latest["status"] == "uncertain" and latest["diameter_mm"] is None, latest
+    control(rig.camera.control_port, {"set": {"diameter_mm": 30.012}})  # the part wore
+    time.sleep(4.0)
+    assert rig.applied() == []
+    assert control(rig.camera.control_port, {"set": {"disturbances": {}}})["ok"]
+    until(lambda: rig.applied(), 40, "the due offset is written once the reflection is gone")
+    assert_alive_and_nothing_written_from_bad(rig)
+
+
 @pytest.fixture
 def fast_camera_rig(tmp_path, sim_plc_factory) -> Iterator[Rig]:
     """The rig with a camera that replays a ring of frames: it streams at its sensor's rate,

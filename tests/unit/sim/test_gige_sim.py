@@ -63,3 +63,18 @@ def test_shows_a_calibration_board_instead_of_the_shaft() -> None:
                        ({"show": {"shot": "view_00", "laser": True}}, "no other fields")]:
         reply = apply_request(cam, bad)
         assert not reply["ok"] and words in reply["error"], (bad, reply)
+
+
+def test_disturbances_are_set_live_and_named_when_wrong() -> None:
+    cam = SimGigECamera(SimCameraSettings(diameter_mm=30.0, seed=3))
+    clean = cam._render_next()
+    reply = apply_request(cam, {"set": {"disturbances": {"glints": {"count": 12}}}})
+    assert reply["ok"] and reply["stats"]["disturbances"] is True
+    glinted = cam._render_next()
+    assert (glinted == 255).sum() > (clean == 255).sum()
+    assert apply_request(cam, {"set": {"disturbances": {}}})["stats"]["disturbances"] is False
+    for bad, words in [({"set": {"disturbances": {"smoke": {}}}}, "unknown disturbance"),
+                       ({"set": {"disturbances": {"glints": {"colour": 1}}}}, "unknown glints"),
+                       ({"set": {"disturbances": 3}}, "takes an object")]:
+        reply = apply_request(cam, bad)
+        assert not reply["ok"] and words in reply["error"], (bad, reply)

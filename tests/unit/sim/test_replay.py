@@ -36,3 +36,12 @@ def test_crop_and_readout_time() -> None:
     # Fewer rows, a shorter frame period: a higher frame rate.
     assert min_frame_period_us(1024) > 2 * min_frame_period_us(400)
     assert 1e6 / min_frame_period_us(1024) < 170
+
+
+def test_a_new_renderer_renders_the_whole_ring_again() -> None:
+    ring = FrameRing(ShaftRenderer(RigConfig(image_size=(320, 240)), seed=1), 3, lambda: 30.0)
+    ring.fill()
+    stop = threading.Event()
+    assert ring.refresh(stop) == 0
+    ring.set_renderer(ShaftRenderer(RigConfig(image_size=(320, 240), ambient_dn=40.0), seed=1))
+    assert ring.refresh(stop) == 3
