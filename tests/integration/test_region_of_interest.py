@@ -62,6 +62,7 @@ def test_region_follows_the_stripe_and_comes_back_after_a_loss(sim_camera_factor
         whole = [f for f in take_frames(cam, 8) if f.origin is None]
         assert len(whole) == 8 and all(f.image.shape == (1024, 1376) for f in whole)
         full_rate = delivered_per_s(cam)
+        full_period_us = control(sim.control_port, {"get": "stats"})["stats"]["frame_period_us"]
         full = [measure_frame(f.image, geometry) for f in whole]
         assert all(m.status is Status.OK for m in full)
 
@@ -90,9 +91,14 @@ def test_region_follows_the_stripe_and_comes_back_after_a_loss(sim_camera_factor
         per_slot = [float(np.mean(v)) for v in diffs.values()]
         assert abs(np.mean(per_slot)) < 1.0, per_slot   # um
         assert max(abs(v) for v in per_slot) < 2.0, per_slot
-        # Fewer rows, more frames per second (the sensor's readout limits the whole frame).
+        # Fewer rows, more frames per second: the sensor's readout limits the whole frame (6 us
+        # a row: 6344 us) and no longer the region (the 250 fps asked for: 4000 us); what
+        # arrives follows, less what two shared cores lose on loopback.
+        roi_period_us = control(sim.control_port, {"get": "stats"})["stats"]["frame_period_us"]
+        assert full_period_us == 6 * 1024 + 200 and roi_period_us == 4000, (full_period_us,
+                                                                           roi_period_us)
         roi_rate = delivered_per_s(cam)
-        assert roi_rate > 1.4 * full_rate, (roi_rate, full_rate)
+        assert roi_rate > 1.25 * full_rate, (roi_rate, full_rate)
 
         # The laser is blocked (the camera sees a board without the stripe): back to the
         # whole sensor, and to the stripe's region once it is back.
