@@ -171,6 +171,10 @@ class MeasurementSettings(_Section):
 
     method: Method = Method.AXIS
     workers: int = Field(2, ge=1, le=32)
+    max_rate_hz: float | None = Field(None, gt=0)
+    """At most this many frames a second are measured (a CPU budget on a shared PC); the
+    camera's frames beyond it are dropped from its queue and counted. None: as many as the
+    cores measure."""
     history: int = Field(20000, ge=10, le=10_000_000)
     fuse_frames: int = Field(10, ge=1, le=1000)
     axis_sigma_mm: float = Field(0.001, gt=0, le=1.0)

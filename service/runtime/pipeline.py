@@ -53,13 +53,19 @@ class FramePipeline:
     roi_margin_px : int or None
         The camera's region of interest follows the stripe with this margin; None reads the
         whole sensor.
+    max_rate_hz : float or None
+        At most this many frames a second are taken from the camera's queue (the rest are
+        dropped there, oldest first, and counted); None takes them as fast as they are
+        measured.
     """
 
     def __init__(self, camera: Camera, context: CalibrationContext, method: Method,
                  params: MeasureParams, workers: int, on_result: OnResult,
-                 roi_margin_px: int | None = None) -> None:
+                 roi_margin_px: int | None = None, max_rate_hz: float | None = None) -> None:
         self.camera, self.context = camera, context
         self.roi_margin_px = roi_margin_px
+        self._min_interval_s = 0.0 if not max_rate_hz else 1.0 / max_rate_hz
+        self._next_take = 0.0
         self._follower: RegionFollower | None = None
         self._whole_until = 0.0
         # The free circle for the axis tracker is fitted at most FREE_FIT_HZ times a second:
@@ -156,6 +162,9 @@ class FramePipeline:
             await self._slots.acquire()
             submitted = False
             try:
+                if self._min_interval_s:  # the measuring rate's cap: wait for the next turn
+                    await asyncio.sleep(max(0.0, self._next_take - loop.time()))
+                    self._next_take = max(self._next_take, loop.time()) + self._min_interval_s
                 frame = await loop.run_in_executor(self._intake_pool, self.camera.get_frame,
                                                    0.25)
                 if frame is None:
