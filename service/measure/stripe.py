@@ -271,7 +271,8 @@ def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int,
     if len(points) == 0:
         return points
     labels = kernels.chain_labels(points.xy, float(gap_px))
-    keep = kernels.chain_sizes(labels) >= min_chain
+    sizes = kernels.chain_sizes(labels)
+    keep = sizes >= min_chain
     if keep.any():
         order = np.argsort(labels, kind="stable")
         lab, xy = labels[order], points.xy[order]
@@ -284,7 +285,7 @@ def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int,
         if patch.any():
             is_patch = np.zeros(len(lab), bool)
             is_patch[order] = np.repeat(patch, counts)
-            long_line = (kernels.chain_sizes(labels) >= 5 * min_chain) & ~is_patch
+            long_line = (sizes >= 5 * min_chain) & ~is_patch
             is_patch &= keep
             if is_patch.any() and long_line.any():
                 near, _ = cKDTree(points.xy[long_line]).query(points.xy[is_patch],

@@ -92,14 +92,21 @@ def start_rig(tmp: Path, sim_plc_factory, data: Path | None = None,
     return rig
 
 
-@pytest.fixture
-def rig(tmp_path, sim_plc_factory) -> Iterator[Rig]:
-    r = start_rig(tmp_path, sim_plc_factory)
+@contextlib.contextmanager
+def running_rig(tmp_path: Path, sim_plc_factory, **kw) -> Iterator[Rig]:
+    """``start_rig(**kw)``, stopped afterwards."""
+    r = start_rig(tmp_path, sim_plc_factory, **kw)
     try:
         yield r
     finally:
         stop_service(r.svc)
         r.camera.stop()
+
+
+@pytest.fixture
+def rig(tmp_path, sim_plc_factory) -> Iterator[Rig]:
+    with running_rig(tmp_path, sim_plc_factory) as r:
+        yield r
 
 
 def assert_alive_and_nothing_written_from_bad(rig: Rig) -> None:
@@ -176,15 +183,11 @@ def test_a_reflection_beside_the_stripe_holds_the_offsets(rig: Rig) -> None:
 
 @pytest.fixture
 def fast_camera_rig(tmp_path, sim_plc_factory) -> Iterator[Rig]:
-    """The rig with a camera that replays a ring of frames: it streams at its sensor's rate,
-    not at the rate it can render frames on cores it shares with the service."""
-    r = start_rig(tmp_path, sim_plc_factory, camera_extra=("--replay", "16"),
-                  extra_toml="[measurement]\nmax_rate_hz = 20\n")
-    try:
+    """The rig with a camera that replays a ring of frames (it streams at its sensor's rate,
+    not at the rate it renders) and a service that measures at most 20 frames a second."""
+    with running_rig(tmp_path, sim_plc_factory, camera_extra=("--replay", "16"),
+                     extra_toml="[measurement]\nmax_rate_hz = 20\n") as r:
         yield r
-    finally:
-        stop_service(r.svc)
-        r.camera.stop()
 
 
 def test_slow_consumer(fast_camera_rig: Rig) -> None:
