@@ -20,6 +20,7 @@ import concurrent.futures
 import contextlib
 import json
 import logging
+import math
 import queue
 import sqlite3
 import threading
@@ -51,6 +52,20 @@ CREATE TABLE IF NOT EXISTS compensation_state (
     id INTEGER PRIMARY KEY CHECK (id = 1),
     state TEXT NOT NULL
 );
+CREATE TABLE IF NOT EXISTS measurements (
+    seq INTEGER PRIMARY KEY,
+    wall_time REAL NOT NULL,
+    status TEXT NOT NULL,
+    diameter_mm REAL,
+    uncertainty_mm REAL,
+    fused_diameter_mm REAL,
+    deviation_mm REAL,
+    in_tolerance INTEGER,
+    calibration_id INTEGER,
+    nominal_mm REAL,
+    tol_lower_mm REAL,
+    tol_upper_mm REAL
+);
 CREATE TABLE IF NOT EXISTS gauge_values (
     key TEXT PRIMARY KEY,
     value TEXT NOT NULL
@@ -64,7 +79,11 @@ _INDEXES = """
 CREATE INDEX IF NOT EXISTS compensation_decisions_kind ON compensation_decisions (kind, id);
 CREATE INDEX IF NOT EXISTS compensation_decisions_last_time
     ON compensation_decisions (last_time);
+CREATE INDEX IF NOT EXISTS measurements_time ON measurements (wall_time);
 """
+MEASUREMENT_COLUMNS = ("seq", "wall_time", "status", "diameter_mm", "uncertainty_mm",
+                       "fused_diameter_mm", "deviation_mm", "in_tolerance", "calibration_id",
+                       "nominal_mm", "tol_lower_mm", "tol_upper_mm")
 _COLUMNS = ("id", "wall_time", "last_time", "count", "kind", "code", "reason", "who",
             "measurement_seq", "last_measurement_seq", "deviation_mm", "filtered_mm",
             "offset_mm", "offset_seq", "before_mm", "after_mm", "shadow")
@@ -80,13 +99,15 @@ class LogRetention:
     max_age_days: float = 365.0
     max_rows: int = 1_000_000
     prune_every_s: float = 60.0
+    max_measurements: int = 2_000_000
+    """Archived measurements kept (the oldest go first)."""
 
 
 @dataclass
 class _Item:
     """One unit of work for the writer thread."""
 
-    kind: str  # "decision", "value", "barrier"
+    kind: str  # "decision", "value", "measurement", "barrier"
     payload: Any
     future: concurrent.futures.Future | None
 
@@ -162,6 +183,22 @@ class CompensationLog:
     def put_value(self, key: str, value: Any) -> None:
         """Store a JSON-ready value under ``key`` and wait until it is committed."""
         self.submit_value(key, value).result()
+
+    def submit_measurement(self, row: dict[str, Any]) -> None:
+        """Queue one measurement for the archive (a dict with ``MEASUREMENT_COLUMNS``)."""
+        self._put(_Item("measurement", tuple(row.get(c) for c in MEASUREMENT_COLUMNS), None))
+
+    def measurements(self, from_time: float | None = None, to_time: float | None = None,
+                     limit: int = 1_000_000) -> list[dict[str, Any]]:
+        """Archived measurements between two wall-clock times (Unix s, inclusive), oldest
+        first."""
+        lo = -math.inf if from_time is None else from_time
+        hi = math.inf if to_time is None else to_time
+        with self._read_lock:
+            rows = self._read.execute(
+                f"SELECT {', '.join(MEASUREMENT_COLUMNS)} FROM measurements WHERE wall_time "
+                "BETWEEN ? AND ? ORDER BY seq LIMIT ?", (lo, hi, limit)).fetchall()
+        return [dict(zip(MEASUREMENT_COLUMNS, r, strict=True)) for r in rows]
 
     def flush(self, timeout_s: float = 2.0) -> bool:
         """Wait until everything submitted so far is written (False: not within the time)."""
@@ -268,6 +305,11 @@ class CompensationLog:
                     if item.kind == "decision":
                         decision, wall_time, state, quiet = item.payload
                         self._insert(decision, wall_time, quiet, runs)
+                    elif item.kind == "measurement":
+                        self._db.execute(
+                            f"INSERT OR REPLACE INTO measurements "
+                            f"({', '.join(MEASUREMENT_COLUMNS)}) VALUES "
+                            f"({','.join('?' * len(MEASUREMENT_COLUMNS))})", item.payload)
                     elif item.kind == "value":
                         self._db.execute("INSERT OR REPLACE INTO gauge_values (key, value) "
                                          "VALUES (?, ?)", item.payload)
@@ -291,7 +333,8 @@ class CompensationLog:
                 if item.kind != "barrier":
                     keep.append(_Item(item.kind, item.payload, None))
             if len(keep) > MAX_BACKLOG:  # keep the significant ones, drop the oldest quiet
-                quiet = [i for i in keep if i.kind == "decision" and i.payload[3]]
+                quiet = [i for i in keep if i.kind == "measurement"
+                         or (i.kind == "decision" and i.payload[3])]
                 excess = quiet[:len(keep) - MAX_BACKLOG]
                 self.dropped += len(excess)
                 drop = {id(i) for i in excess}
@@ -345,4 +388,6 @@ class CompensationLog:
         self._db.execute("DELETE FROM compensation_decisions WHERE id <= (SELECT id FROM "
                          "compensation_decisions ORDER BY id DESC LIMIT 1 OFFSET ?)",
                          (r.max_rows,))
+        self._db.execute("DELETE FROM measurements WHERE seq <= (SELECT seq FROM measurements "
+                         "ORDER BY seq DESC LIMIT 1 OFFSET ?)", (r.max_measurements,))
         return True

@@ -11,6 +11,7 @@ APT_PACKAGES=(
   mbpoll                                                # independent Modbus client for tests
   faketime                                              # wall-clock jumps in the fault suite
   chromium                                              # browser tests (never downloaded)
+  mosquitto mosquitto-clients                           # the plant's MQTT broker in tests
 )
 
 missing=()

@@ -164,6 +164,11 @@ class StoreSettings(_Section):
     log_max_rows: int = Field(1_000_000, ge=1000)
     """At most this many rows of compensation decisions are kept (the oldest go first; a run
     of identical quiet decisions is one row)."""
+    archive_hz: float = Field(1.0, ge=0, le=100)
+    """Measurements kept for the quality export (``/api/v1/export/aqdef``): at most this
+    many a second (the latest record, with its fused value); 0: none."""
+    archive_max_rows: int = Field(2_000_000, ge=1000)
+    """At most this many archived measurements (the oldest go first)."""
 
 
 class MeasurementSettings(_Section):
@@ -206,6 +211,63 @@ class TemperatureSettings(_Section):
     alpha_per_k: float = Field(11.5e-6, ge=0, lt=1e-3)
 
 
+class MqttSettings(_Section):
+    """The plant's MQTT broker (``deploy/mqtt.md``): on when ``host`` is set."""
+
+    host: str | None = None
+    port: int = Field(1883, ge=1, le=65535)
+    gauge_id: str | None = None
+    """This gauge's name in the plant (topics, payloads); None: the host name."""
+    topic_prefix: str | None = None
+    """None: ``shaftgauge/<gauge_id>``."""
+    client_id: str | None = None
+    """None: ``shaftgauge-<gauge_id>`` (stable, so the broker knows the gauge again)."""
+    username: str | None = None
+    password: str | None = None
+    """Set them in the environment (``SHAFTGAUGE_MQTT__PASSWORD``), not in the file."""
+    tls_ca: Path | None = None
+    """The CA that signed the broker's certificate: TLS on when set."""
+    tls_cert: Path | None = None
+    tls_key: Path | None = None
+    """This gauge's client certificate and key, for brokers that ask for one."""
+    qos_measurement: Literal[0, 1, 2] = 0
+    qos_decision: Literal[1, 2] = 1
+    qos_state: Literal[0, 1, 2] = 1
+    measurement_hz: float = Field(10.0, gt=0, le=1000)
+    health_s: float = Field(10.0, gt=0)
+    decision_repeat_s: float = Field(10.0, ge=0)
+    """A quiet decision (held, refused, proposed) that repeats the previous one's kind and
+    code is sent again at most this often (with the count of repeats); every other decision
+    is sent."""
+    outbox_max: int = Field(100_000, ge=10)
+    """Decisions kept for the broker while it is away; past this the oldest are dropped
+    (counted, and a problem reported)."""
+    keepalive_s: int = Field(15, ge=5, le=3600)
+    reconnect_s: float = Field(2.0, gt=0, le=300)
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> MqttSettings:
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ValueError("tls_cert and tls_key: give both or neither")
+        return self
+
+
+class OpcUaSettings(_Section):
+    """The OPC UA server (``deploy/opcua.md``)."""
+
+    enabled: bool | None = None
+    """None: on for the embedded default (a simulated camera), off on an installation."""
+    host: str = "127.0.0.1"
+    port: int = Field(4840, ge=1, le=65535)
+    technicians: dict[str, str] = Field(default_factory=dict)
+    """User name -> password of the users with the technician role (may call ``MeasureNow``
+    and ``ResetCompensation``); anonymous users read and subscribe only. Set it in the
+    environment: ``SHAFTGAUGE_OPCUA__TECHNICIANS='{"anna": "..."}'``."""
+    certificate_dir: Path | None = None
+    """Where the server's certificate and key are kept (made on first start); None: beside
+    the store."""
+
+
 # The compensation settings are the controller's own dataclass, validated here at the edge
 # (types, and no unknown keys); their consistency is checked by the controller when it starts.
 CompensationSettings.__pydantic_config__ = ConfigDict(extra="forbid")  # type: ignore[attr-defined]
@@ -225,6 +287,8 @@ class Settings(BaseSettings):
     measurement: MeasurementSettings = MeasurementSettings()
     temperature: TemperatureSettings = TemperatureSettings()
     compensation: CompensationSettings = CompensationSettings()
+    mqtt: MqttSettings = MqttSettings()
+    opcua: OpcUaSettings = OpcUaSettings()
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
     @model_validator(mode="after")

@@ -41,6 +41,7 @@ from service.runtime.gauge import Gauge
 from service.runtime.health import HealthReport
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
+from service.runtime.plant import make_plant_links
 from service.runtime.publish import Publisher
 
 log = logging.getLogger("shaftgauge.serve")
@@ -188,8 +189,10 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     sessions = CalibrationSessions(settings.store.path.parent / "calibration-sessions",
                                    api.max_calibration_sessions, api.max_session_images,
                                    api.session_expiry_h)
+    plant = make_plant_links(settings, feed, compensation, camera, writer, comp_log, health)
+    health.plant = plant
     return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
-                 sessions, writer, comp_log)
+                 sessions, writer, comp_log, plant)
 
 
 class _Server(uvicorn.Server):

@@ -13,11 +13,12 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
-from service.api import calibrations, compensation, master, measurements, sessions
+from service.api import calibrations, compensation, export, master, measurements, sessions
 from service.api.auth import reader
 from service.api.limits import BodyLimit
 from service.api.metrics import metrics_text
 from service.api.models import ERRORS
+from service.plant.mqtt import gauge_identity
 from service.runtime import Gauge
 
 WEB = Path(__file__).resolve().parent.parent / "web"
@@ -62,6 +63,8 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
                                      g.settings.measurement, keys))
     api.include_router(sessions.router(g.sessions, g.context, g.compensation, g.pipeline,
                                        keys))
+    api.include_router(export.router(g.log, gauge_identity(g.settings.mqtt)[0],
+                                     g.context.store_error))
 
     @api.get("/status", tags=["system"], summary="Camera, PLC, pipeline, calibration, "
              "compensation")

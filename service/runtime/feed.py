@@ -10,6 +10,7 @@ import logging
 import sqlite3
 import statistics
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -111,6 +112,12 @@ class MeasurementFeed:
         self._times: collections.deque[float] = collections.deque(maxlen=2000)
         self.latency_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self.counters: collections.Counter[str] = collections.Counter()
+        self._listeners: list[Callable[[MeasurementRecord], None]] = []
+
+    def on_publish(self, listener: Callable[[MeasurementRecord], None]) -> None:
+        """Call ``listener(record)`` for every record published (on the loop; keep it short:
+        it is on the frame's path)."""
+        self._listeners.append(listener)
 
     def fused(self, m: Measurement) -> Measurement | None:
         """Add a measurement to the fusion window; the fused value once it holds three."""
@@ -132,6 +139,8 @@ class MeasurementFeed:
         self._times.append(time.monotonic())
         self.latency_ms.append((time.monotonic_ns() - frame.received_ns) / 1e6)
         self.subscribers.publish(record)
+        for listener in self._listeners:
+            listener(record)
 
     def measurement_age_s(self) -> float | None:
         """Seconds since the latest measurement was published."""

@@ -18,6 +18,7 @@ from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
+from service.runtime.plant import PlantLink
 
 
 @dataclass
@@ -35,6 +36,7 @@ class Gauge:
     sessions: CalibrationSessions
     writer: OffsetWriter | None = None
     log: CompensationLog | None = None
+    plant: list[PlantLink] = field(default_factory=list)
     _tasks: list[asyncio.Task] = field(default_factory=list)
 
     async def start(self) -> None:
@@ -51,6 +53,7 @@ class Gauge:
             loop.create_task(comp.follow_master_gate(
                 lambda: self.context.master_status()["blocking"]), name="master-gate"),
             *await self.modbus.start(self.health.snapshot, self.health.healthy),
+            *(loop.create_task(link.run(), name=link.name) for link in self.plant),
         ]
         self.health.running = True
 
@@ -63,6 +66,8 @@ class Gauge:
         self._tasks = []
         await self.pipeline.stop()
         await self.modbus.stop()
+        for link in self.plant:
+            await link.close()
         if self.writer is not None:
             await self.writer.close()
         if self.log is not None:

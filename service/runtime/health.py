@@ -41,6 +41,7 @@ class HealthReport:
         self.writer, self.modbus = writer, modbus
         self.started = time.time()
         self.running = False
+        self.plant: list[Any] = []  # service.runtime.plant.PlantLink, set by the gauge
 
     def _fresh(self) -> bool:
         age = self.feed.measurement_age_s()
@@ -89,7 +90,18 @@ class HealthReport:
         if comp.controller.writes_blocked:
             out.append(Problem("offsets_blocked",
                                f"offsets blocked: {comp.controller.writes_blocked}"))
+        out += [Problem(code, text) for link in self.plant for code, text in link.problems()]
         return out
+
+    def summary(self) -> dict[str, Any]:
+        """The short health a plant system watches (MQTT ``health``), JSON-ready."""
+        latest, cam = self.feed.latest, self.camera.status()
+        return {"healthy": self.healthy(), "problems": [p.as_dict() for p in self.problems()],
+                "uptime_s": time.time() - self.started, "camera": cam.state.value,
+                "rate_hz": self.feed.rate_hz(),
+                "latest_status": None if latest is None else latest.status,
+                "compensation": self.compensation.state.value,
+                "calibration_id": None if latest is None else latest.calibration_id}
 
     def snapshot(self) -> StatusSnapshot:
         """The registers' view of the moment."""
@@ -147,6 +159,7 @@ class HealthReport:
             "compensation": comp.status(),
             "master": ctx.master_status(),
             "temperature": {"part_temp_c": comp.part_temp_c, "alpha_per_k": comp.alpha_per_k},
+            "plant": {link.name: link.status() for link in self.plant},
         }
 
     def _plc(self) -> dict[str, Any] | None:

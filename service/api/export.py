@@ -1,0 +1,46 @@
+"""Exports for the quality department: the archived measurements as a Q-DAS AQDEF file."""
+
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query
+from fastapi.responses import Response
+
+from calib_store.compensation_log import CompensationLog
+from service.plant.aqdef import from_archive
+
+MAX_ROWS = 1_000_000
+Text = Annotated[str, Query(min_length=1, max_length=80, pattern=r"^[^\r\n\t]+$")]
+
+
+def router(log: CompensationLog | None, gauge_id: str, store_error: str) -> APIRouter:
+    """Reads the measurement archive (``store.archive_hz`` values a second are kept)."""
+    r = APIRouter(tags=["export"])
+
+    @r.get("/export/aqdef", summary="Archived measurements as a Q-DAS ASCII transfer file",
+           response_class=Response, responses={200: {"content": {"text/plain": {}}}})
+    async def aqdef(
+        from_: Annotated[dt.datetime | None, Query(alias="from", description=(
+            "ISO 8601 (a time without a zone is UTC); default: the first kept"))] = None,
+        to: Annotated[dt.datetime | None, Query(description="ISO 8601; default: now")] = None,
+        part: Text = "shaft", characteristic: Text = "diameter",
+    ) -> Response:
+        if log is None:
+            raise HTTPException(503, f"the measurement archive cannot be used: {store_error}")
+        lo, hi = (None if t is None else (t if t.tzinfo else t.replace(tzinfo=dt.UTC))
+                  .timestamp() for t in (from_, to))
+        if lo is not None and hi is not None and lo > hi:
+            raise HTTPException(422, f"from ({from_.isoformat()}) is after to "
+                                f"({to.isoformat()})")
+        rows = await asyncio.to_thread(log.measurements, lo, hi, MAX_ROWS)
+        text = from_archive(rows, gauge_id, part, characteristic)
+        name = f"shaftgauge-{gauge_id}-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.dfq"
+        return Response(text.encode("latin-1", "replace"),
+                        media_type="text/plain; charset=iso-8859-1",
+                        headers={"Content-Disposition": f'attachment; filename="{name}"',
+                                 "X-Values": str(sum(1 for x in text.split("\r\n")
+                                                     if x.startswith("K0001")))})
+    return r

@@ -1,0 +1,123 @@
+"""Measurements as a Q-DAS ASCII transfer file (AQDEF, "DFQ"): pure text, no I/O.
+
+The file is K-field lines, ``K<field>[/<characteristic>] <value>``: the part (K1001 number,
+K1002 description), the characteristic (K2001 number, K2002 description, K2022 decimal
+places, K2101 nominal, K2110/K2111 lower/upper specification limits, K2142 unit) and K0100
+(the number of characteristics), then per measurement a value line ``K0001/1`` followed by
+its fields: K0004 date and time (``dd.mm.yyyy/HH:MM:SS``, the gauge's local time), K0005
+events (0: none), K0006 batch (here: the calibration the value was measured with, ``cal<id>``),
+K0008 operator (the gauge: it measures unattended), K0012 gauge (test equipment) and K0014
+part ident (the gauge's measurement sequence number). Values and limits in mm with a decimal
+point; text fields without line breaks.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class AqdefPart:
+    """The header of a transfer file: what was measured, against what.
+
+    Parameters
+    ----------
+    part_number, part_description : str
+        K1001, K1002.
+    characteristic_number, characteristic_description : str
+        K2001, K2002.
+    nominal_mm, lower_limit_mm, upper_limit_mm : float or None
+        K2101, K2110, K2111 (absolute limits, mm); None: left out.
+    gauge_id : str
+        K0012 (and K0008) of every value.
+    decimals : int
+        K2022, and the decimals written (4: 0.1 um).
+    """
+
+    part_number: str
+    part_description: str
+    characteristic_number: str
+    characteristic_description: str
+    nominal_mm: float | None
+    lower_limit_mm: float | None
+    upper_limit_mm: float | None
+    gauge_id: str
+    decimals: int = 4
+
+
+@dataclass(frozen=True)
+class AqdefValue:
+    """One measured value (mm) of one part at ``time_s`` (Unix seconds)."""
+
+    value_mm: float
+    time_s: float
+    part_ident: str
+    batch: str = ""
+
+
+def _text(s: str) -> str:
+    return " ".join(str(s).split())  # one line, no tabs
+
+
+def aqdef_lines(part: AqdefPart, values: Iterable[AqdefValue]) -> list[str]:
+    """The transfer file's lines (without line ends).
+
+    A value that is not finite is left out (a transfer file has no "not a number").
+    """
+    fmt = f"{{:.{part.decimals}f}}"
+    out = ["K0100 1", f"K1001 {_text(part.part_number)}",
+           f"K1002 {_text(part.part_description)}",
+           f"K2001/1 {_text(part.characteristic_number)}",
+           f"K2002/1 {_text(part.characteristic_description)}",
+           f"K2022/1 {part.decimals}"]
+    for key, v in (("K2101", part.nominal_mm), ("K2110", part.lower_limit_mm),
+                   ("K2111", part.upper_limit_mm)):
+        if v is not None and math.isfinite(v):
+            out.append(f"{key}/1 {fmt.format(v)}")
+    out.append("K2142/1 mm")
+    gauge = _text(part.gauge_id)
+    for v in values:
+        if not math.isfinite(v.value_mm):
+            continue
+        stamp = time.strftime("%d.%m.%Y/%H:%M:%S", time.localtime(v.time_s))
+        out += [f"K0001/1 {fmt.format(v.value_mm)}", f"K0004/1 {stamp}", "K0005/1 0"]
+        if v.batch:
+            out.append(f"K0006/1 {_text(v.batch)}")
+        out += [f"K0008/1 {gauge}", f"K0012/1 {gauge}", f"K0014/1 {_text(v.part_ident)}"]
+    return out
+
+
+def aqdef_text(part: AqdefPart, values: Iterable[AqdefValue]) -> str:
+    """The transfer file as text (CR LF line ends, as Q-DAS tools write them)."""
+    return "\r\n".join(aqdef_lines(part, values)) + "\r\n"
+
+
+def from_archive(rows: list[dict], gauge_id: str, part_number: str = "shaft",
+                 characteristic: str = "diameter") -> str:
+    """A transfer file of archived measurements (``CompensationLog.measurements`` rows).
+
+    Each good row is one value: its fused diameter where it has one (what compensation
+    judges), else its own. The nominal and limits are those in force at the latest row that
+    had a nominal (rows without one have no limits).
+    """
+    good = [r for r in rows if r["status"] == "ok" and (
+        r["fused_diameter_mm"] is not None or r["diameter_mm"] is not None)]
+    judged = [r for r in rows if r.get("nominal_mm") is not None]
+    last = judged[-1] if judged else None
+    nominal = None if last is None else last["nominal_mm"]
+    part = AqdefPart(
+        part_number=part_number, part_description=f"{part_number} measured by {gauge_id}",
+        characteristic_number="1", characteristic_description=characteristic,
+        nominal_mm=nominal,
+        lower_limit_mm=None if last is None else nominal + last["tol_lower_mm"],
+        upper_limit_mm=None if last is None else nominal + last["tol_upper_mm"],
+        gauge_id=gauge_id)
+    values = [AqdefValue(
+        r["fused_diameter_mm"] if r["fused_diameter_mm"] is not None else r["diameter_mm"],
+        r["wall_time"], str(r["seq"]),
+        "" if r.get("calibration_id") is None else f"cal{r['calibration_id']}")
+        for r in good]
+    return aqdef_text(part, values)

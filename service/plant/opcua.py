@@ -1,0 +1,240 @@
+"""The gauge as an OPC UA server (asyncua): live variables, and two methods for technicians.
+
+Address space (namespace ``urn:shaftgauge``; ``deploy/opcua.md``), named after OPC 40001
+(Machinery: ``Identification``, ``Monitoring``) and OPC 40501 (Machine Tools: ``Production``,
+``Equipment``) where they have a name for the thing::
+
+    Objects/Shaftgauge
+        Identification   Manufacturer, Model, SerialNumber, SoftwareRevision
+        Monitoring       Diameter, Uncertainty, FusedDiameter, Deviation (mm), InTolerance,
+                         Status, Reason, MeasurementSeq, CalibrationId, CameraState, PlcState
+        Compensation     State, CumulativeOffset, LastOffset (mm), Shadow
+        MeasureNow()         -> Diameter (mm), Status         technicians only
+        ResetCompensation()  -> Result                        technicians only
+
+Anonymous users read, browse and subscribe; users of ``opcua.technicians`` (user name and
+password, sent encrypted with the server's certificate) may also call the methods. Nobody
+writes variables. The server's certificate is made on first start and kept.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import socket
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from asyncua import Server, ua
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
+from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
+from asyncua.server.user_managers import UserManager
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+from service.config import OpcUaSettings
+
+log = logging.getLogger("shaftgauge.opcua")
+
+NAMESPACE = "urn:shaftgauge"
+UPDATE_S = 0.1
+"""How often the variables are refreshed from the gauge (subscribers see changes at this
+rate, at most)."""
+
+_DOUBLE, _STRING, _BOOL, _INT = (ua.VariantType.Double, ua.VariantType.String,
+                                 ua.VariantType.Boolean, ua.VariantType.Int64)
+MONITORING = {"Diameter": _DOUBLE, "Uncertainty": _DOUBLE, "FusedDiameter": _DOUBLE,
+              "Deviation": _DOUBLE, "InTolerance": _BOOL, "Status": _STRING,
+              "Reason": _STRING, "MeasurementSeq": _INT, "CalibrationId": _INT,
+              "CameraState": _STRING, "PlcState": _STRING}
+COMPENSATION = {"State": _STRING, "CumulativeOffset": _DOUBLE, "LastOffset": _DOUBLE,
+                "Shadow": _BOOL}
+_DEFAULTS = {_DOUBLE: math.nan, _STRING: "", _BOOL: False, _INT: -1}
+
+_CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
+_WRITE = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
+_READ_ONLY = frozenset(ua.NodeId(t) for t in USER_TYPES) - {_CALL, _WRITE}
+
+
+def _same(a: Any, b: Any) -> bool:
+    nan = isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b)
+    return nan or (type(a) is type(b) and a == b)
+
+
+class TechnicianRoles(PermissionRuleset):
+    """Anonymous: read, browse, subscribe. Technicians: that, and call methods. Writes: no
+    one (the gauge's settings change through its REST API, logged with who)."""
+
+    def check_validity(self, user: User | None, action_type_id: ua.NodeId,
+                       body: Any) -> bool:
+        if action_type_id in _READ_ONLY:
+            return True
+        if action_type_id == _CALL:
+            return user is not None and user.role is UserRole.User
+        return False
+
+
+class Technicians(UserManager):
+    """Users from ``opcua.technicians``; anyone else connects anonymously or not at all."""
+
+    def __init__(self, passwords: dict[str, str]) -> None:
+        self._passwords = dict(passwords)
+
+    def get_user(self, iserver: Any, username: str | None = None,
+                 password: str | None = None, certificate: Any = None) -> User | None:
+        if username is None:  # anonymous (a channel certificate alone is no user)
+            return User(role=UserRole.Anonymous)
+        if username is not None and self._passwords.get(username) == password:
+            return User(role=UserRole.User, name=username)
+        return None  # a wrong password or an unknown user: refused
+
+
+@dataclass(frozen=True)
+class GaugeView:
+    """What the server shows and does, as callables into the gauge.
+
+    ``values()`` returns the current values by variable name (``MONITORING`` and
+    ``COMPENSATION``; None for "none"); ``measure_now()`` takes a new measurement and returns
+    ``(diameter_mm or None, status)``; ``reset(who)`` resets compensation and returns what
+    happened.
+    """
+
+    values: Callable[[], dict[str, Any]]
+    measure_now: Callable[[], Awaitable[tuple[float | None, str]]]
+    reset: Callable[[str], Awaitable[str]]
+    serial_number: str = ""
+    software_revision: str = ""
+
+
+class OpcUaServer:
+    """The OPC UA server of one gauge.
+
+    Parameters
+    ----------
+    settings : OpcUaSettings
+        Endpoint, technicians, where the certificate is kept.
+    view : GaugeView
+        The gauge's values and methods.
+    certificate_dir : Path
+        Where the certificate is kept when the settings do not say.
+    """
+
+    name = "opcua"
+
+    def __init__(self, settings: OpcUaSettings, view: GaugeView, certificate_dir: Path) -> None:
+        self.settings, self.view = settings, view
+        self.certificate_dir = settings.certificate_dir or certificate_dir
+        self.server: Server | None = None
+        self.port: int | None = None
+        self.problem = ""
+        self._nodes: dict[str, Any] = {}
+        self._written: dict[str, Any] = {}
+        self.calls = {"MeasureNow": 0, "ResetCompensation": 0}
+
+    @property
+    def endpoint(self) -> str:
+        """``opc.tcp://host:port``."""
+        return f"opc.tcp://{self.settings.host}:{self.port or self.settings.port}"
+
+    async def _certificate(self) -> tuple[Path, Path]:
+        self.certificate_dir.mkdir(parents=True, exist_ok=True)
+        key, cert = self.certificate_dir / "server-key.pem", self.certificate_dir / "server.der"
+        host = socket.gethostname()
+        await setup_self_signed_certificate(
+            key, cert, NAMESPACE, host, [ExtendedKeyUsageOID.SERVER_AUTH],
+            {"commonName": f"shaftgauge@{host}", "organizationName": "shaftgauge"})
+        return key, cert
+
+    async def start(self) -> None:
+        """Start serving (a port in use or a bad certificate: a problem, not a crash)."""
+        s = self.settings
+        try:
+            server = Server(user_manager=Technicians(s.technicians))
+            await server.init()
+            server.set_server_name("shaftgauge")
+            await server.set_application_uri(NAMESPACE)
+            key, cert = await self._certificate()
+            await server.load_certificate(str(cert))
+            await server.load_private_key(str(key))
+            server.set_security_policy(
+                [ua.SecurityPolicyType.NoSecurity,
+                 ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt],
+                permission_ruleset=TechnicianRoles())
+            server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
+            server.set_endpoint(f"opc.tcp://{s.host}:{s.port}/")
+            await self._build(server)
+            await server.start()
+        except (OSError, ValueError, ua.UaError) as err:
+            self.problem = f"OPC UA server on {s.host}:{s.port} did not start: {err}"
+            log.error("%s", self.problem)
+            return
+        self.server, self.port = server, s.port
+        log.info("OPC UA server on %s", self.endpoint)
+
+    async def _build(self, server: Server) -> None:
+        idx = await server.register_namespace(NAMESPACE)
+        gauge = await server.nodes.objects.add_object(idx, "Shaftgauge")
+        ident = await gauge.add_object(idx, "Identification")
+        for name, value in (("Manufacturer", "shaftgauge"), ("Model", "shaftgauge"),
+                            ("SerialNumber", self.view.serial_number),
+                            ("SoftwareRevision", self.view.software_revision)):
+            await ident.add_property(idx, name, value, _STRING)
+        for folder, table in (("Monitoring", MONITORING), ("Compensation", COMPENSATION)):
+            parent = await gauge.add_object(idx, folder)
+            for name, vtype in table.items():
+                self._nodes[name] = await parent.add_variable(
+                    idx, name, ua.Variant(_DEFAULTS[vtype], vtype))
+        await gauge.add_method(idx, "MeasureNow", self._measure_now, [],
+                               [ua.VariantType.Double, ua.VariantType.String])
+        await gauge.add_method(idx, "ResetCompensation", self._reset, [],
+                               [ua.VariantType.String])
+
+    async def _measure_now(self, parent: ua.NodeId) -> list[ua.Variant]:
+        self.calls["MeasureNow"] += 1
+        diameter_mm, status = await self.view.measure_now()
+        return [ua.Variant(math.nan if diameter_mm is None else diameter_mm, _DOUBLE),
+                ua.Variant(status, _STRING)]
+
+    async def _reset(self, parent: ua.NodeId) -> list[ua.Variant]:
+        self.calls["ResetCompensation"] += 1
+        return [ua.Variant(await self.view.reset("opcua:technician"), _STRING)]
+
+    async def refresh(self) -> None:
+        """Write the gauge's current values into the variables that changed."""
+        values = self.view.values()
+        for name, node in self._nodes.items():
+            vtype = MONITORING.get(name) or COMPENSATION[name]
+            value = values.get(name)
+            if value is None or (isinstance(value, float) and not math.isfinite(value)):
+                value = _DEFAULTS[vtype]
+            if name in self._written and _same(self._written[name], value):
+                continue
+            await node.write_value(ua.Variant(value, vtype))
+            self._written[name] = value
+
+    async def run(self) -> None:
+        """Start, then keep the variables current until cancelled."""
+        await self.start()
+        if self.server is None:
+            return
+        while True:
+            await self.refresh()
+            await asyncio.sleep(UPDATE_S)
+
+    def status(self) -> dict[str, Any]:
+        """Endpoint and state, JSON-ready."""
+        return {"endpoint": self.endpoint, "running": self.server is not None,
+                "problem": self.problem or None, "technicians": len(self.settings.technicians),
+                "calls": dict(self.calls)}
+
+    def problems(self) -> list[tuple[str, str]]:
+        """What is wrong now, as (code, text)."""
+        return [("opcua_down", self.problem)] if self.problem else []
+
+    async def close(self) -> None:
+        """Stop serving."""
+        if self.server is not None:
+            await self.server.stop()
+            self.server = None

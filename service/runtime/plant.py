@@ -1,0 +1,142 @@
+"""The gauge's links to the plant (``service.plant``), made from the settings and fed by the
+running parts: the MQTT publisher (measurements, decisions, health), the OPC UA server (its
+values and methods), and the measurement archive behind the quality export."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import sqlite3
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any, Protocol
+
+from calib_store.compensation_log import CompensationLog
+from calib_store.outbox import Outbox
+from drivers.camera.base import Camera, CameraError
+from drivers.plc.client import OffsetWriter
+from service.compensation import Decision, Kind
+from service.config import Settings
+from service.runtime.archive import MeasurementArchive
+from service.runtime.compensating import CompensationService
+from service.runtime.feed import MeasurementFeed
+from service.runtime.health import HealthReport
+
+MEASURE_NOW_TIMEOUT_S = 2.0
+
+
+class PlantLink(Protocol):
+    """A link to a plant system, run by the gauge beside its other tasks."""
+
+    name: str
+
+    async def run(self) -> None: ...
+
+    async def close(self) -> None: ...
+
+    def status(self) -> dict[str, Any]: ...
+
+    def problems(self) -> list[tuple[str, str]]: ...
+
+
+def _software_revision() -> str:
+    try:
+        return version("shaftgauge")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+class LastOffset:
+    """The last offset the CNC acknowledged (a decision listener)."""
+
+    def __init__(self) -> None:
+        self.offset_mm: float | None = None
+
+    def __call__(self, d: Decision) -> None:
+        if d.kind is Kind.APPLIED and d.offset_mm is not None:
+            self.offset_mm = d.offset_mm
+
+
+class OpcUaValues:
+    """The OPC UA server's view of the gauge: values and methods (``GaugeView``)."""
+
+    def __init__(self, feed: MeasurementFeed, compensation: CompensationService,
+                 camera: Camera, writer: OffsetWriter | None) -> None:
+        self.feed, self.compensation, self.camera, self.writer = (feed, compensation, camera,
+                                                                  writer)
+        self.last_offset = LastOffset()
+        compensation.on_decision(self.last_offset)
+
+    def values(self) -> dict[str, Any]:
+        """The variables' values by name (``service.plant.opcua.MONITORING`` and
+        ``COMPENSATION``)."""
+        r, c, w = self.feed.latest, self.compensation.controller, self.writer
+        plc = "none" if w is None else ("connected" if w.connected else
+                                        "unreachable" if w.outage_since is not None else
+                                        "idle")
+        out: dict[str, Any] = {
+            "CameraState": self.camera.status().state.value, "PlcState": plc,
+            "State": c.state.value, "CumulativeOffset": c.cumulative_mm,
+            "LastOffset": self.last_offset.offset_mm, "Shadow": c.settings.shadow}
+        if r is not None:
+            out.update(Diameter=r.diameter_mm, Uncertainty=r.uncertainty_mm,
+                       FusedDiameter=r.fused_diameter_mm, Deviation=r.deviation_mm,
+                       InTolerance=bool(r.in_tolerance), Status=r.status, Reason=r.reason,
+                       MeasurementSeq=r.seq, CalibrationId=r.calibration_id)
+        return out
+
+    async def measure_now(self) -> tuple[float | None, str]:
+        """The next measurement after asking the camera for a frame (a free-running camera
+        is not asked: its next frame is the answer)."""
+        queue = self.feed.subscribers.add()
+        try:
+            with contextlib.suppress(CameraError):
+                self.camera.software_trigger()
+            try:
+                record = await asyncio.wait_for(queue.get(), MEASURE_NOW_TIMEOUT_S)
+            except TimeoutError:
+                return None, (f"no measurement within {MEASURE_NOW_TIMEOUT_S:g} s (camera "
+                              f"{self.camera.status().state.value})")
+        finally:
+            self.feed.subscribers.remove(queue)
+        return record.diameter_mm, record.status if record.status == "ok" else \
+            f"{record.status}: {record.reason}"
+
+    async def reset(self, who: str) -> str:
+        """Reset compensation (as a technician over the API would); what happened."""
+        d = await self.compensation.reset("opcua", who)
+        return f"{d.kind.value}: {d.reason}"
+
+
+def make_plant_links(settings: Settings, feed: MeasurementFeed,
+                     compensation: CompensationService, camera: Camera,
+                     writer: OffsetWriter | None, log: CompensationLog | None,
+                     health: HealthReport) -> list[PlantLink]:
+    """The links the settings ask for, connected to the gauge's parts (and the archive
+    listener, when there is a store)."""
+    links: list[PlantLink] = []
+    data_dir = settings.store.path.parent
+    if log is not None and settings.store.archive_hz > 0:
+        feed.on_publish(MeasurementArchive(log, settings.store.archive_hz, compensation.feature))
+    if settings.mqtt.host:
+        from service.plant.mqtt import MqttPublisher
+
+        try:
+            outbox, problem = Outbox(data_dir / "mqtt-outbox.db", settings.mqtt.outbox_max), ""
+        except sqlite3.Error as err:  # decisions still go out while the broker is there
+            outbox = Outbox(":memory:", settings.mqtt.outbox_max)
+            problem = f"MQTT outbox {data_dir / 'mqtt-outbox.db'} cannot be used ({err})"
+        mqtt = MqttPublisher(settings.mqtt, outbox, health.summary, outbox_problem=problem)
+        feed.on_publish(mqtt.measurement)
+        compensation.on_decision(mqtt.decision)
+        links.append(mqtt)
+    ua = settings.opcua
+    if ua.enabled or (ua.enabled is None and settings.camera.source == "sim"):
+        from service.plant.opcua import GaugeView, OpcUaServer
+
+        values = OpcUaValues(feed, compensation, camera, writer)
+        links.append(OpcUaServer(ua, GaugeView(
+            values.values, values.measure_now, values.reset,
+            serial_number=settings.camera.device_id or settings.camera.sim_serial,
+            software_revision=_software_revision()), Path(data_dir) / "opcua"))
+    return links
