@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import socket
 import sys
 import tempfile
 from collections.abc import Sequence
+from pathlib import Path
 
 from calib_store.model import CalibrationError, load_calibration
 from service.measure.diameter import DEFAULT_METHOD, MeasureParams
@@ -163,7 +165,6 @@ def cmd_sim_plc(args: argparse.Namespace) -> int:
     """Serve a simulated CNC's offset registers until interrupted."""
     import asyncio
     import signal
-    from pathlib import Path
 
     from drivers.plc.offsets import PlcOffsetMap
     from drivers.plc.registers import WordOrder
@@ -308,6 +309,44 @@ def cmd_camera_grab(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _when(text: str) -> float:
+    """An ISO 8601 time (no zone: UTC) as Unix seconds, for argparse."""
+    import datetime as dt
+
+    try:
+        t = dt.datetime.fromisoformat(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an ISO 8601 time: {text!r}") from None
+    return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """Write the store's archived measurements as a Q-DAS AQDEF transfer file."""
+    from calib_store.compensation_log import CompensationLog
+    from calib_store.store import StoreError
+    from service.plant.aqdef import from_archive
+
+    if args.start is not None and args.end is not None and args.start > args.end:
+        return _fail("--from is after --to")
+    try:
+        log_ = CompensationLog(args.store, create_if_missing=False)
+    except StoreError as err:
+        return _fail(str(err))
+    try:
+        rows = log_.measurements(args.start, args.end)
+    finally:
+        log_.close()
+    text = from_archive(rows, args.gauge_id, args.part, args.characteristic)
+    out = Path(args.output)
+    try:
+        out.write_bytes(text.encode("latin-1", "replace"))
+    except OSError as err:
+        return _fail(f"{out}: cannot write ({err.strerror})")
+    values = sum(1 for line in text.splitlines() if line.startswith("K0001"))
+    print(json.dumps({"output": str(out), "values": values, "rows": len(rows)}))
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = argparse.ArgumentParser(
@@ -445,6 +484,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for frames")
     p.add_argument("--fake", action="store_true", help="enable Aravis's in-process fake")
     p.set_defaults(func=cmd_camera_grab)
+
+    exp = sub.add_parser("export", help="export the store's measurements")
+    exp_sub = exp.add_subparsers(dest="format", required=True, metavar="FORMAT")
+    p = exp_sub.add_parser("aqdef", help="as a Q-DAS ASCII transfer file (K-fields)")
+    p.add_argument("--store", default="shaftgauge-data/shaftgauge.db", metavar="DB",
+                   help="the service's store (store.path; default %(default)s)")
+    p.add_argument("--from", dest="start", type=_when, metavar="TIME",
+                   help="ISO 8601, no zone = UTC (default: the first kept)")
+    p.add_argument("--to", dest="end", type=_when, metavar="TIME",
+                   help="ISO 8601 (default: the last kept)")
+    p.add_argument("--output", required=True, metavar="FILE.dfq")
+    p.add_argument("--gauge-id", default=socket.gethostname(), help="K0012 (default: host)")
+    p.add_argument("--part", default="shaft", help="K1001 part number")
+    p.add_argument("--characteristic", default="diameter", help="K2002")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("demo", help="offline demo: render the paper's shafts and measure them")
     p.add_argument("--method", choices=methods, default=DEFAULT_METHOD.value)

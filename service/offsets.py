@@ -70,6 +70,7 @@ class OffsetChannel:
         self.on_decision = on_decision
         self.clock = clock
         self.last_write: WriteResult | None = None
+        self.write_listeners: list[Callable[[WriteResult], None]] = []
         self._lock = asyncio.Lock()
         self._last_refresh = -float("inf")
 
@@ -139,6 +140,8 @@ class OffsetChannel:
             return [self._note(veto)]
         result = await self.writer.write_offset(order.offset_mm, order.offset_seq)
         self.last_write = result
+        for listener in self.write_listeners:
+            listener(result)
         return [self._note(self.controller.on_write_outcome(
             order.offset_seq, result.applied, self.clock(), result.message))]
 

@@ -39,6 +39,7 @@ from service.runtime.compensating import CompensationService, RuntimeSettings
 from service.runtime.feed import MeasurementFeed, SequenceCounter
 from service.runtime.gauge import Gauge
 from service.runtime.health import HealthReport
+from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import make_plant_links
@@ -191,8 +192,13 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                                    api.session_expiry_h)
     plant = make_plant_links(settings, feed, compensation, camera, writer, comp_log, health)
     health.plant = plant
+    metrics = GaugeMetrics(health)
+    feed.on_publish(metrics.record)
+    pipeline.stage_listener = metrics.stage_time
+    compensation.channel.write_listeners.append(
+        lambda r: metrics.write_time(r.outcome.value, r.elapsed_s))
     return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
-                 sessions, writer, comp_log, plant)
+                 sessions, metrics, writer, comp_log, plant)
 
 
 class _Server(uvicorn.Server):

@@ -10,13 +10,12 @@ from pathlib import Path
 from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, PlainTextResponse, RedirectResponse
+from fastapi.responses import JSONResponse, PlainTextResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from service.api import calibrations, compensation, export, master, measurements, sessions
 from service.api.auth import reader
 from service.api.limits import BodyLimit
-from service.api.metrics import metrics_text
 from service.api.models import ERRORS
 from service.plant.mqtt import gauge_identity
 from service.runtime import Gauge
@@ -86,9 +85,9 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
 
     @app.get("/metrics", tags=["system"], response_class=PlainTextResponse,
              dependencies=[Depends(reader(gauge.settings.api))])
-    def metrics() -> PlainTextResponse:
-        return PlainTextResponse(metrics_text(g.health, g.feed),
-                                 media_type="text/plain; version=0.0.4")
+    def metrics() -> Response:
+        body, content_type = g.metrics.exposition()
+        return Response(body, media_type=content_type)
 
     @app.get("/", include_in_schema=False)
     def root() -> RedirectResponse:

@@ -16,6 +16,7 @@ from service.runtime.calibration import CalibrationContext
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
+from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import PlantLink
@@ -34,6 +35,7 @@ class Gauge:
     modbus: ModbusFacade
     health: HealthReport
     sessions: CalibrationSessions
+    metrics: GaugeMetrics
     writer: OffsetWriter | None = None
     log: CompensationLog | None = None
     plant: list[PlantLink] = field(default_factory=list)

@@ -74,6 +74,8 @@ class FramePipeline:
         self._free_fit_s = -1e9
         self.method, self.params, self.workers = method, params, workers
         self.on_result = on_result
+        # Told each frame's time waiting for a worker and measuring (from worker threads).
+        self.stage_listener: Callable[[str, float], None] | None = None
         self.latest_frame: Frame | None = None
         self.counters: collections.Counter[str] = collections.Counter()
         self._pool = ThreadPoolExecutor(workers, thread_name_prefix="measure")
@@ -124,8 +126,14 @@ class FramePipeline:
     def _measure(self, frame: Frame, geometry: RigGeometry,
                  prior: tuple[np.ndarray, float] | None, near: np.ndarray | None,
                  params: MeasureParams) -> Measurement:
-        return measure_frame(frame.image, geometry, self.method, params, prior, near,
-                             frame.origin)
+        t0 = time.monotonic_ns()
+        m = measure_frame(frame.image, geometry, self.method, params, prior, near,
+                          frame.origin)
+        if self.stage_listener is not None:
+            t1 = time.monotonic_ns()
+            self.stage_listener("wait", (t0 - frame.received_ns) / 1e9)
+            self.stage_listener("measure", (t1 - t0) / 1e9)
+        return m
 
     def _params_now(self) -> MeasureParams:
         """The settings for the next frame: with the free fit when it is due."""

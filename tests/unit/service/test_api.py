@@ -215,3 +215,4 @@ def test_a_record_with_non_finite_figures_is_still_json() -> None:
     assert d["arc_deg"] is None and d["rms_residual_mm"] is None and d["uncertainty_mm"] is None
     assert d["latency_ms"] == 3.0
     json.loads(json.dumps(d, allow_nan=False))
+

@@ -1,0 +1,97 @@
+"""The AQDEF transfer file, read back by a reader written here from the format's description
+(a K-field line is ``K<4 digits>[/<index>] <value>``; value lines start with K0001 and the
+K00xx lines after one belong to it), not by the writer's code."""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from service.plant.aqdef import AqdefPart, AqdefValue, aqdef_text, from_archive
+
+K_LINE = re.compile(r"^K(\d{4})(?:/(\d+))? (.*)$")
+
+
+def read_aqdef(text: str) -> tuple[dict[str, str], list[dict[str, str]]]:
+    """(header fields by K number, values as dicts of K number -> text) of one
+    characteristic."""
+    header: dict[str, str] = {}
+    values: list[dict[str, str]] = []
+    assert text.endswith("\r\n")
+    for line in text.split("\r\n")[:-1]:
+        m = K_LINE.match(line)
+        assert m, f"not a K-field line: {line!r}"
+        key, index, value = m.groups()
+        if key.startswith("00") and key != "0100":
+            assert index in (None, "1")
+            if key == "0001":
+                values.append({})
+            assert values, f"{line!r} before any K0001"
+            values[-1][key] = value
+        else:
+            header[key] = value
+    return header, values
+
+
+def part(**kw) -> AqdefPart:
+    return AqdefPart(**{"part_number": "4711-A", "part_description": "drive shaft",
+                        "characteristic_number": "1", "characteristic_description": "diameter",
+                        "nominal_mm": 30.0, "lower_limit_mm": 29.98, "upper_limit_mm": 30.02,
+                        "gauge_id": "lathe-7", **kw})
+
+
+def test_header_and_value_fields() -> None:
+    t = time.mktime((2026, 11, 29, 14, 5, 9, 0, 0, -1))
+    header, values = read_aqdef(aqdef_text(part(), [AqdefValue(30.00123, t, "812", "cal3")]))
+    assert header == {"0100": "1", "1001": "4711-A", "1002": "drive shaft", "2001": "1",
+                      "2002": "diameter", "2022": "4", "2101": "30.0000", "2110": "29.9800",
+                      "2111": "30.0200", "2142": "mm"}
+    assert values == [{"0001": "30.0012", "0004": "29.11.2026/14:05:09", "0005": "0",
+                       "0006": "cal3", "0008": "lathe-7", "0012": "lathe-7", "0014": "812"}]
+
+
+def test_no_nominal_leaves_the_limits_out_and_nan_values_out() -> None:
+    header, values = read_aqdef(aqdef_text(
+        part(nominal_mm=None, lower_limit_mm=None, upper_limit_mm=None),
+        [AqdefValue(math.nan, 0.0, "1"), AqdefValue(30.0, 0.0, "2")]))
+    assert not {"2101", "2110", "2111"} & set(header)
+    assert [v["0014"] for v in values] == ["2"]
+
+
+def test_text_fields_stay_on_one_line() -> None:
+    header, _ = read_aqdef(aqdef_text(part(part_description="a\r\nb\tc"), []))
+    assert header["1002"] == "a b c"
+
+
+@given(st.lists(st.floats(1.0, 500.0, allow_nan=False), min_size=1, max_size=50),
+       st.floats(0.0, 2e9))
+def test_values_round_trip_to_the_written_resolution(diameters: list[float],
+                                                     t0: float) -> None:
+    vals = [AqdefValue(d, t0 + i, str(i)) for i, d in enumerate(diameters)]
+    _, read = read_aqdef(aqdef_text(part(), vals))
+    assert len(read) == len(diameters)
+    for v, d in zip(read, diameters, strict=True):  # 4 decimals: within half of 0.1 um
+        assert abs(float(v["0001"]) - d) <= 0.5e-4 + 1e-9
+    assert [v["0014"] for v in read] == [str(i) for i in range(len(diameters))]
+
+
+def row(seq: int, status: str = "ok", fused: float | None = 30.001,
+        nominal: float | None = 30.0) -> dict:
+    return {"seq": seq, "wall_time": 1.7e9 + seq, "status": status, "diameter_mm": 30.002,
+            "uncertainty_mm": 0.002, "fused_diameter_mm": fused, "deviation_mm": 0.001,
+            "in_tolerance": 1, "calibration_id": 2, "nominal_mm": nominal,
+            "tol_lower_mm": -0.02, "tol_upper_mm": 0.03}
+
+
+def test_from_archive_takes_good_rows_fused_first_and_the_latest_feature() -> None:
+    rows = [row(1), row(2, status="no_stripe"), row(3, fused=None), row(4, nominal=31.0)]
+    header, values = read_aqdef(from_archive(rows, "g", "P-1", "bearing seat"))
+    assert header["1001"] == "P-1" and header["2002"] == "bearing seat"
+    assert (header["2101"], header["2110"], header["2111"]) == ("31.0000", "30.9800",
+                                                                "31.0300")
+    assert [(v["0014"], v["0001"], v["0006"]) for v in values] == [
+        ("1", "30.0010", "cal2"), ("3", "30.0020", "cal2"), ("4", "30.0010", "cal2")]
