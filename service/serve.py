@@ -256,6 +256,10 @@ def main(settings: Settings) -> int:
     """Configure logging and run."""
     logging.basicConfig(level=settings.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # asyncua tells every node it builds at INFO (a thousand lines a start): its warnings only,
+    # unless asked for debug.
+    if settings.log_level != "debug":
+        logging.getLogger("asyncua").setLevel(logging.WARNING)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     try:
         return asyncio.run(serve(settings))

@@ -39,11 +39,12 @@ class Service:
 def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   fps: float = 10.0, camera_device: str | None = None,
                   plc_port: int | None = None, data: Path | None = None,
-                  env: dict[str, str] | None = None, nominal: float | None = 30.0
-                  ) -> Service:
+                  env: dict[str, str] | None = None, nominal: float | None = 30.0,
+                  opcua_port: int | None = None) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
-    ``nominal`` None leaves the feature unset."""
+    ``nominal`` None leaves the feature unset; the OPC UA server on ``opcua_port`` (a free
+    one by default)."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
@@ -65,6 +66,8 @@ port = {api}
 keys = {{ "{TECH_KEY}" = "technician", "{ADMIN_KEY}" = "admin" }}
 [store]
 path = "{data / 'gauge.db'}"
+[opcua]
+port = {opcua_port or free_port()}
 [compensation]
 {"" if nominal is None else f"nominal_mm = {nominal}"}
 tol_upper_mm = 0.05
