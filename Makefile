@@ -33,6 +33,7 @@ bench: setup
 	$(PY) -m tests.bench.rig_range
 	$(PY) -m tests.bench.camera_throughput
 	$(PY) -m tests.bench.service_throughput
+	$(PY) -m tests.bench.plant_publish
 
 ## make soak: the long soak and fault runs (an hour; SHAFTGAUGE_SOAK_S=600 for ten minutes).
 soak: setup

@@ -263,7 +263,7 @@ class MqttPublisher:
 
     async def _drain(self, client: aiomqtt.Client) -> None:
         """Send what waits in the outbox, oldest first; each removed once acknowledged."""
-        while True:
+        while len(self.outbox):  # the count is kept in memory: no disk read when empty
             batch = await self._outbox(self.outbox.peek, 200)
             if not batch:
                 return

@@ -22,6 +22,7 @@ from prometheus_client import (
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
+from drivers.plc.client import Outcome
 from service.runtime.health import HealthReport
 from service.runtime.record import MeasurementRecord
 
@@ -112,6 +113,10 @@ class GaugeMetrics:
         self.offset_write = Histogram(
             "shaftgauge_offset_write_seconds", "Offset write to the CNC's acknowledgement, "
             "by outcome", ["outcome"], buckets=WRITE_BUCKETS_S, registry=self.registry)
+        for outcome in Outcome:  # every series there from the start (zeros until used)
+            self.offset_write.labels(outcome.value)
+        for stage in ("wait", "measure"):
+            self.stage.labels(stage)
 
     def record(self, record: MeasurementRecord) -> None:
         """A published record (a feed listener)."""

@@ -76,3 +76,16 @@ def test_no_api_module_over_150_lines() -> None:
     long = [f"{p.relative_to(ROOT)} ({n} lines)" for p in files("service/api")
             if (n := len(p.read_text().splitlines())) > 150]
     assert not long, long
+
+
+def test_the_aqdef_writer_is_pure() -> None:
+    path = ROOT / "service/plant/aqdef.py"
+    bad = {m for m in imports(path) if ours(m) or m in ("os", "socket", "pathlib", "sqlite3")}
+    assert not bad, bad
+
+
+@pytest.mark.parametrize("path", files("service/plant"), ids=str)
+def test_plant_links_do_not_reach_into_the_api_or_the_wiring(path: Path) -> None:
+    bad = {m for m in imports(path) if m.startswith(("service.api", "service.serve",
+                                                     "service.cli"))}
+    assert not bad, f"{path.relative_to(ROOT)} imports {bad}"

@@ -24,3 +24,28 @@ def test_metrics_hold_the_histograms_and_the_usual_process_figures(client) -> No
     for usual in ("process_cpu_seconds", "process_resident_memory_bytes", "python_info"):
         assert usual in families, usual
     assert abs(families["shaftgauge_diameter_mm"].samples[0].value - 30.0) < 0.02
+
+
+def test_the_grafana_dashboard_reads_only_metrics_the_gauge_exports(tmp_path) -> None:
+    import json
+    import re
+    import time
+    from pathlib import Path
+
+    from fastapi.testclient import TestClient
+
+    from service.api.app import create_app
+    from service.serve import Children, build
+    from tests.unit.service.conftest import make_settings
+
+    dashboard = (Path(__file__).resolve().parents[3] / "deploy" / "grafana-dashboard.json")
+    wanted = set(re.findall(r"\b((?:shaftgauge|process)_[a-z_]+)", dashboard.read_text()))
+    assert json.loads(dashboard.read_text())["panels"]
+    gauge, _ = build(make_settings(tmp_path, mqtt={"host": "127.0.0.1", "port": 1}),
+                     Children())
+    with TestClient(create_app(gauge)) as c:
+        time.sleep(0.5)
+        exported = set()
+        for f in text_string_to_metric_families(c.get("/metrics").text):
+            exported |= {s.name for s in f.samples}
+    assert wanted - exported == set()
