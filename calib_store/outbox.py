@@ -63,10 +63,22 @@ class Outbox:
                                ).fetchone()
         self.dropped = int(row[0]) if row else 0
         """Messages dropped past the bound, since the file was made."""
+        row = self._db.execute("SELECT value FROM outbox_counters WHERE name = 'last_number'"
+                               ).fetchone()
+        self.last_number = int(row[0]) if row else 0
+        """The highest ``number`` put so far (kept across restarts, sent or not)."""
 
-    def put(self, topic: str, payload: bytes, qos: int, created: float) -> int:
-        """Keep a message; returns how many older ones were dropped to make room."""
+    def put(self, topic: str, payload: bytes, qos: int, created: float,
+            number: int | None = None) -> int:
+        """Keep a message (``number``: its owner's sequence number, remembered as
+        ``last_number``); returns how many older ones were dropped to make room."""
         with transaction(self._db):
+            if number is not None:
+                self._db.execute(
+                    "INSERT INTO outbox_counters (name, value) VALUES ('last_number', ?) "
+                    "ON CONFLICT(name) DO UPDATE SET value = max(value, excluded.value)",
+                    (number,))
+                self.last_number = max(self.last_number, number)
             self._db.execute("INSERT INTO outbox (topic, payload, qos, created) "
                              "VALUES (?, ?, ?, ?)", (topic, payload, qos, created))
             self._count += 1

@@ -124,7 +124,7 @@ class MqttPublisher:
         self._health = health
         self._disk = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="mqtt-outbox")
         self._filter = RepeatFilter(settings.decision_repeat_s)
-        self._decision_seq = 0
+        self._decision_seq = outbox.last_number  # numbering goes on after a restart
         self._latest: MeasurementRecord | None = None
         self._sent_seq = -1
         self._last_measurement_s = -float("inf")
@@ -158,7 +158,8 @@ class MqttPublisher:
         body = json.dumps(decision_payload(d, self.gauge_id, self._decision_seq, now,
                                            repeats)).encode()
         fut = asyncio.wrap_future(self._disk.submit(
-            self.outbox.put, self.topic("decision"), body, self.settings.qos_decision, now))
+            self.outbox.put, self.topic("decision"), body, self.settings.qos_decision, now,
+            self._decision_seq))
         self._pending.add(fut)
         fut.add_done_callback(self._stored)
 
@@ -176,13 +177,6 @@ class MqttPublisher:
 
     async def _outbox(self, fn: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._disk, fn, *args)
-
-    async def restore_sequence(self) -> None:
-        """Go on numbering decisions after the last one still waiting in the outbox."""
-        waiting = await self._outbox(self.outbox.peek, 1_000_000)
-        if waiting:
-            self._decision_seq = max(self._decision_seq,
-                                     json.loads(waiting[-1].payload)["decision_seq"])
 
     # ---- the connection ------------------------------------------------------------------
 
@@ -203,7 +197,6 @@ class MqttPublisher:
     async def run(self) -> None:
         """Connect, publish, and connect again after every loss, until cancelled."""
         s = self.settings
-        await self.restore_sequence()
         while True:
             try:
                 async with self._client() as client:

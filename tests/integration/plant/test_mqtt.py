@@ -208,3 +208,32 @@ async def test_tls_with_a_test_ca_and_a_wrong_password_refused(tmp_path: Path) -
         sub_task.cancel()
     finally:
         broker.stop()
+
+
+async def test_a_restarted_gauge_sends_what_waited_and_numbers_on(
+        mosquitto: Mosquitto, tmp_path: Path) -> None:
+    away = MqttSettings(host="127.0.0.1", port=1, gauge_id="r", reconnect_s=60)
+    pub = MqttPublisher(away, Outbox(tmp_path / "outbox.db", 100), dict)
+    task = await running(pub)  # the broker is not reachable: three decisions wait
+    for i in (1, 2, 3):
+        pub.decision(write(i))
+    await stopped(pub, task)  # the gauge stops (or is restarted) meanwhile
+
+    sub = Collector(mosquitto.port, "shaftgauge/r/decision")
+    sub_task = asyncio.create_task(sub.run())
+    assert await wait_until(lambda: sub.connected)
+    back = MqttSettings(host="127.0.0.1", port=mosquitto.port, gauge_id="r")
+    pub = MqttPublisher(back, Outbox(tmp_path / "outbox.db", 100), dict)
+    task = await running(pub)
+    pub.decision(write(4))
+    assert await wait_until(lambda: len(sub.on("decision")) == 4)
+    assert [json.loads(p)["decision_seq"] for p in sub.on("decision")] == [1, 2, 3, 4]
+    await stopped(pub, task)
+    # an empty outbox after a restart still numbers on (a subscriber keeps the highest seen)
+    pub = MqttPublisher(back, Outbox(tmp_path / "outbox.db", 100), dict)
+    task = await running(pub)
+    pub.decision(write(5))
+    assert await wait_until(lambda: len(sub.on("decision")) == 5)
+    assert json.loads(sub.on("decision")[-1])["decision_seq"] == 5
+    await stopped(pub, task)
+    sub_task.cancel()
