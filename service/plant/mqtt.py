@@ -252,7 +252,8 @@ class MqttPublisher:
                 wait_s = s.health_s
             if wait_s > 0:
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._wake.wait(), wait_s)
+                    async with asyncio.timeout(wait_s):  # no task per wait (wait_for makes one)
+                        await self._wake.wait()
 
     async def _drain(self, client: aiomqtt.Client) -> None:
         """Send what waits in the outbox, oldest first; each removed once acknowledged."""

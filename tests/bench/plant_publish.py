@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import os
 import resource
 import statistics
@@ -80,6 +81,28 @@ async def _one_gauge(port: int, folder: Path, kind: str, n: int, rate_hz: float)
             "cpu_us_per_message": 1e6 * cpu / max(sent, 1)}
 
 
+def _paho_cost(port: int, n: int, rate_hz: float) -> dict:
+    """The same measurement messages through paho-mqtt's own network thread (the other
+    candidate), for the choice of library: CPU per message of this process."""
+    import paho.mqtt.client as paho
+
+    from service.plant.mqtt import measurement_payload
+
+    client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="bench-paho")
+    client.connect("127.0.0.1", port)
+    client.loop_start()
+    time.sleep(0.3)
+    c0, t0 = _cpu_s(), time.monotonic()
+    for i in range(1, n + 1):
+        client.publish("shaftgauge/paho/measurement",
+                       json.dumps(measurement_payload(_record(i), "paho")).encode(), qos=0)
+        time.sleep(max(0.0, t0 + i / rate_hz - time.monotonic()))
+    cpu = _cpu_s() - c0
+    client.loop_stop()
+    client.disconnect()
+    return {"cpu_us_per_message": 1e6 * cpu / n}
+
+
 async def main_async(seconds: float) -> dict:
     with tempfile.TemporaryDirectory(prefix="shaftgauge-plant-") as tmp:
         folder = Path(tmp)
@@ -93,6 +116,13 @@ async def main_async(seconds: float) -> dict:
                 print(f"{kind}: {n} at {rate:g}/s, 3 runs, median "
                       f"{cost[kind]['median_cpu_us_per_message']:.0f} us CPU a message "
                       f"(sent/received: {[(r['sent'], r['received']) for r in runs]})")
+            paho_runs = [_paho_cost(broker.port, 5000, 500.0) for _ in range(3)]
+            cost["measurement_paho"] = {"runs": paho_runs, "median_cpu_us_per_message":
+                                        statistics.median(r["cpu_us_per_message"]
+                                                          for r in paho_runs)}
+            print(f"measurement through paho-mqtt's thread: median "
+                  f"{cost['measurement_paho']['median_cpu_us_per_message']:.0f} us CPU a "
+                  "message")
             fleets = {}
             for gauges, secs in ((50, seconds), (100, seconds / 3)):
                 b0 = _broker_cpu_s(broker)
