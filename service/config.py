@@ -211,6 +211,45 @@ class TemperatureSettings(_Section):
     alpha_per_k: float = Field(11.5e-6, ge=0, lt=1e-3)
 
 
+class SpcConfig(_Section):
+    """Statistical process control of the feature (``service/quality/monitor.py``)."""
+
+    subgroup_size: int = Field(5, ge=2, le=25)
+    member_spacing: int | None = Field(None, ge=1, le=100_000)
+    """Measurements between two values of a subgroup; None: ``measurement.fuse_frames`` (no
+    two values share a frame)."""
+    every_s: float = Field(5.0, ge=0)
+    """A subgroup is started this often (seconds)."""
+    baseline_subgroups: int = Field(20, ge=2, le=1000)
+    """Subgroups that set the control limits after a start, a reset or a new nominal."""
+    window_subgroups: int = Field(125, ge=2, le=100_000)
+    """Subgroups the capability figures are computed over (the latest)."""
+    rules: list[int] = Field(default_factory=lambda: [1, 2, 3, 4, 5, 6, 7, 8])
+    """Nelson's tests that raise an event (1-8)."""
+
+    @field_validator("rules")
+    @classmethod
+    def _known_rules(cls, v: list[int]) -> list[int]:
+        bad = [r for r in v if r not in range(1, 9)]
+        if bad:
+            raise ValueError(f"rules are numbered 1-8 (Nelson's tests), not {bad}")
+        return v
+
+
+class QualitySettings(_Section):
+    """When the type-1 gauge study blocks offset writes (offsets only proposed, the
+    ``gauge_study_failed`` fault bit set)."""
+
+    study_max_age_h: float | None = Field(None, gt=0)
+    """A study older than this blocks; None: no period."""
+    min_index: float = Field(1.33, gt=0)
+    """Cg and Cgk below this fail a study."""
+    study_required: bool = False
+    """No study yet blocks."""
+    resolution_mm: float = Field(0.0001, gt=0)
+    """The gauge's reported resolution (0.1 um: the Modbus registers' unit)."""
+
+
 class MqttSettings(_Section):
     """The plant's MQTT broker (``deploy/mqtt.md``): on when ``host`` is set."""
 
@@ -287,6 +326,8 @@ class Settings(BaseSettings):
     measurement: MeasurementSettings = MeasurementSettings()
     temperature: TemperatureSettings = TemperatureSettings()
     compensation: CompensationSettings = CompensationSettings()
+    spc: SpcConfig = SpcConfig()
+    quality: QualitySettings = QualitySettings()
     mqtt: MqttSettings = MqttSettings()
     opcua: OpcUaSettings = OpcUaSettings()
     log_level: Literal["debug", "info", "warning", "error"] = "info"

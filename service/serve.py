@@ -22,6 +22,7 @@ from pathlib import Path
 import uvicorn
 
 from calib_store.compensation_log import CompensationLog, LogRetention
+from calib_store.gauge_studies import GaugeStudyStore
 from calib_store.model import load_calibration
 from calib_store.store import CalibrationStore, StoreError
 from drivers.camera.base import Camera, CameraConfig
@@ -44,6 +45,8 @@ from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import make_plant_links
 from service.runtime.publish import Publisher
+from service.runtime.spc import SpcService
+from service.runtime.studies import GaugeStudies, StudyPolicy
 
 log = logging.getLogger("shaftgauge.serve")
 _PR_SET_PDEATHSIG = 1
@@ -190,6 +193,15 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     sessions = CalibrationSessions(settings.store.path.parent / "calibration-sessions",
                                    api.max_calibration_sessions, api.max_session_images,
                                    api.session_expiry_h)
+    spc = SpcService(settings.spc, ms.fuse_frames, compensation.feature)
+    feed.on_publish(spc)
+    q = settings.quality
+    studies = GaugeStudies(
+        GaugeStudyStore(settings.store.path) if store is not None else None, feed,
+        compensation, ms.fuse_frames,
+        StudyPolicy(q.study_max_age_h, q.min_index, q.study_required, q.resolution_mm),
+        lambda: context.calibration[0].id if context.calibration else None)
+    health.quality = (spc, studies)
     plant = make_plant_links(settings, feed, compensation, camera, writer, comp_log, health)
     health.plant = plant
     metrics = GaugeMetrics(health)
@@ -198,7 +210,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     compensation.channel.write_listeners.append(
         lambda r: metrics.write_time(r.outcome.value, r.elapsed_s))
     return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
-                 sessions, metrics, writer, comp_log, plant)
+                 sessions, metrics, spc, studies, writer, comp_log, plant)
 
 
 class _Server(uvicorn.Server):

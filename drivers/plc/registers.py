@@ -114,6 +114,7 @@ class StatusBit(enum.IntFlag):
     SHADOW_MODE = 1 << 5
     PLC_CONNECTED = 1 << 6
     CALIBRATED = 1 << 7
+    RULE_VIOLATION = 1 << 8      # SPC: a run rule fired at the latest subgroup
 
 
 class FaultBit(enum.IntFlag):
@@ -127,6 +128,7 @@ class FaultBit(enum.IntFlag):
     NO_CALIBRATION = 1 << 5
     STALE_MEASUREMENT = 1 << 6
     MASTER_CHECK_DUE = 1 << 7
+    GAUGE_STUDY_FAILED = 1 << 8  # the type-1 study failed (Cgk too low) or is overdue
 
 
 class Command(enum.IntEnum):

@@ -13,7 +13,15 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 
-from service.api import calibrations, compensation, export, master, measurements, sessions
+from service.api import (
+    calibrations,
+    compensation,
+    export,
+    master,
+    measurements,
+    quality,
+    sessions,
+)
 from service.api.auth import reader
 from service.api.limits import BodyLimit
 from service.api.models import ERRORS
@@ -54,7 +62,8 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     api = APIRouter(prefix="/api/v1", dependencies=[Depends(reader(gauge.settings.api))],
                     responses=ERRORS)
     g, keys = gauge, gauge.settings.api
-    api.include_router(measurements.router(g.feed, g.health, keys))
+    api.include_router(measurements.router(g.feed, g.health, keys,
+                                           {"spc": g.spc.events}))
     api.include_router(calibrations.router(g.context, keys))
     api.include_router(compensation.router(g.compensation, g.log, g.modbus.run_command, keys,
                                            g.context.store_error))
@@ -62,6 +71,7 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
                                      g.settings.measurement, keys))
     api.include_router(sessions.router(g.sessions, g.context, g.compensation, g.pipeline,
                                        keys))
+    api.include_router(quality.router(g.spc, g.studies, g.compensation, keys))
     api.include_router(export.router(g.log, gauge_identity(g.settings.mqtt)[0],
                                      g.context.store_error))
 

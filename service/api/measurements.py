@@ -12,7 +12,7 @@ from fastapi.responses import Response, StreamingResponse
 
 from service.config import ApiSettings
 from service.measure.overlay import draw_overlay, on_sensor
-from service.runtime.feed import MeasurementFeed
+from service.runtime.feed import MeasurementFeed, Subscribers
 from service.runtime.health import HealthReport
 
 SSE_KEEPALIVE_S = 10.0
@@ -26,9 +26,13 @@ def _why(health: HealthReport) -> str:
     return "; ".join(p.text for p in health.problems())
 
 
-def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings) -> APIRouter:
-    """Reads the feed; says why there is nothing from the health report."""
+def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings,
+           more_events: dict[str, Subscribers] | None = None) -> APIRouter:
+    """Reads the feed; says why there is nothing from the health report. The live stream
+    carries measurements, decisions and ``more_events`` (kind -> source)."""
     r = APIRouter(tags=["measurements"])
+    sources = {"measurement": feed.subscribers, "decision": feed.decisions,
+               **(more_events or {})}
     open_streams = 0  # changed on the event loop only
 
     @r.get("/measurements/latest", summary="The latest measurement")
@@ -98,32 +102,31 @@ def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings) -> API
 
         async def events() -> AsyncIterator[str]:
             nonlocal open_streams
-            q = feed.subscribers.add()
-            dq = feed.decisions.add()
+            queues = {kind: src.add() for kind, src in sources.items()}
             closing = asyncio.ensure_future(feed.closing.wait())
             try:
                 yield "retry: 2000\n\n"
                 if feed.latest is not None:
                     yield _event("measurement", feed.latest.as_dict())
                 while not await request.is_disconnected() and not feed.closing.is_set():
-                    get_m = asyncio.ensure_future(q.get())
-                    get_d = asyncio.ensure_future(dq.get())
-                    done, pending = await asyncio.wait({get_m, get_d, closing},
+                    gets = {asyncio.ensure_future(q.get()): kind for kind, q in queues.items()}
+                    done, pending = await asyncio.wait({*gets, closing},
                                                        timeout=SSE_KEEPALIVE_S,
                                                        return_when=asyncio.FIRST_COMPLETED)
                     for p in pending - {closing}:
                         p.cancel()
                     if not done:
                         yield ": keep-alive\n\n"
-                    if get_m in done:
-                        yield _event("measurement", get_m.result().as_dict())
-                    if get_d in done:
-                        yield _event("decision", get_d.result().as_dict())
+                    for fut, kind in gets.items():  # in the sources' order
+                        if fut in done:
+                            item = fut.result()
+                            yield _event(kind, item.as_dict() if hasattr(item, "as_dict")
+                                         else item)
             finally:
                 closing.cancel()
                 open_streams -= 1
-                feed.subscribers.remove(q)
-                feed.decisions.remove(dq)
+                for kind, q in queues.items():
+                    sources[kind].remove(q)
 
         return StreamingResponse(events(), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-cache",

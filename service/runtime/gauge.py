@@ -20,6 +20,8 @@ from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import PlantLink
+from service.runtime.spc import SpcService
+from service.runtime.studies import GaugeStudies
 
 
 @dataclass
@@ -36,6 +38,8 @@ class Gauge:
     health: HealthReport
     sessions: CalibrationSessions
     metrics: GaugeMetrics
+    spc: SpcService
+    studies: GaugeStudies
     writer: OffsetWriter | None = None
     log: CompensationLog | None = None
     plant: list[PlantLink] = field(default_factory=list)
@@ -53,7 +57,8 @@ class Gauge:
             loop.create_task(comp.run(), name="compensation"),
             loop.create_task(comp.channel.run_settler(), name="settler"),
             loop.create_task(comp.follow_master_gate(
-                lambda: self.context.master_status()["blocking"]), name="master-gate"),
+                lambda: self.context.master_status()["blocking"] or self.studies.blocking()),
+                name="master-gate"),
             *await self.modbus.start(self.health.snapshot, self.health.healthy),
             *(loop.create_task(link.run(), name=link.name) for link in self.plant),
         ]
@@ -66,6 +71,7 @@ class Gauge:
             t.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks = []
+        await self.studies.stop()
         await self.pipeline.stop()
         await self.modbus.stop()
         for link in self.plant:

@@ -42,6 +42,7 @@ class HealthReport:
         self.started = time.time()
         self.running = False
         self.plant: list[Any] = []  # service.runtime.plant.PlantLink, set by the gauge
+        self.quality: tuple[Any, Any] | None = None  # (SpcService, GaugeStudies), set too
 
     def _fresh(self) -> bool:
         age = self.feed.measurement_age_s()
@@ -91,6 +92,9 @@ class HealthReport:
             out.append(Problem("offsets_blocked",
                                f"offsets blocked: {comp.controller.writes_blocked}"))
         out += [Problem(code, text) for link in self.plant for code, text in link.problems()]
+        study = self.quality[1].blocking() if self.quality else None
+        if study:
+            out.append(Problem("gauge_study", study + ": offsets are only proposed"))
         return out
 
     def summary(self) -> dict[str, Any]:
@@ -119,7 +123,9 @@ class HealthReport:
             shadow=c.settings.shadow, compensation=c.state,
             plc_configured=w is not None, plc_connected=w is not None and w.connected,
             plc_outage=w is not None and w.outage_since is not None,
-            writes_blocked=bool(c.writes_blocked))
+            writes_blocked=bool(self.context.master_status()["blocking"]),
+            rule_violation=bool(self.quality and self.quality[0].rule_violation),
+            study_failed=bool(self.quality and self.quality[1].blocking()))
 
     def status(self) -> dict[str, Any]:
         """Everything an operator or a monitoring system wants to know, JSON-ready."""
@@ -160,6 +166,9 @@ class HealthReport:
             "master": ctx.master_status(),
             "temperature": {"part_temp_c": comp.part_temp_c, "alpha_per_k": comp.alpha_per_k},
             "plant": {link.name: link.status() for link in self.plant},
+            "quality": None if self.quality is None else {
+                "rule_violation": self.quality[0].rule_violation,
+                "gauge_study": self.quality[1].status()},
         }
 
     def _plc(self) -> dict[str, Any] | None:

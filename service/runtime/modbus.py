@@ -46,6 +46,8 @@ class StatusSnapshot:
     plc_connected: bool = False
     plc_outage: bool = False
     writes_blocked: bool = False
+    rule_violation: bool = False          # SPC: a run rule fired at the latest subgroup
+    study_failed: bool = False            # the type-1 gauge study failed or is overdue
 
 
 def status_words(s: StatusSnapshot) -> tuple[StatusBit, FaultBit, int]:
@@ -88,6 +90,10 @@ def status_words(s: StatusSnapshot) -> tuple[StatusBit, FaultBit, int]:
         faults |= FaultBit.NO_CALIBRATION
     if s.writes_blocked:
         faults |= FaultBit.MASTER_CHECK_DUE
+    if s.rule_violation:
+        status |= StatusBit.RULE_VIOLATION
+    if s.study_failed:
+        faults |= FaultBit.GAUGE_STUDY_FAILED
     age_ms = 65535 if s.age_s is None else min(65535, int(s.age_s * 1000))
     return status, faults, age_ms
 

@@ -42,6 +42,8 @@ ROWS = [
     (FaultBit.STALE_MEASUREMENT, {"age_s": 5.5}, {"age_s": 4.5}),
     (FaultBit.STALE_MEASUREMENT, {"age_s": None}, {"latest_status": None, "age_s": None}),
     (FaultBit.MASTER_CHECK_DUE, {"writes_blocked": True}, {}),
+    (StatusBit.RULE_VIOLATION, {"rule_violation": True}, {}),
+    (FaultBit.GAUGE_STUDY_FAILED, {"study_failed": True}, {}),
 ]
 
 

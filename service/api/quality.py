@@ -1,0 +1,59 @@
+"""Quality: the live SPC figures, and type-1 gauge studies run in the lathe."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, HTTPException
+from pydantic import Field
+
+from service.api.auth import requires
+from service.api.models import _Strict
+from service.config import ApiSettings
+from service.runtime.compensating import CompensationService
+from service.runtime.spc import SpcService
+from service.runtime.studies import GaugeStudies, StudyError
+
+
+class GaugeStudyIn(_Strict):
+    """A type-1 study of the master in the lathe (lengths in mm)."""
+
+    certified_mm: float = Field(gt=0, le=1000, description="the master's certified diameter")
+    n: int = Field(50, ge=25, le=1000, description="values (each a fused measurement of new "
+                   "frames)")
+    tolerance_mm: float | None = Field(None, gt=0, le=100, description="the feature's "
+                                       "tolerance T (USL - LSL); default: the feature's")
+
+
+def router(spc: SpcService, studies: GaugeStudies, compensation: CompensationService,
+           api: ApiSettings) -> APIRouter:
+    """SPC reads; studies start with a technician key."""
+    r = APIRouter(tags=["quality"])
+    technician = Depends(requires(api, "technician"))
+
+    @r.get("/spc", summary="Control limits, capability, run-rule violations of the feature")
+    def figures() -> dict:
+        return spc.figures()
+
+    @r.post("/spc/reset", summary="Start a new baseline for the control limits",
+            dependencies=[technician])
+    def reset() -> dict:
+        spc.reset()
+        return spc.figures()
+
+    @r.get("/gauge-studies", summary="The running study's progress and the latest studies")
+    def list_studies(limit: int = 20) -> dict:
+        items = [] if studies.store is None else studies.store.list(min(max(limit, 1), 200))
+        return {**studies.status(), "items": items}
+
+    @r.post("/gauge-studies", status_code=202, dependencies=[technician],
+            summary="Measure the master n times (offsets held meanwhile) and compute Cg, Cgk")
+    async def start(body: GaugeStudyIn) -> dict:
+        f = compensation.feature()
+        tol = body.tolerance_mm or (f.tol_upper_mm - f.tol_lower_mm)
+        try:
+            sid = studies.start(body.certified_mm, body.n, tol, by="api:technician")
+        except StudyError as err:
+            raise HTTPException(409, str(err)) from None
+        return {"id": sid, "n": body.n, "certified_mm": body.certified_mm,
+                "tolerance_mm": tol}
+
+    return r
