@@ -70,6 +70,43 @@ def cmd_measure(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_study(args: argparse.Namespace) -> int:
+    """A type-1 gauge study on image files of the master: one value per ``--frames-per-value``
+    consecutive images (fused), printed as JSON."""
+    from service.measure.fuse import fuse
+    from service.offline import CorrectionError, ImageError, load_correction, measure_images
+    from service.quality.gauge_study import type1_study
+
+    k = args.frames_per_value
+    if k < 1 or k == 2:
+        return _fail(f"--frames-per-value: 1 (each image a value) or 3 and more (fused), "
+                     f"got {k}")
+    if len(args.images) % k:
+        return _fail(f"{len(args.images)} images do not make whole values of {k} frames")
+    try:
+        correction = load_correction(args.correction) if args.correction else None
+        calibration = load_calibration(args.calibration)
+        ms = [m for _, m in measure_images(args.images, calibration, Method(args.method),
+                                           MeasureParams(), correction)]
+    except (CalibrationError, ImageError, CorrectionError) as err:
+        return _fail(str(err).replace("\n", " "))
+    values, refused = [], []
+    for i in range(0, len(ms), k):
+        f = ms[i] if k == 1 else fuse(ms[i:i + k])
+        if f and f.diameter_mm is not None:
+            values.append(f.diameter_mm)
+        else:
+            refused.append({"images": args.images[i:i + k], "reason": f.reason})
+    try:
+        study = type1_study(values, args.master, args.tolerance_mm,
+                            resolution=args.resolution_mm, min_index=args.min_index)
+    except ValueError as err:
+        return _fail(f"{err} ({len(refused)} values refused: "
+                     f"{refused[0]['reason'] if refused else ''})")
+    print(json.dumps({**study.as_dict(), "values_mm": values, "refused": refused}))
+    return EXIT_OK
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     """Render simulated frames and their calibration into a folder."""
     from drivers.sim.frames import write_frames
@@ -484,6 +521,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for frames")
     p.add_argument("--fake", action="store_true", help="enable Aravis's in-process fake")
     p.set_defaults(func=cmd_camera_grab)
+
+    p = sub.add_parser("study", help="a type-1 gauge study (Cg, Cgk) on images of a master")
+    p.add_argument("--calibration", required=True, metavar="CAL.json")
+    p.add_argument("--master", required=True, type=float, metavar="MM",
+                   help="the master's certified diameter, mm")
+    p.add_argument("--tolerance-mm", required=True, type=float, metavar="T",
+                   help="the feature's tolerance USL - LSL, mm")
+    p.add_argument("--frames-per-value", type=int, default=1, metavar="N",
+                   help="consecutive images fused into one value: 1, or 3 and more (the "
+                   "service uses measurement.fuse_frames)")
+    p.add_argument("--correction", metavar="MASTER.json", help="`calibrate master` output")
+    p.add_argument("--method", choices=methods, default=DEFAULT_METHOD.value)
+    p.add_argument("--resolution-mm", type=float, default=0.0001)
+    p.add_argument("--min-index", type=float, default=1.33)
+    p.add_argument("images", nargs="+", metavar="IMAGE")
+    p.set_defaults(func=cmd_study)
 
     exp = sub.add_parser("export", help="export the store's measurements")
     exp_sub = exp.add_subparsers(dest="format", required=True, metavar="FORMAT")
