@@ -172,7 +172,8 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
         return _fail(f"--disturbances: {err}")
     settings = SimCameraSettings(
         serial=args.serial, address=args.address, diameter_mm=args.diameter,
-        drift_um_per_min=args.drift_um_per_min, fps=args.fps, lost_ratio=args.lost_ratio,
+        drift_um_per_min=args.drift_um_per_min, drift_period_min=args.drift_period_min,
+        fps=args.fps, lost_ratio=args.lost_ratio,
         seed=args.seed, replay_frames=args.replay, rig=RigConfig(disturbances=spec))
     camera = SimGigECamera(settings)
     try:
@@ -434,6 +435,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, default=10.0)
     p.add_argument("--drift-um-per-min", type=float, default=0.0,
                    help="tool wear: diameter change in um per minute")
+    p.add_argument("--drift-period-min", type=float, default=0.0, metavar="MIN",
+                   help="the drift starts again this often, as after a new insert (0: never)")
     p.add_argument("--lost-ratio", type=float, default=0.0, help="GVSP packet loss (0-1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--replay", type=int, default=0, metavar="N",

@@ -61,7 +61,16 @@ class CameraSettings(_Section):
     roi_margin_px: int = Field(32, ge=4, le=512)
     sim_serial: str = "SIM001"
     sim_diameter_mm: float = Field(30.0, gt=1, lt=500)
-    sim_drift_um_per_min: float = 0.0
+    sim_drift_um_per_min: float | None = None
+    """The simulated tool wear, um a minute on the diameter; None: 0.4 with ``sim_feature``,
+    else none."""
+    sim_drift_period_min: float = Field(30.0, ge=0)
+    """The wear starts again this often (a new insert; 0: it never does)."""
+    sim_feature: bool = True
+    """The embedded default's demonstration: with ``source = "sim"`` and no nominal set, the
+    feature is the simulated shaft (its diameter, the compensation's tolerance, +-0.020 mm by
+    default) and the tool wears slowly, so a newcomer sees a trend in its band, offsets
+    proposed in shadow mode, the SPC view filling and a gauge study that passes."""
     sim_seed: int = 0
     sim_replay_frames: int = Field(32, ge=0, le=1000)
     """The simulated GigE camera renders a ring of this many frames at start and then only

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ctypes
+import dataclasses
 import json
 import logging
 import os
@@ -31,7 +32,7 @@ from drivers.plc.offsets import PlcOffsetMap
 from drivers.plc.registers import WordOrder
 from service.api.app import create_app
 from service.calibrate.session import CalibrationSessions
-from service.config import Settings
+from service.config import CameraSettings, Settings
 from service.measure.diameter import MeasureParams
 from service.measure.result import Method
 from service.measure.stripe import StripeParams
@@ -91,10 +92,32 @@ def _shaftgauge() -> str:
     return str(Path(sys.executable).with_name("shaftgauge"))
 
 
+SIM_WEAR_UM_PER_MIN = 0.4
+"""The embedded default's tool wear: 12 um on the diameter in a 30-minute insert."""
+
+
+def sim_drift_um_per_min(cam: CameraSettings) -> float:
+    """The simulated camera's wear drift the settings ask for."""
+    if cam.sim_drift_um_per_min is not None:
+        return cam.sim_drift_um_per_min
+    return SIM_WEAR_UM_PER_MIN if cam.sim_feature else 0.0
+
+
+def embedded_feature(settings: Settings) -> Settings:
+    """With the simulated camera, ``sim_feature`` on and no nominal set: the feature is the
+    simulated shaft (``camera.sim_feature``)."""
+    cam, comp = settings.camera, settings.compensation
+    if cam.source != "sim" or not cam.sim_feature or comp.nominal_mm is not None:
+        return settings
+    return settings.model_copy(update={"compensation": dataclasses.replace(
+        comp, nominal_mm=cam.sim_diameter_mm)})
+
+
 def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     """The gauge the settings describe, simulators started as needed, and what the simulators
     reported (their control port)."""
     extras: dict = {}
+    settings = embedded_feature(settings)
     data_dir = settings.store.path.parent
     data_dir.mkdir(parents=True, exist_ok=True)
     store, comp_log, store_error = None, None, ""
@@ -128,7 +151,8 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
             ready = children.spawn(
                 [_shaftgauge(), "sim-camera", "--serial", cam_cfg.sim_serial, "--diameter",
                  str(cam_cfg.sim_diameter_mm), "--fps", str(cam_cfg.frame_rate_hz or 10.0),
-                 "--drift-um-per-min", str(cam_cfg.sim_drift_um_per_min), "--seed",
+                 "--drift-um-per-min", str(sim_drift_um_per_min(cam_cfg)),
+                 "--drift-period-min", str(cam_cfg.sim_drift_period_min), "--seed",
                  str(cam_cfg.sim_seed), "--replay", str(cam_cfg.sim_replay_frames),
                  "--calibration-out", str(cal_path)], "camera")
             device_id = ready["device_id"]

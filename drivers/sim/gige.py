@@ -95,6 +95,7 @@ class SimCameraSettings:
     address: str = "127.0.0.1"
     diameter_mm: float = 30.0
     drift_um_per_min: float = 0.0
+    drift_period_min: float = 0.0  # > 0: the drift starts again this often (a new insert)
     fps: float = 10.0
     lost_ratio: float = 0.0
     seed: int = 0
@@ -193,6 +194,8 @@ class SimGigECamera:
         """The diameter being rendered now, mm (with the drift so far)."""
         with self._lock:
             minutes = (time.monotonic() - self._t0) / 60.0
+            if self.settings.drift_period_min > 0:
+                minutes %= self.settings.drift_period_min
             return self._d0 + self.settings.drift_um_per_min * minutes / 1000.0
 
     def show_board(self, shot: Shot | None, board: Board | None = None) -> None:

@@ -2,11 +2,14 @@
 import { $, api } from "./api.js";
 import * as comp from "./compensation.js";
 import * as op from "./operator.js";
+import * as spc from "./spc.js";
+import * as study from "./study.js";
 import * as tech from "./technician.js";
 
 const VIEWS = { operator: op.loadOperator, compensation: comp.loadCompensation,
-                technician: tech.loadTechnician };
-let source = null, live = false, retry = null;
+                spc: spc.loadSpc,
+                technician: async () => { await tech.loadTechnician(); await study.refreshStudy(); } };
+let source = null, live = false, retry = null, ticks = 0;
 
 function setLive(on, why = "") {
   live = on;
@@ -39,6 +42,7 @@ function connect() {
     const d = JSON.parse(e.data);
     op.onDecision(d); comp.onDecision(d);
   });
+  source.addEventListener("spc", () => spc.onSpcEvent());
   source.onerror = () => {
     setLive(false, "connection to the service lost");
     source.close();
@@ -58,12 +62,15 @@ async function poll() {
     setLive(false, err.message);
   }
   if (!$("view-operator").hidden && live) op.refreshFrame();
+  if (!$("view-spc").hidden && live && ++ticks % 3 === 0) spc.loadSpc().catch(() => {});
+  if (!$("view-technician").hidden && live) study.refreshStudy().catch(() => {});
 }
 
 window.addEventListener("hashchange", () => show(location.hash.slice(1)));
-window.addEventListener("resize", () => op.redraw());
+window.addEventListener("resize", () => { op.redraw(); spc.redrawSpc(); });
 comp.wireCompensation();
 tech.wireTechnician();
+study.wireStudy();
 show(location.hash.slice(1));
 connect();
 poll();

@@ -63,3 +63,56 @@ export function drawBars(canvas, bars, unit, limit) {
     ctx.moveTo(pad.l, y(limit)); ctx.lineTo(w - pad.r, y(limit)); ctx.stroke(); ctx.setLineDash([]);
   }
 }
+
+// A line chart of values with horizontal reference lines; flagged points drawn red.
+// values: [number]; lines: [{v, label, color, dash}]; flagged: Set of indices
+export function drawLines(canvas, values, lines, flagged = new Set()) {
+  const { ctx, w, h } = fit(canvas);
+  const pad = { l: 70, r: 8, t: 8, b: 14 };
+  ctx.font = "11px system-ui"; ctx.fillStyle = "#9aa5b1";
+  if (!values.length) { ctx.fillText("no values yet", pad.l, h / 2); return; }
+  const all = [...values, ...lines.map((l) => l.v)];
+  let lo = Math.min(...all), hi = Math.max(...all);
+  const span = Math.max(hi - lo, 1e-6); lo -= span * 0.08; hi += span * 0.08;
+  const x = (i) => pad.l + (values.length > 1 ? i / (values.length - 1) : 0.5) * (w - pad.l - pad.r);
+  const y = (v) => pad.t + (hi - v) / (hi - lo) * (h - pad.t - pad.b);
+  for (const l of lines) {
+    ctx.strokeStyle = l.color; ctx.setLineDash(l.dash ? [5, 4] : []);
+    ctx.beginPath(); ctx.moveTo(pad.l, y(l.v)); ctx.lineTo(w - pad.r, y(l.v)); ctx.stroke();
+    ctx.fillStyle = l.color; ctx.fillText(`${l.label} ${l.v.toFixed(4)}`, 2, y(l.v) + 4);
+  }
+  ctx.setLineDash([]); ctx.strokeStyle = "#6fb3ff"; ctx.beginPath();
+  values.forEach((v, i) => (i ? ctx.lineTo(x(i), y(v)) : ctx.moveTo(x(i), y(v))));
+  ctx.stroke();
+  values.forEach((v, i) => {
+    ctx.fillStyle = flagged.has(i) ? "#ff5a45" : "#6fb3ff";
+    ctx.beginPath(); ctx.arc(x(i), y(v), flagged.has(i) ? 4 : 2.5, 0, 2 * Math.PI); ctx.fill();
+  });
+}
+
+// A histogram of values with the specification limits (lsl, usl may be null).
+export function drawHistogram(canvas, values, lsl, usl, nominal) {
+  const { ctx, w, h } = fit(canvas);
+  const pad = { l: 8, r: 8, t: 8, b: 18 };
+  ctx.font = "11px system-ui"; ctx.fillStyle = "#9aa5b1";
+  if (!values.length) { ctx.fillText("no values yet", 10, h / 2); return; }
+  const edges = [...values, ...[lsl, usl].filter((v) => v != null)];
+  let lo = Math.min(...edges), hi = Math.max(...edges);
+  const span = Math.max(hi - lo, 1e-6); lo -= span * 0.05; hi += span * 0.05;
+  const bins = 30, counts = new Array(bins).fill(0);
+  for (const v of values) counts[Math.min(bins - 1, Math.floor((v - lo) / (hi - lo) * bins))]++;
+  const top = Math.max(...counts);
+  const x = (v) => pad.l + (v - lo) / (hi - lo) * (w - pad.l - pad.r);
+  const bw = (w - pad.l - pad.r) / bins;
+  ctx.fillStyle = "#2d6cdf";
+  counts.forEach((c, i) => {
+    const bh = c / top * (h - pad.t - pad.b);
+    ctx.fillRect(pad.l + i * bw + 1, h - pad.b - bh, Math.max(bw - 2, 1), bh);
+  });
+  for (const [v, label, color] of [[lsl, "LSL", "#ff5a45"], [usl, "USL", "#ff5a45"],
+                                   [nominal, "nominal", "#8be0b0"]]) {
+    if (v == null) continue;
+    ctx.strokeStyle = color; ctx.beginPath(); ctx.moveTo(x(v), pad.t); ctx.lineTo(x(v), h - pad.b);
+    ctx.stroke(); ctx.fillStyle = color; ctx.fillText(label, x(v) + 3, h - 4);
+  }
+}

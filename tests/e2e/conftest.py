@@ -36,21 +36,40 @@ class Service:
         return httpx.get(self.url + path, timeout=10, **kw)
 
 
+# The tests' compensation: a wide band, offsets written (the embedded default: +-0.020 mm,
+# shadow mode).
+TEST_COMPENSATION = """[compensation]
+{nominal}
+tol_upper_mm = 0.05
+tol_lower_mm = -0.05
+window = 5
+deadband_mm = 0.004
+dead_time_measurements = 3
+dead_time_s = 0.5
+max_step_mm = 0.01
+shadow = false
+"""
+
+
 def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   fps: float = 10.0, camera_device: str | None = None,
                   plc_port: int | None = None, data: Path | None = None,
                   env: dict[str, str] | None = None, nominal: float | None = 30.0,
-                  opcua_port: int | None = None) -> Service:
+                  opcua_port: int | None = None, embedded: bool = False) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
     ``nominal`` None leaves the feature unset; the OPC UA server on ``opcua_port`` (a free
-    one by default)."""
+    one by default); ``embedded``: the embedded default's feature and tool wear
+    (``camera.sim_feature``), no nominal of the test's."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
     cfg = tmp_path / "gauge.toml"
     camera = (f'source = "gige"\ndevice_id = "{camera_device}"' if camera_device else
-              f'source = "sim"\nsim_serial = "E2E001"\nsim_diameter_mm = {diameter}')
+              f'source = "sim"\nsim_serial = "E2E001"\nsim_diameter_mm = {diameter}\n'
+              f'sim_feature = {"true" if embedded else "false"}')
+    if embedded:
+        nominal = None
     cfg.write_text(f"""
 [camera]
 {camera}
@@ -68,16 +87,8 @@ keys = {{ "{TECH_KEY}" = "technician", "{ADMIN_KEY}" = "admin" }}
 path = "{data / 'gauge.db'}"
 [opcua]
 port = {opcua_port or free_port()}
-[compensation]
-{"" if nominal is None else f"nominal_mm = {nominal}"}
-tol_upper_mm = 0.05
-tol_lower_mm = -0.05
-window = 5
-deadband_mm = 0.004
-dead_time_measurements = 3
-dead_time_s = 0.5
-max_step_mm = 0.01
-shadow = false
+{"" if embedded else TEST_COMPENSATION.format(
+    nominal="" if nominal is None else f"nominal_mm = {nominal}")}
 {extra_toml}
 """)
     proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)],

@@ -1,0 +1,89 @@
+"""Quality on the embedded default and in the browser: the SPC figures from the first
+seconds, a type-1 study of 25 values on the simulated master, and the SPC view and the study
+driven in Debian's Chromium."""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import httpx
+from playwright.sync_api import expect
+
+from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_ready
+from tests.e2e.test_dashboard import browser, enter_key, open_page, shot  # noqa: F401
+
+FAST = """
+[measurement]
+fuse_frames = 3
+[spc]
+subgroup_size = 4
+member_spacing = 1
+every_s = 0
+baseline_subgroups = 3
+"""
+
+
+def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None:
+    svc = start_service(tmp_path, embedded=True)
+    try:
+        assert wait_ready(svc)
+        st = svc.get("/api/v1/status").json()
+        comp = svc.get("/api/v1/compensation").json()
+        assert comp["settings"]["nominal_mm"] == 30.0 and comp["settings"]["shadow"]
+        assert st["compensation"]["state"] != "alarm"
+        deadline, spc = time.monotonic() + 30, {}
+        while time.monotonic() < deadline and spc.get("cpk") is None:
+            time.sleep(1)
+            spc = svc.get("/api/v1/spc").json()
+        assert spc["cpk"] is not None and spc["n"] >= 5, spc
+        print(f"\nembedded default SPC after {30 - (deadline - time.monotonic()):.0f} s: "
+              f"n {spc['n']}, Cpk {spc['cpk']:.2f}")
+        r = httpx.post(svc.url + "/api/v1/gauge-studies", timeout=10,
+                       json={"certified_mm": 30.0, "n": 25}, headers={"X-API-Key": TECH_KEY})
+        assert r.status_code == 202, r.text
+        deadline, st = time.monotonic() + 90, {}
+        while time.monotonic() < deadline:
+            st = svc.get("/api/v1/gauge-studies").json()
+            if st["running"] is None:
+                break
+            time.sleep(1)
+        res = st["items"][0]["result"]
+        assert st["items"][0]["state"] == "done", st["items"][0]
+        print(f"embedded default study: n {res['n']}, Cg {res['cg']:.2f}, Cgk {res['cgk']:.2f},"
+              f" bias {res['bias'] * 1000:.2f} um, s_g {res['s_g'] * 1000:.2f} um")
+        assert res["n"] == 25 and res["cg"] is not None and res["cgk"] is not None
+        assert res["capable"], res
+    finally:
+        stop_service(svc)
+
+
+def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) -> None:  # noqa: F811
+    svc = start_service(tmp_path, fps=25.0, extra_toml=FAST)
+    try:
+        assert wait_ready(svc)
+        page = open_page(browser, svc.url + "/ui/#spc")
+        expect(page.locator("#link")).to_have_text("live", timeout=15000)
+        expect(page.locator("#spc-baseline")).to_have_text("limits set", timeout=30000)
+        expect(page.locator("#spc-cpk-pill")).to_contain_text("Cpk ", timeout=10000)
+        assert page.locator("#spc-cpk-pill").inner_text() != "Cpk \u2013"  # a number
+        expect(page.locator("#spc-cpk")).to_contain_text("95 %")
+        page.wait_for_timeout(1500)
+        shot(page, "spc-view")
+        assert not page.errors  # type: ignore[attr-defined]
+
+        page.goto(svc.url + "/ui/#technician")
+        enter_key(page)
+        page.fill("#study-mm", "30.0")
+        page.fill("#study-n", "25")
+        page.click("#study-run")
+        expect(page.locator("#study-msg")).to_contain_text("values", timeout=10000)
+        expect(page.locator("#study-msg")).to_have_text(re.compile(r"Cgk [\d.]+: capable"),
+                                                        timeout=60000)
+        expect(page.locator("#studies tr").first.locator("td").last).to_have_text("capable")
+        page.wait_for_timeout(500)
+        shot(page, "gauge-study")
+        assert not page.errors  # type: ignore[attr-defined]
+    finally:
+        stop_service(svc)
