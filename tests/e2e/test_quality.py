@@ -11,15 +11,17 @@ from pathlib import Path
 import httpx
 from playwright.sync_api import expect
 
+from drivers.plc.registers import FaultBit
 from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_ready
 from tests.e2e.test_dashboard import browser, enter_key, open_page, shot  # noqa: F401
+from tests.faults.test_cnc_trust import read_register
 
 FAST = """
 [measurement]
 fuse_frames = 3
 [spc]
 subgroup_size = 4
-member_spacing = 1
+member_spacing = 3
 every_s = 0
 baseline_subgroups = 3
 """
@@ -82,8 +84,21 @@ def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) 
         expect(page.locator("#study-msg")).to_have_text(re.compile(r"Cgk [\d.]+: capable"),
                                                         timeout=60000)
         expect(page.locator("#studies tr").first.locator("td").last).to_have_text("capable")
+        page.locator("#studies").scroll_into_view_if_needed()
         page.wait_for_timeout(500)
         shot(page, "gauge-study")
+
+        # a master 20 um off its certificate (T = 0.1 mm here): Cgk < 0, offsets blocked
+        page.fill("#study-mm", "30.02")
+        page.click("#study-run")
+        expect(page.locator("#study-msg")).to_contain_text("Offsets blocked", timeout=60000)
+        expect(page.locator("#studies tr").first.locator("td").last).to_contain_text(
+            "not capable: Cgk")
+        assert read_register(svc.modbus_port, "faults") & FaultBit.GAUGE_STUDY_FAILED
+        page.goto(svc.url + "/ui/#operator")
+        expect(page.locator("#problems")).to_contain_text("gauge study", timeout=10000)
+        expect(page.locator("#problems")).to_contain_text("only proposed")
+        shot(page, "gauge-study-failed-operator")
         assert not page.errors  # type: ignore[attr-defined]
     finally:
         stop_service(svc)
