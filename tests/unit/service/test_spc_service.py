@@ -1,0 +1,56 @@
+"""The runtime's SPC (events when a rule fires, the feature followed) and the studies' gate
+(a failed, an overdue and a missing study)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import numpy as np
+
+from service.config import SpcConfig
+from service.runtime.record import Feature
+from service.runtime.spc import SpcService
+from service.runtime.studies import GaugeStudies, StudyPolicy
+from tests.integration.plant.test_mqtt import record
+
+
+async def test_a_rule_that_fires_is_an_event_for_live_subscribers() -> None:
+    feature = Feature(30.0, -0.02, 0.02)
+    spc = SpcService(SpcConfig(subgroup_size=4, member_spacing=2, every_s=0,
+                               baseline_subgroups=5), 10, lambda: feature)
+    q = spc.events.add()
+    rng = np.random.default_rng(2)
+    values = list(30.0 + rng.normal(0, 0.001, 60)) + [30.01] * 20  # then a 10 um shift
+    for i, v in enumerate(values):
+        r = record(i, v)
+        spc(r)
+    assert spc.monitor.limits is not None and spc.rule_violation
+    ev = await asyncio.wait_for(q.get(), 1)
+    assert ev["rules"] and ev["rules"][0]["rule"] == 1 and ev["mean_mm"] > 30.003  # shifted
+    figures = spc.figures()
+    assert figures["nominal_mm"] == 30.0 and figures["usl_mm"] == 30.02
+    feature = Feature(31.0, -0.02, 0.02)  # a new nominal: a new baseline
+    spc(record(999, 31.0))
+    assert spc.monitor.limits is None and not spc.rule_violation
+
+
+def study(capable: bool, finished: float) -> dict:
+    return {"id": 7, "finished": finished, "state": "done",
+            "result": {"capable": capable, "reasons": [] if capable else ["Cgk 0.50 < 1.33"]}}
+
+
+def gate(policy: StudyPolicy, latest: dict | None) -> GaugeStudies:
+    g = GaugeStudies(None, None, None, 10, policy, lambda: None)  # type: ignore[arg-type]
+    g._latest = latest
+    return g
+
+
+def test_the_gate_blocks_a_failed_an_overdue_and_a_missing_study() -> None:
+    now = time.time()
+    assert gate(StudyPolicy(), None).blocking() is None
+    assert "no type-1 gauge study" in gate(StudyPolicy(required=True), None).blocking()
+    assert "Cgk 0.50" in gate(StudyPolicy(), study(False, now)).blocking()
+    assert gate(StudyPolicy(max_age_h=8), study(True, now - 3600)).blocking() is None
+    old = gate(StudyPolicy(max_age_h=8), study(True, now - 9 * 3600)).blocking()
+    assert "9.0 h old" in old and "study_max_age_h = 8" in old
