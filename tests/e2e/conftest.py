@@ -58,9 +58,10 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   opcua_port: int | None = None, embedded: bool = False) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
-    ``nominal`` None leaves the feature unset; the OPC UA server on ``opcua_port`` (a free
-    one by default); ``embedded``: the embedded default's feature and tool wear
-    (``camera.sim_feature``), no nominal of the test's."""
+    ``nominal`` None leaves the feature unset; the OPC UA server only on ``opcua_port`` or
+    with ``embedded`` (its start costs a second of CPU: the fault suite restarts the service
+    dozens of times); ``embedded``: the embedded default's feature, tool wear and OPC UA
+    server (``camera.sim_feature``), no nominal of the test's."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
@@ -86,7 +87,8 @@ keys = {{ "{TECH_KEY}" = "technician", "{ADMIN_KEY}" = "admin" }}
 [store]
 path = "{data / 'gauge.db'}"
 [opcua]
-port = {opcua_port or free_port()}
+{f"port = {opcua_port}" if opcua_port else ""}
+{"" if opcua_port or embedded else "enabled = false"}
 {"" if embedded else TEST_COMPENSATION.format(
     nominal="" if nominal is None else f"nominal_mm = {nominal}")}
 {extra_toml}
