@@ -88,13 +88,13 @@ class HealthReport:
         if comp.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
             out.append(Problem(f"compensation_{comp.state.value}",
                                f"compensation {comp.state.value}"))
-        if comp.controller.writes_blocked:
+        study = self.quality[1].blocking() if self.quality else None
+        if comp.controller.writes_blocked and comp.controller.writes_blocked != study:
             out.append(Problem("offsets_blocked",
                                f"offsets blocked: {comp.controller.writes_blocked}"))
-        out += [Problem(code, text) for link in self.plant for code, text in link.problems()]
-        study = self.quality[1].blocking() if self.quality else None
-        if study:
+        if study:  # its own code: the study, not the master check, blocks
             out.append(Problem("gauge_study", study + ": offsets are only proposed"))
+        out += [Problem(code, text) for link in self.plant for code, text in link.problems()]
         return out
 
     def summary(self) -> dict[str, Any]:
