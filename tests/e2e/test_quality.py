@@ -98,6 +98,9 @@ def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) 
         page.goto(svc.url + "/ui/#operator")
         expect(page.locator("#problems")).to_contain_text("gauge study", timeout=10000)
         expect(page.locator("#problems")).to_contain_text("only proposed")
+        page.wait_for_function("document.getElementById('frame').naturalWidth > 0",
+                               timeout=10000)
+        page.evaluate("window.scrollTo(0, 0)")
         shot(page, "gauge-study-failed-operator")
         assert not page.errors  # type: ignore[attr-defined]
     finally:
