@@ -75,6 +75,13 @@ async def running(pub: MqttPublisher) -> asyncio.Task:
     return task
 
 
+async def listening(sub: Collector) -> asyncio.Task:
+    """The subscriber running and subscribed."""
+    task = asyncio.create_task(sub.run())
+    assert await wait_until(lambda: sub.connected)
+    return task
+
+
 async def stopped(pub: MqttPublisher, task: asyncio.Task) -> None:
     task.cancel()
     await asyncio.gather(task, return_exceptions=True)
@@ -84,8 +91,7 @@ async def stopped(pub: MqttPublisher, task: asyncio.Task) -> None:
 async def test_measurements_decisions_state_and_health_reach_a_subscriber(
         mosquitto: Mosquitto, tmp_path: Path) -> None:
     sub = Collector(mosquitto.port, "shaftgauge/#")
-    sub_task = asyncio.create_task(sub.run())
-    assert await wait_until(lambda: sub.connected)
+    sub_task = await listening(sub)
     settings = MqttSettings(host="127.0.0.1", port=mosquitto.port, gauge_id="lathe-7",
                             measurement_hz=5, health_s=0.5, decision_repeat_s=60)
     pub = MqttPublisher(settings, Outbox(tmp_path / "outbox.db", 100), lambda: {"ok": 1})
@@ -119,8 +125,7 @@ async def test_measurements_decisions_state_and_health_reach_a_subscriber(
 async def test_decisions_wait_for_a_broker_that_is_away_and_arrive_once_in_order(
         mosquitto: Mosquitto, tmp_path: Path) -> None:
     sub = Collector(mosquitto.port, "shaftgauge/+/decision")
-    sub_task = asyncio.create_task(sub.run())
-    assert await wait_until(lambda: sub.connected)
+    sub_task = await listening(sub)
     settings = MqttSettings(host="127.0.0.1", port=mosquitto.port, gauge_id="g1",
                             reconnect_s=0.3)
     pub = MqttPublisher(settings, Outbox(tmp_path / "outbox.db", 10_000), dict)
@@ -175,8 +180,7 @@ async def test_tls_with_a_test_ca_and_a_wrong_password_refused(tmp_path: Path) -
     try:
         sub = Collector(broker.port, "shaftgauge/+/decision", tls_ca=ca.ca,
                         auth=("historian", "h"))
-        sub_task = asyncio.create_task(sub.run())
-        assert await wait_until(lambda: sub.connected)
+        sub_task = await listening(sub)
         good = MqttPublisher(MqttSettings(host="127.0.0.1", port=broker.port, gauge_id="t",
                                           username="gauge", password="right", tls_ca=ca.ca),
                              Outbox(tmp_path / "a.db", 100), dict)
@@ -220,8 +224,7 @@ async def test_a_restarted_gauge_sends_what_waited_and_numbers_on(
     await stopped(pub, task)  # the gauge stops (or is restarted) meanwhile
 
     sub = Collector(mosquitto.port, "shaftgauge/r/decision")
-    sub_task = asyncio.create_task(sub.run())
-    assert await wait_until(lambda: sub.connected)
+    sub_task = await listening(sub)
     back = MqttSettings(host="127.0.0.1", port=mosquitto.port, gauge_id="r")
     pub = MqttPublisher(back, Outbox(tmp_path / "outbox.db", 100), dict)
     task = await running(pub)
