@@ -36,6 +36,7 @@ from service.config import CameraSettings, Settings
 from service.measure.diameter import MeasureParams
 from service.measure.result import Method
 from service.measure.stripe import StripeParams
+from service.runtime.archive import MeasurementArchive
 from service.runtime.calibration import CalibrationContext, MasterPolicy
 from service.runtime.compensating import CompensationService, RuntimeSettings
 from service.runtime.feed import MeasurementFeed, SequenceCounter
@@ -124,7 +125,8 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     try:
         store = CalibrationStore(settings.store.path, settings.store.create_if_missing)
         comp_log = CompensationLog(settings.store.path, retention=LogRetention(
-            settings.store.log_max_age_days, settings.store.log_max_rows))
+            settings.store.log_max_age_days, settings.store.log_max_rows,
+            max_measurements=settings.store.archive_max_rows))
     except StoreError as err:
         store_error = str(err)
         log.error("%s", err)
@@ -217,6 +219,9 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     sessions = CalibrationSessions(settings.store.path.parent / "calibration-sessions",
                                    api.max_calibration_sessions, api.max_session_images,
                                    api.session_expiry_h)
+    if comp_log is not None and settings.store.archive_hz > 0:  # for the AQDEF export
+        feed.on_publish(MeasurementArchive(comp_log, settings.store.archive_hz,
+                                           compensation.feature))
     spc = SpcService(settings.spc, ms.fuse_frames, compensation.feature)
     feed.on_publish(spc)
     q = settings.quality
@@ -226,7 +231,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
         StudyPolicy(q.study_max_age_h, q.min_index, q.study_required, q.resolution_mm),
         lambda: context.calibration[0].id if context.calibration else None)
     health.quality = (spc, studies)
-    plant = make_plant_links(settings, feed, compensation, camera, writer, comp_log, health)
+    plant = make_plant_links(settings, feed, compensation, camera, writer, health)
     health.plant = plant
     metrics = GaugeMetrics(health)
     feed.on_publish(metrics.record)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import datetime as dt
+import re
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query
@@ -19,6 +20,8 @@ Text = Annotated[str, Query(min_length=1, max_length=80, pattern=r"^[^\r\n\t]+$"
 def router(log: CompensationLog | None, gauge_id: str, store_error: str) -> APIRouter:
     """Reads the measurement archive (``store.archive_hz`` values a second are kept)."""
     r = APIRouter(tags=["export"])
+    # The file name goes into a header (latin-1, quoted): the gauge id as a safe word.
+    safe_id = re.sub(r"[^A-Za-z0-9._-]+", "_", gauge_id) or "gauge"
 
     @r.get("/export/aqdef", summary="Archived measurements as a Q-DAS ASCII transfer file",
            response_class=Response, responses={200: {"content": {"text/plain": {}}}})
@@ -37,7 +40,7 @@ def router(log: CompensationLog | None, gauge_id: str, store_error: str) -> APIR
                                 f"({to.isoformat()})")
         rows = await asyncio.to_thread(log.measurements, lo, hi, MAX_ROWS)
         text = from_archive(rows, gauge_id, part, characteristic)
-        name = f"shaftgauge-{gauge_id}-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.dfq"
+        name = f"shaftgauge-{safe_id}-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.dfq"
         return Response(text.encode("latin-1", "replace"),
                         media_type="text/plain; charset=iso-8859-1",
                         headers={"Content-Disposition": f'attachment; filename="{name}"',

@@ -49,16 +49,16 @@ def gauge_identity(settings: MqttSettings) -> tuple[str, str, str]:
     return gauge_id, prefix, settings.client_id or f"shaftgauge-{gauge_id}"
 
 
+MEASUREMENT_FIELDS = ("seq", "time", "status", "diameter_mm", "uncertainty_mm",
+                      "fused_diameter_mm", "fused_uncertainty_mm", "deviation_mm",
+                      "in_tolerance", "calibration_id", "reason")
+
+
 def measurement_payload(record: MeasurementRecord, gauge_id: str) -> dict[str, Any]:
-    """The ``measurement`` topic's JSON (lengths in mm, ``time`` Unix seconds)."""
-    return {"gauge_id": gauge_id, "seq": record.seq, "time": record.time,
-            "status": record.status, "diameter_mm": finite_or_none(record.diameter_mm),
-            "uncertainty_mm": finite_or_none(record.uncertainty_mm),
-            "fused_diameter_mm": finite_or_none(record.fused_diameter_mm),
-            "fused_uncertainty_mm": finite_or_none(record.fused_uncertainty_mm),
-            "deviation_mm": finite_or_none(record.deviation_mm),
-            "in_tolerance": record.in_tolerance, "calibration_id": record.calibration_id,
-            "reason": record.reason}
+    """The ``measurement`` topic's JSON: ``MEASUREMENT_FIELDS`` of the record's API form
+    (lengths in mm, ``time`` Unix seconds, None for "none")."""
+    d = record.as_dict()
+    return {"gauge_id": gauge_id, **{k: d[k] for k in MEASUREMENT_FIELDS}}
 
 
 def decision_payload(d: Decision, gauge_id: str, decision_seq: int, wall_time: float,

@@ -19,7 +19,13 @@ from typing import Any
 
 import numpy as np
 
-from service.quality.spc import RULES, XbarSLimits, capability, limits_from_subgroups, run_rules
+from service.quality.spc import (
+    RULES,
+    XbarSLimits,
+    capability,
+    limits_from_subgroups,
+    rules_at_end,
+)
 
 
 @dataclass(frozen=True)
@@ -121,8 +127,7 @@ class SpcMonitor:
             return sg
         judged = [s for s in self.subgroups if not s.baseline]
         zones = [self.limits.zone(s.mean) for s in judged] + [self.limits.zone(mean)]
-        fired = tuple(v.rule for v in run_rules(zones, self.settings.rules)
-                      if v.index == len(zones) - 1)
+        fired = rules_at_end(zones, self.settings.rules)
         sg = Subgroup(self._count, time_s, values, mean, std, baseline=False, rules=fired)
         self._keep(sg)
         return sg

@@ -165,8 +165,16 @@ def run_rules(zones: Sequence[float], rules: Sequence[int] = tuple(RULES)
     A rule fires at a point when the pattern ending there is complete (Nelson's tests 1-8).
     """
     z = np.asarray(zones, dtype=float)
-    return [RuleViolation(rule, i) for i in range(z.size) for rule in rules
-            if _fires(rule, z[:i + 1])]
+    return [RuleViolation(rule, i) for i in range(z.size)
+            for rule in rules_at_end(z[:i + 1], rules)]
+
+
+def rules_at_end(zones: Sequence[float], rules: Sequence[int] = tuple(RULES)
+                 ) -> tuple[int, ...]:
+    """The rules whose pattern ends at the last point (``run_rules`` for that point alone:
+    what a live chart asks of each new point)."""
+    z = np.asarray(zones, dtype=float)
+    return tuple(rule for rule in rules if z.size and _fires(rule, z))
 
 
 def _fires(rule: int, upto: np.ndarray) -> bool:

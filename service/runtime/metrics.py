@@ -115,8 +115,8 @@ class GaugeMetrics:
             "by outcome", ["outcome"], buckets=WRITE_BUCKETS_S, registry=self.registry)
         for outcome in Outcome:  # every series there from the start (zeros until used)
             self.offset_write.labels(outcome.value)
-        for stage in ("wait", "measure"):
-            self.stage.labels(stage)
+        # Bound once: a labels() lookup takes a lock and a dict per call, twice a frame.
+        self._stages = {stage: self.stage.labels(stage) for stage in ("wait", "measure")}
 
     def record(self, record: MeasurementRecord) -> None:
         """A published record (a feed listener)."""
@@ -124,7 +124,7 @@ class GaugeMetrics:
 
     def stage_time(self, stage: str, seconds: float) -> None:
         """A frame's time in one stage (thread-safe: called from the worker threads)."""
-        self.stage.labels(stage).observe(seconds)
+        self._stages[stage].observe(seconds)
 
     def write_time(self, outcome: str, seconds: float) -> None:
         """An offset write's round trip."""

@@ -1,6 +1,6 @@
 """The gauge's links to the plant (``service.plant``), made from the settings and fed by the
 running parts: the MQTT publisher (measurements, decisions, health), the OPC UA server (its
-values and methods), and the measurement archive behind the quality export."""
+values and methods)."""
 
 from __future__ import annotations
 
@@ -11,13 +11,11 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Protocol
 
-from calib_store.compensation_log import CompensationLog
 from calib_store.outbox import Outbox
 from drivers.camera.base import Camera, CameraError
 from drivers.plc.client import OffsetWriter
 from service.compensation import Decision, Kind
 from service.config import Settings
-from service.runtime.archive import MeasurementArchive
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
@@ -110,14 +108,10 @@ class OpcUaValues:
 
 def make_plant_links(settings: Settings, feed: MeasurementFeed,
                      compensation: CompensationService, camera: Camera,
-                     writer: OffsetWriter | None, log: CompensationLog | None,
-                     health: HealthReport) -> list[PlantLink]:
-    """The links the settings ask for, connected to the gauge's parts (and the archive
-    listener, when there is a store)."""
+                     writer: OffsetWriter | None, health: HealthReport) -> list[PlantLink]:
+    """The links the settings ask for, connected to the gauge's parts."""
     links: list[PlantLink] = []
     data_dir = settings.store.path.parent
-    if log is not None and settings.store.archive_hz > 0:
-        feed.on_publish(MeasurementArchive(log, settings.store.archive_hz, compensation.feature))
     if settings.mqtt.host:
         from service.plant.mqtt import MqttPublisher
 

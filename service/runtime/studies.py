@@ -155,7 +155,9 @@ class GaugeStudies:
             "latest": self._latest, "blocking": self.blocking()}
 
     async def stop(self) -> None:
-        """Cancel a running study (it is kept as failed)."""
+        """Cancel a running study (it is kept as failed), then close the store."""
         if self._task is not None and not self._task.done():
             self._task.cancel()
             await asyncio.gather(self._task, return_exceptions=True)
+        if self.store is not None:
+            self.store.close()

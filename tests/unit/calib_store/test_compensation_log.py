@@ -90,6 +90,19 @@ def test_retention_by_rows_and_age(tmp_path) -> None:
     log.close()
 
 
+def test_the_measurement_archive_keeps_the_newest_rows(tmp_path) -> None:
+    log = Log(tmp_path / "g.db", retention=LogRetention(prune_every_s=0.0,
+                                                        max_measurements=5))
+    for seq in range(1, 13):
+        log.submit_measurement({"seq": seq, "wall_time": 1000.0 + seq, "status": "ok",
+                                "diameter_mm": 30.0})
+        log.flush(5.0)
+    rows = log.measurements()
+    assert [r["seq"] for r in rows] == [8, 9, 10, 11, 12]
+    assert [r["seq"] for r in log.measurements(1010.0, 1011.0)] == [10, 11]
+    log.close()
+
+
 def test_a_durable_decision_is_committed_before_its_future_resolves(tmp_path) -> None:
     log = Log(tmp_path / "g.db")
     fut = log.submit(Decision(Kind.WRITE, "write", 0.0, offset_seq=3, code="write"),

@@ -53,3 +53,12 @@ def test_the_aqdef_export_holds_the_archived_measurements(tmp_path) -> None:
     bad = subprocess.run([SHAFTGAUGE, "export", "aqdef", "--store", str(tmp_path / "no.db"),
                           "--output", str(out)], capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "missing" in bad.stderr
+
+
+def test_a_gauge_id_of_any_text_makes_a_valid_file_name(tmp_path) -> None:
+    gauge, _ = build(make_settings(tmp_path, mqtt={"gauge_id": 'Drehbank "Ü 7"/links'}),
+                     Children())
+    with TestClient(create_app(gauge)) as c:
+        r = c.get("/api/v1/export/aqdef")
+        assert r.status_code == 200
+        assert 'filename="shaftgauge-Drehbank_7_links-' in r.headers["content-disposition"]
