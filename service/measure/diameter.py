@@ -3,6 +3,7 @@ it can fail (no stripe, too few points, arc too short, fit failed, wrong image).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -10,6 +11,7 @@ import numpy as np
 from service.measure import consensus
 from service.measure import fit as fits
 from service.measure.geometry import RigGeometry
+from service.measure.reflection import Reflection, ReflectionParams, fit_reflection
 from service.measure.result import Measurement, Method, Status
 from service.measure.section import (
     light_plane_basis,
@@ -67,8 +69,20 @@ class MeasureParams:
         A stripe whose centres' profiles are this lopsided (the median of
         ``StripePoints.balance``; about 0.02 alone, 0.03-0.04 at low contrast or with a thick
         sheet), beyond what the image noise makes of it, has a second line beside it, a
-        reflection, which pulls the centres toward it by up to tenths of a pixel: refused as
-        ``uncertain``.
+        reflection, which pulls the centres toward it by up to tenths of a pixel: the
+        reflection is modelled and its pull taken out (``reflection``), or, when no
+        reflection explains the profiles, the frame is refused as ``uncertain``.
+    reflection : ReflectionParams
+        Settings of that model (``service.measure.reflection``).
+    reflection_check : bool
+        Look for a reflection on every frame, not only on a lopsided one: a faint
+        reflection close to the stripe (a tenth of its height, 2 px off) leaves the profile
+        within the lopsidedness limit but pulls the centres by 10-20 um of diameter. It costs
+        20-40 ms a frame; the service asks for it a few times a second and on every frame
+        while a reflection is there (``service.runtime.pipeline``).
+    reflection_shift_rel : float
+        Relative standard uncertainty of the modelled pull: the diameter's uncertainty takes
+        in how far it moves when the pull is this share larger.
     consensus_mm : float
         With ``axis`` and ``geometric``, section points farther than this from the circle that
         most points share (plus three sigmas of the axis prior, with ``axis``) are not the
@@ -87,6 +101,9 @@ class MeasureParams:
     sheet_sigma_mm: float | None = None
     max_uncertainty_mm: float = 0.0065
     max_side_balance: float = 0.05
+    reflection: ReflectionParams = field(default_factory=ReflectionParams)
+    reflection_check: bool = True
+    reflection_shift_rel: float = 0.1
     consensus_mm: float = 0.05
 
 
@@ -377,13 +394,53 @@ def measure_frame(
             f"{len(points.section)} stripe points, need {params.min_points}{why}",
             n_points=len(points.section), points_px=points.stripe.xy)
     lopsided, limit = side_balance(points), side_balance_limit(points, params)
-    if lopsided > limit:
+    if lopsided > limit or params.reflection_check:
+        st = points.stripe
+        found = fit_reflection(image, st.xy - shift, st.normal,
+                               float(np.median(st.width_px)), params.reflection)
+        if found:
+            return _without_reflection(found, points, geometry, method, params,
+                                       center_prior, known)
+        if lopsided > limit:
+            return Measurement.failed(
+                Status.UNCERTAIN, method,
+                f"the stripe's profile is lopsided (side balance {lopsided:.3f}, limit "
+                f"{limit:.3f}): a second line runs beside it and pulls its centres, and "
+                f"{found.reason}", n_points=len(points.section), points_px=st.xy)
+    return fit_section(points, geometry, method, params, center_prior)
+
+
+def _without_reflection(found: Reflection, points: SectionPoints, geometry: RigGeometry,
+                        method: Method, params: MeasureParams,
+                        center_prior: tuple[np.ndarray, float] | None,
+                        known: tuple[np.ndarray, float] | None) -> Measurement:
+    """The fit with the stripe's centres moved back by a reflection's modelled pull.
+
+    The correction's own uncertainty is added to the diameter's: the diameter moves by
+    ``params.reflection_shift_rel`` of the correction's effect when the pull is that much
+    larger, and that is taken as one standard uncertainty."""
+    st = points.stripe
+
+    def moved(scale: float) -> Measurement:
+        xy = st.xy + (scale * found.shift_px)[:, None] * st.normal
+        again = section_points(replace(st, xy=xy, balance=None), geometry)
+        again = drop_grazing(again, geometry, params, None if known is None else known[0])
+        return fit_section(again, geometry, method, params, center_prior)
+
+    m = moved(1.0)
+    if m.status is not Status.OK:
+        return replace(m, reflection_px=found.offset_px)
+    more = moved(1.0 + params.reflection_shift_rel)
+    extra = abs(more.diameter_mm - m.diameter_mm) if more.status is Status.OK else math.inf
+    std = math.hypot(m.uncertainty_mm or 0.0, extra)
+    if not std <= params.max_uncertainty_mm:
         return Measurement.failed(
             Status.UNCERTAIN, method,
-            f"the stripe's profile is lopsided (side balance {lopsided:.3f}, limit "
-            f"{limit:.3f}): a second line runs beside it, a reflection, and pulls its centres",
-            n_points=len(points.section), points_px=points.stripe.xy)
-    return fit_section(points, geometry, method, params, center_prior)
+            f"{found.describe()}, but the diameter is then uncertain by {std * 1000:.1f} um "
+            f"(limit {params.max_uncertainty_mm * 1000:.1f} um)",
+            n_points=m.n_points, points_px=m.points_px, reflection_px=found.offset_px)
+    note = "; ".join(x for x in (m.note, found.describe()) if x)
+    return replace(m, uncertainty_mm=std, note=note, reflection_px=found.offset_px)
 
 
 def side_balance(points: SectionPoints) -> float:

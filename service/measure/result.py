@@ -63,6 +63,9 @@ class Measurement:
         mm^2, for the axis tracker.
     points_px : ndarray, shape (N, 2)
         Sub-pixel stripe centres (x, y) in pixels that were used, for display.
+    reflection_px : tuple of float or None
+        The image offset (dx, dy, px) of a reflection beside the stripe whose pull was
+        modelled and taken out (``service.measure.reflection``), None when there was none.
     """
 
     status: Status
@@ -78,6 +81,7 @@ class Measurement:
     free_center_mm: tuple[float, float] | None = None
     free_center_cov: tuple[float, float, float] | None = None
     points_px: np.ndarray = field(default_factory=lambda: np.empty((0, 2)), repr=False)
+    reflection_px: tuple[float, float] | None = None
 
     def __bool__(self) -> bool:
         return self.status is Status.OK

@@ -1,0 +1,356 @@
+"""A secondary reflection beside the stripe: find it in the stripe's own profiles and take out
+the pull it leaves in the centres.
+
+A reflection (a fainter, blurred copy of the stripe moved by a fixed image offset ``d``) close
+to the stripe merges with it under the derivative filters and pulls every centre toward it by
+up to tenths of a pixel: tens of micrometres of radius. Across the stripe at a centre with
+unit normal ``n`` the reflection stands ``d . n`` px away, so one offset explains every
+centre's profile. The profiles are sampled along the normals, averaged within a few bins of
+normal direction (the speckle averages out; the reflection's offset across the stripe is
+nearly the same within a bin) and fitted by::
+
+    p_k(s) = B_k + A_k * [ G(s - u_k; w_k) + gain * G(s - u_k - d . n_k; sqrt(w_k^2 + b^2)) ]
+
+with ``G(s; w) = exp(-s^2 / 2 w^2)``: per bin a background ``B_k``, height ``A_k``, width
+``w_k`` and the stripe's true centre ``u_k`` relative to the measured centres (px along the
+normal); shared by all bins the reflection's offset ``d`` (px), relative height ``gain`` and
+extra blur ``b`` (px). ``u_k`` is the pull to undo: each centre moves by ``u`` interpolated
+at its normal's direction. Everything is estimated from the image: nothing about the laser
+or the reflection is assumed beyond its being a shifted, blurred copy.
+
+Pure functions, no I/O; a fit that does not hold returns a falsy ``Reflection`` with the
+reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import trim_mean
+
+__all__ = ["Reflection", "ReflectionParams", "cross_profiles", "fit_reflection"]
+
+
+@dataclass(frozen=True)
+class ReflectionParams:
+    """Settings of the reflection model.
+
+    Attributes
+    ----------
+    bins : int
+        Bins of normal direction whose mean profiles are fitted.
+    reach_px : float
+        Half-length of each profile along the normal, px: a reflection farther off stands
+        apart as a line of its own (and the section's consensus drops it).
+    step_px : float
+        Sampling step along the normal, px.
+    min_per_bin : int
+        Fewest centres a bin must average.
+    min_explained : float
+        Least share of the no-reflection model's misfit that the reflection must explain:
+        below it the lopsidedness is something else and is not corrected.
+    max_gain : float
+        A "reflection" brighter than this share of the stripe may be the stripe: refused.
+    max_shift_px : float
+        A larger modelled pull is not trusted.
+    starts : int
+        The fit starts from this many of the best reflections on a grid of offsets.
+    """
+
+    bins: int = 6
+    reach_px: float = 9.0
+    step_px: float = 0.5
+    min_per_bin: int = 8
+    min_explained: float = 0.7
+    max_gain: float = 0.9
+    max_shift_px: float = 1.0
+    starts: int = 3
+
+
+@dataclass(frozen=True)
+class Reflection:
+    """A fitted reflection, or (falsy) why none could be fitted.
+
+    Attributes
+    ----------
+    offset_px : tuple of float
+        The reflection's image offset from the stripe (dx, dy), px.
+    gain : float
+        Its peak height relative to the stripe's.
+    blur_px : float
+        Its extra Gaussian blur, px.
+    shift_px : ndarray, shape (N,)
+        How far each centre must move along its given normal to undo the pull, px.
+    explained : float
+        Share of the no-reflection model's misfit that the reflection explains (0-1).
+    reason : str
+        Why there is no fit, when there is none.
+    """
+
+    offset_px: tuple[float, float] = (0.0, 0.0)
+    gain: float = 0.0
+    blur_px: float = 0.0
+    shift_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    explained: float = 0.0
+    reason: str = ""
+
+    def __bool__(self) -> bool:
+        return not self.reason
+
+    def describe(self) -> str:
+        """One line for a measurement's note."""
+        dx, dy = self.offset_px
+        return (f"a reflection at ({dx:+.1f}, {dy:+.1f}) px, {self.gain:.2f} of the stripe's "
+                f"height, was modelled and its pull taken out (up to "
+                f"{np.max(np.abs(self.shift_px)) if self.shift_px.size else 0.0:.2f} px)")
+
+
+def cross_profiles(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
+                   offsets_px: np.ndarray) -> np.ndarray:
+    """Grey levels along each centre's normal (bilinear).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        Grey image.
+    xy : ndarray, shape (N, 2)
+        Centres, px.
+    normal : ndarray, shape (N, 2)
+        Unit normals.
+    offsets_px : ndarray, shape (M,)
+        Positions along the normal, px.
+
+    Returns
+    -------
+    ndarray, shape (N, M)
+        ``image`` at ``xy + s * normal`` for each offset ``s`` (the border replicated).
+    """
+    s = np.asarray(offsets_px, np.float64)[None, :]
+    mx = (xy[:, 0:1] + s * normal[:, 0:1]).astype(np.float32)
+    my = (xy[:, 1:2] + s * normal[:, 1:2]).astype(np.float32)
+    return cv2.remap(np.asarray(image, np.float32), mx, my, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
+def _gauss(s: np.ndarray, centre: np.ndarray, width: np.ndarray) -> np.ndarray:
+    return np.exp(-0.5 * ((s - centre) / width) ** 2)
+
+
+class _Bins:
+    """The centres' mean profiles by direction of their (consistently oriented) normals."""
+
+    def __init__(self, image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
+                 params: ReflectionParams) -> None:
+        ref = np.median(normal, axis=0)
+        ref = ref / (np.linalg.norm(ref) or 1.0)
+        self.normal = np.where(((normal @ ref) < 0)[:, None], -normal, normal)
+        a0 = math.atan2(ref[1], ref[0])
+        ang = np.arctan2(self.normal[:, 1], self.normal[:, 0])
+        self.angle = (ang - a0 + np.pi) % (2.0 * np.pi) - np.pi
+        k = params.bins
+        edges = np.quantile(self.angle, np.linspace(0.0, 1.0, k + 1))
+        self.label = np.clip(np.searchsorted(edges, self.angle, side="right") - 1, 0, k - 1)
+        self.s = np.arange(-params.reach_px, params.reach_px + 1e-9, params.step_px)
+        prof = cross_profiles(image, xy, self.normal, self.s)
+        self.count = np.bincount(self.label, minlength=k)
+        # A trimmed mean: a glint or a droplet's rim in a few profiles does not make the bin.
+        self.mean = np.array([trim_mean(prof[self.label == j], 0.2, axis=0)
+                              if self.count[j] else np.zeros(self.s.size) for j in range(k)])
+        nb = np.array([self.normal[self.label == j].mean(axis=0) if self.count[j] else ref
+                       for j in range(k)])
+        self.nbar = nb / np.linalg.norm(nb, axis=1, keepdims=True)
+        self.centre_angle = np.array([np.median(self.angle[self.label == j])
+                                      if self.count[j] else 0.0 for j in range(k)])
+        self.weight = np.sqrt(self.count)[:, None]
+
+
+def _model(p: np.ndarray, bins: _Bins, ghost: bool = True) -> np.ndarray:
+    """The bins' modelled profiles (K, M) for parameters ``p``: ``[dx, dy, gain, blur]``
+    (with ``ghost``) then per bin ``base, height, u, width``."""
+    return _model_and_jacobian(p, bins, ghost, jacobian=False)[0]
+
+
+def _model_and_jacobian(p: np.ndarray, bins: _Bins, ghost: bool, jacobian: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray | None]:
+    k = bins.nbar.shape[0]
+    m = bins.s.size
+    s = bins.s[None, :]
+    g = 4 if ghost else 0
+    base, height, u, width = (p[g + i * k:g + (i + 1) * k][:, None] for i in range(4))
+    a = s - u
+    g1 = np.exp(-0.5 * (a / width) ** 2)
+    total = g1
+    if ghost:
+        dx, dy, gain, blur = p[:4]
+        delta = (bins.nbar @ np.array([dx, dy]))[:, None]
+        wg = np.sqrt(width**2 + blur**2)
+        b = a - delta
+        g2 = np.exp(-0.5 * (b / wg) ** 2)
+        total = g1 + gain * g2
+    out = base + height * total
+    if not jacobian:
+        return out, None
+    jac = np.zeros((k, m, p.size))
+    rows = np.arange(k)
+    jac[rows, :, g + rows] = 1.0
+    jac[rows, :, g + k + rows] = total
+    d_u = g1 * a / width**2
+    d_w = g1 * a**2 / width**3
+    if ghost:
+        hg2 = height * gain * g2
+        d_u = d_u + gain * g2 * b / wg**2
+        d_w = d_w + gain * g2 * b**2 / wg**3 * (width / wg)
+        along = hg2 * b / wg**2  # d/d(delta)
+        jac[..., 0] = along * bins.nbar[:, 0:1]
+        jac[..., 1] = along * bins.nbar[:, 1:2]
+        jac[..., 2] = height * g2
+        jac[..., 3] = hg2 * b**2 / wg**3 * (blur / wg)
+    jac[rows, :, g + 2 * k + rows] = height * d_u
+    jac[rows, :, g + 3 * k + rows] = height * d_w
+    return out, jac
+
+
+def _least_squares(bins: _Bins, p0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                   ghost: bool):
+    """The model fitted to the bins' mean profiles, each bin weighted by its centres."""
+    w = bins.weight[..., None]
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        return ((_model(p, bins, ghost) - bins.mean) * bins.weight).ravel()
+
+    def jacobian(p: np.ndarray) -> np.ndarray:
+        return (_model_and_jacobian(p, bins, ghost)[1] * w).reshape(-1, p.size)
+
+    return least_squares(residual, p0, jac=jacobian, bounds=(lo, hi), x_scale="jac")
+
+
+def _starts(bins: _Bins, width: float, reach: float, count: int
+            ) -> list[tuple[float, float, float, float]]:
+    """The best ``count`` distinct reflections (dx, dy, gain, blur) on a grid of offsets and
+    blurs, with stripe and reflection heights and background solved linearly per bin (centres
+    not moved): where the fits start."""
+    y = bins.mean  # (K, M)
+    grid = np.arange(-reach + 1.0, reach - 1.0 + 1e-9, 1.0)
+    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
+    keep = np.hypot(dx, dy) >= 1.0
+    dx, dy = dx[keep], dy[keep]
+    s = bins.s
+    g_main = _gauss(s, 0.0, width)
+    # The stripe's own small shift and width change, linearised: d/du and d/dw of G.
+    g_shift = g_main * s / width**2
+    g_width = g_main * s**2 / width**3
+    # Columns 1, stripe, its shift and width (the same for every grid point), and the
+    # reflection: least squares per (grid point, bin) from the normal equations, the misfit
+    # as y'y - x'A'y.
+    fixed = np.stack([np.ones_like(s), g_main, g_shift, g_width], axis=1)  # (M, 4)
+    ff = fixed.T @ fixed
+    fy = y @ fixed  # (K, 4)
+    yy = (y * y).sum(axis=1)  # (K,)
+    delta = dx[:, None] * bins.nbar[None, :, 0] + dy[:, None] * bins.nbar[None, :, 1]
+    found: list[tuple[float, float, float, float, float]] = []
+    for blur in (0.8, 1.6, 2.5):
+        g_ghost = _gauss(s[None, None, :], delta[..., None], math.hypot(width, blur))
+        ata = np.empty((*delta.shape, 5, 5))
+        ata[..., :4, :4] = ff
+        ata[..., :4, 4] = ata[..., 4, :4] = g_ghost @ fixed
+        ata[..., 4, 4] = (g_ghost * g_ghost).sum(axis=-1)
+        aty = np.empty((*delta.shape, 5))
+        aty[..., :4] = fy
+        aty[..., 4] = np.einsum("gkm,km->gk", g_ghost, y)
+        coef = np.linalg.solve(ata + 1e-9 * np.eye(5), aty[..., None])[..., 0]
+        cost = ((yy - (coef * aty).sum(axis=-1)) * bins.count).sum(axis=1)
+        ratio = np.median(coef[..., 4] / np.maximum(coef[..., 1], 1e-9), axis=1)
+        cost[(ratio <= 0) | (coef[..., 1] <= 0).any(axis=1)] = math.inf
+        found += [(float(cost[i]), float(dx[i]), float(dy[i]), float(ratio[i]), blur)
+                  for i in np.argsort(cost)[:count] if np.isfinite(cost[i])]
+    starts: list[tuple[float, float, float, float]] = []
+    for _, x, y_, gain, blur in sorted(found):
+        if all(math.hypot(x - a, y_ - b) > 1.5 for a, b, _, _ in starts):
+            starts.append((x, y_, min(max(gain, 0.01), 1.0), blur))
+        if len(starts) == count:
+            break
+    return starts
+
+
+def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
+                   width_px: float, params: ReflectionParams | None = None) -> Reflection:
+    """Fit a reflection to the stripe's profiles and the pull it leaves at each centre.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        Grey image (the frame the centres came from).
+    xy : ndarray, shape (N, 2)
+        The stripe's centres, px.
+    normal : ndarray, shape (N, 2)
+        Their unit normals (either sign).
+    width_px : float
+        The stripe's Gaussian sigma, px (a start for the fit).
+    params : ReflectionParams, optional
+        Settings.
+
+    Returns
+    -------
+    Reflection
+        Truthy with ``shift_px`` (along the normals as given) when a reflection explains the
+        profiles; falsy with the reason otherwise.
+    """
+    params = params or ReflectionParams()
+    k = params.bins
+    if len(xy) < k * params.min_per_bin:
+        return Reflection(reason=f"{len(xy)} centres are too few to model a reflection "
+                                 f"(need {k * params.min_per_bin})")
+    bins = _Bins(image, xy, normal, params)
+    if (bins.count < params.min_per_bin).any():
+        return Reflection(reason="the centres' directions are too uneven to model a "
+                                 "reflection")
+    y = bins.mean
+    base0 = np.median(y[:, :4], axis=1)
+    height0 = np.maximum(y.max(axis=1) - base0, 1e-3)
+    width0 = max(float(width_px), 0.6)
+    zeros, widths = np.zeros(k), np.full(k, width0 + 0.2)
+    plain = _least_squares(
+        bins, np.concatenate([base0, height0, zeros, widths]),
+        np.concatenate([np.full(k, -np.inf), zeros, np.full(k, -2.0), np.full(k, 0.3)]),
+        np.concatenate([np.full(k, np.inf), np.full(k, np.inf), np.full(k, 2.0),
+                        np.full(k, 6.0)]), ghost=False)
+    reach = params.reach_px
+    lo = np.concatenate([[-reach, -reach, 0.0, 0.0], np.full(k, -np.inf), zeros,
+                         np.full(k, -2.0), np.full(k, 0.3)])
+    hi = np.concatenate([[reach, reach, 1.5, 5.0], np.full(k, np.inf), np.full(k, np.inf),
+                         np.full(k, 2.0), np.full(k, 6.0)])
+    sol = None
+    for dx, dy, gain, blur in _starts(bins, width0 + 0.2, reach, params.starts):
+        p0 = np.clip(np.concatenate([[dx, dy, gain, blur], base0, height0 / (1.0 + gain),
+                                     zeros, widths]), lo + 1e-6, hi - 1e-6)
+        trial = _least_squares(bins, p0, lo, hi, ghost=True)
+        if sol is None or trial.cost < sol.cost:
+            sol = trial
+    if sol is None:
+        return Reflection(reason="no reflection fits the profiles")
+    explained = 1.0 - sol.cost / plain.cost if plain.cost > 0 else 0.0
+    dx, dy, gain, blur = (float(v) for v in sol.x[:4])
+    u = sol.x[4 + 2 * k:4 + 3 * k]
+    found = dict(offset_px=(dx, dy), gain=gain, blur_px=blur, explained=explained)
+    if not sol.success:
+        return Reflection(**found, reason=f"the reflection model did not converge "
+                                          f"({sol.message})")
+    if explained < params.min_explained:
+        return Reflection(**found, reason=f"a reflection explains {explained:.0%} of the "
+                                          f"profiles' asymmetry (need "
+                                          f"{params.min_explained:.0%})")
+    if gain > params.max_gain:
+        return Reflection(**found, reason=f"the second line is {gain:.2f} of the stripe's "
+                                          "height: which one is the stripe is not clear")
+    if np.max(np.abs(u)) > params.max_shift_px:
+        return Reflection(**found, reason=f"the modelled pull ({np.max(np.abs(u)):.2f} px) "
+                                          f"exceeds {params.max_shift_px:.2f} px")
+    order = np.argsort(bins.centre_angle)
+    shift = np.interp(bins.angle, bins.centre_angle[order], u[order])
+    # Along the normals as given (the bins flipped some to one orientation).
+    flipped = (bins.normal * normal).sum(axis=1) < 0
+    return Reflection(**found, shift_px=np.where(flipped, -shift, shift))

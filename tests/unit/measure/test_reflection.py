@@ -1,0 +1,119 @@
+"""The reflection model (``service.measure.reflection``) against analytic truth: an arc of a
+Gaussian line with a shifted, blurred, fainter copy, seeded noise; where the centres belong is
+known exactly."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from service.measure import reflection as rf
+from service.measure.stripe import StripeParams, extract_stripe
+
+CENTRE = np.array([-260.0, 150.0])  # px: the arc's centre, off the image to its left
+RADIUS = 400.0  # px
+SIGMA = 1.1  # px, the stripe's own Gaussian sigma
+
+
+def arc_image(offset: tuple[float, float] | None, gain: float = 0.3, blur: float = 1.5,
+              noise: float = 1.5, seed: int = 0) -> np.ndarray:
+    """A 300x240 image (10 DN background) with an arc of radius 400 px, 150 DN high, and a
+    reflection: the same arc times ``gain``, blurred by ``blur`` and moved by ``offset``."""
+    yy, xx = np.mgrid[0:300, 0:240].astype(np.float64)
+
+    def arc(shift: tuple[float, float], height: float, sigma: float) -> np.ndarray:
+        r = np.hypot(xx - CENTRE[0] - shift[0], yy - CENTRE[1] - shift[1])
+        return height * np.exp(-0.5 * ((r - RADIUS) / sigma) ** 2)
+
+    img = 10.0 + arc((0.0, 0.0), 150.0, SIGMA)
+    if offset is not None:
+        wide = math.hypot(SIGMA, blur)
+        img += arc(offset, gain * 150.0 * SIGMA / wide, wide)  # blur spreads, keeps the light
+    img += np.random.default_rng(seed).normal(0.0, noise, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def centres(img: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Steger's centres of the arc away from the image's edges."""
+    s = extract_stripe(img, StripeParams(curvature_correction=False))
+    keep = (s.xy[:, 1] > 20) & (s.xy[:, 1] < 280)
+    return s.xy[keep], s.normal[keep], float(np.median(s.width_px[keep]))
+
+
+def radial_error(xy: np.ndarray) -> np.ndarray:
+    """How far each point lies off the true arc, px (signed, outward positive)."""
+    return np.hypot(*(xy - CENTRE).T) - RADIUS
+
+
+@pytest.mark.parametrize("offset", [(3.0, 0.0), (-3.0, 0.0), (1.5, 0.0), (2.5, 2.5),
+                                    (0.5, -4.0), (5.0, 1.0), (0.0, 6.0)])
+def test_a_reflection_is_found_and_its_pull_taken_out(offset) -> None:
+    xy, n, width = centres(arc_image(offset))
+    pulled = np.abs(radial_error(xy)).max()
+    found = rf.fit_reflection(arc_image(offset), xy, n, width)
+    assert found, found.reason
+    assert np.hypot(found.offset_px[0] - offset[0], found.offset_px[1] - offset[1]) < 0.6, \
+        found.offset_px
+    assert 0.12 < found.gain < 0.3 and found.explained > 0.9, (found.gain, found.explained)
+    after = radial_error(xy + found.shift_px[:, None] * n)
+    assert pulled > 0.1, pulled  # the reflection did pull the centres (0.12-0.22 px) ...
+    assert np.abs(after).max() < 0.04 and abs(after.mean()) < 0.01, after  # ... back
+    assert found.describe().startswith("a reflection at (")
+
+
+def test_a_stripe_alone_has_no_reflection() -> None:
+    xy, n, width = centres(arc_image(None))
+    found = rf.fit_reflection(arc_image(None), xy, n, width)
+    assert not found and "explains" in found.reason, found.reason
+    assert abs(np.mean(radial_error(xy))) < 0.02
+
+
+def test_a_second_line_as_bright_as_the_stripe_is_not_taken_for_a_reflection() -> None:
+    img = arc_image((3.0, 0.0), gain=1.6)
+    found = rf.fit_reflection(img, *centres(img))
+    assert not found and "which one is the stripe" in found.reason, found.reason
+
+
+def test_too_few_centres_say_so() -> None:
+    xy, n, width = centres(arc_image((3.0, 0.0)))
+    found = rf.fit_reflection(arc_image((3.0, 0.0)), xy[:20], n[:20], width)
+    assert not found and "too few" in found.reason
+
+
+def test_the_normals_sign_does_not_matter() -> None:
+    img = arc_image((2.0, -2.0))
+    xy, n, width = centres(img)
+    flip = np.where(np.arange(len(n)) % 3 == 0, -1.0, 1.0)[:, None]
+    a = rf.fit_reflection(img, xy, n, width)
+    b = rf.fit_reflection(img, xy, n * flip, width)
+    assert np.allclose(a.shift_px[:, None] * n, b.shift_px[:, None] * (n * flip), atol=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-4.0, 4.0), st.floats(-4.0, 4.0), st.floats(0.0, 0.4), st.floats(0.3, 3.0),
+       st.floats(-0.5, 0.5), st.floats(0.5, 2.5), st.booleans())
+def test_the_models_jacobian_is_its_derivative(dx, dy, gain, blur, u, width, ghost) -> None:
+    img = arc_image((3.0, 0.0))
+    xy, n, _ = centres(img)
+    bins = rf._Bins(img, xy, n, rf.ReflectionParams())
+    k = bins.nbar.shape[0]
+    per_bin = np.concatenate([np.full(k, 10.0), np.full(k, 120.0), np.full(k, u),
+                              np.full(k, width)])
+    p = np.concatenate([[dx, dy, gain, blur], per_bin]) if ghost else per_bin
+    jac = rf._model_and_jacobian(p, bins, ghost)[1].reshape(-1, p.size)
+    eps = 1e-6
+    num = np.stack([(rf._model(p + eps * e, bins, ghost) - rf._model(p - eps * e, bins, ghost))
+                    .ravel() / (2 * eps) for e in np.eye(p.size)], axis=1)
+    assert np.allclose(jac, num, atol=1e-5 * max(1.0, np.abs(num).max()))
+
+
+def test_profiles_are_sampled_along_the_normals() -> None:
+    img = np.zeros((20, 20), np.float32)
+    img[:, 12] = 100.0
+    prof = rf.cross_profiles(img, np.array([[10.0, 10.0]]), np.array([[1.0, 0.0]]),
+                             np.array([0.0, 1.0, 2.0, 2.5]))
+    assert np.allclose(prof, [[0.0, 0.0, 100.0, 50.0]])
