@@ -200,6 +200,10 @@ class MeasurementSettings(_Section):
     """The sheet's thickness (Gaussian sigma, mm), e.g. from the laser's data sheet; unset, it
     is estimated from the stripe's width in each frame."""
     track_axis: bool = True
+    reflection_check_hz: float = Field(5.0, ge=0)
+    """Frames a second checked for a reflection beside the stripe (a machine part or the
+    chuck mirroring the laser) while none is seen; every frame while one is. A lopsided
+    stripe is always checked. ``inf``: every frame; 0: only lopsided ones."""
     max_age_s: float = Field(5.0, gt=0)
     """A measurement older than this no longer counts as current (status, Modbus)."""
     master_interval_h: float | None = Field(None, gt=0)

@@ -155,6 +155,9 @@ class HealthReport:
                          "subscriber_dropped": feed.subscribers.dropped,
                          "compensation_dropped": comp.dropped,
                          "errors": self.pipeline.counters["errors"],
+                         "reflection": {
+                             "present": self.pipeline.reflections.present,
+                             "modelled_frames": self.pipeline.counters["reflections_modelled"]},
                          "latest_age_s": feed.measurement_age_s(),
                          "latency": feed.latency_summary(), "axis_tracking": tracker},
             "calibration": info, "store_error": ctx.store_error or None,

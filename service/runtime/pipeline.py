@@ -25,6 +25,7 @@ from drivers.camera.base import Camera, CameraError, Frame
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement, Method
+from service.runtime.cadence import ReflectionWatch
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 from service.runtime.roi import KEEP, RegionFollower
 
@@ -57,11 +58,15 @@ class FramePipeline:
         At most this many frames a second are taken from the camera's queue (the rest are
         dropped there, oldest first, and counted); None takes them as fast as they are
         measured.
+    reflection_check_hz : float
+        Frames a second checked for a reflection beside the stripe while none is seen
+        (``ReflectionWatch``).
     """
 
     def __init__(self, camera: Camera, context: CalibrationContext, method: Method,
                  params: MeasureParams, workers: int, on_result: OnResult,
-                 roi_margin_px: int | None = None, max_rate_hz: float | None = None) -> None:
+                 roi_margin_px: int | None = None, max_rate_hz: float | None = None,
+                 reflection_check_hz: float = 5.0) -> None:
         self.camera, self.context = camera, context
         self.roi_margin_px = roi_margin_px
         self._min_interval_s = 0.0 if not max_rate_hz else 1.0 / max_rate_hz
@@ -70,8 +75,13 @@ class FramePipeline:
         self._whole_until = 0.0
         # The free circle for the axis tracker is fitted at most FREE_FIT_HZ times a second:
         # the axis moves over minutes, and the fit costs a fifth of a frame's measurement.
-        self._without_free = replace(params, free_fit=False)
         self._free_fit_s = -1e9
+        # A reflection is looked for a few times a second, and on every frame while one is
+        # there (``ReflectionWatch``); the measurement itself checks every lopsided stripe.
+        self.reflections = ReflectionWatch(reflection_check_hz)
+        self._variants = {(free, check): replace(params, free_fit=free and params.free_fit,
+                                                 reflection_check=check)
+                          for free in (False, True) for check in (False, True)}
         self.method, self.params, self.workers = method, params, workers
         self.on_result = on_result
         # Told each frame's time waiting for a worker and measuring (from worker threads).
@@ -136,12 +146,13 @@ class FramePipeline:
         return m
 
     def _params_now(self) -> MeasureParams:
-        """The settings for the next frame: with the free fit when it is due."""
+        """The settings for the next frame: with the free fit and the reflection check when
+        they are due."""
         now = time.monotonic()
-        if not self.params.free_fit or now - self._free_fit_s < 1.0 / FREE_FIT_HZ:
-            return self._without_free
-        self._free_fit_s = now
-        return self.params
+        free = self.params.free_fit and now - self._free_fit_s >= 1.0 / FREE_FIT_HZ
+        if free:
+            self._free_fit_s = now
+        return self._variants[(free, self.reflections.due(now))]
 
     def _follow_stripe(self, frame: Frame, m: Measurement, in_use: CalibrationInUse) -> None:
         """Tell the camera where to read next (its region of interest follows the stripe)."""
@@ -184,9 +195,10 @@ class FramePipeline:
                     self.counters["frames_without_calibration"] += 1
                     continue
                 prior = in_use.tracker.center() if in_use.tracker is not None else None
+                params = self._params_now()
                 fut = loop.run_in_executor(self._pool, self._measure, frame, in_use.geometry,
-                                           prior, self._near, self._params_now())
-                await self._in_flight.put((frame, in_use, fut))
+                                           prior, self._near, params)
+                await self._in_flight.put((frame, in_use, fut, params.reflection_check))
                 submitted = True
             except asyncio.CancelledError:
                 raise
@@ -202,7 +214,7 @@ class FramePipeline:
         """Results in frame order, each as soon as it and those before it are done."""
         assert self._slots is not None and self._in_flight is not None
         while True:
-            frame, in_use, fut = await self._in_flight.get()
+            frame, in_use, fut, checked = await self._in_flight.get()
             try:
                 m = await fut
             except asyncio.CancelledError:
@@ -214,6 +226,9 @@ class FramePipeline:
             finally:
                 self._slots.release()
             self._near = m.stripe_px
+            self.reflections.seen(checked, m.reflection_px is not None)
+            if m.reflection_px is not None:
+                self.counters["reflections_modelled"] += 1
             if self.roi_margin_px is not None and time.monotonic() > self._whole_until:
                 self._follow_stripe(frame, m, in_use)
             try:

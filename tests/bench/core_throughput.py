@@ -10,6 +10,8 @@ frames of each (fresh speckle per frame; seeded), as a lathe delivers them.
   frames per second of each run, the median reported, and the first (full-search) frames'
   time separately. OpenCV is held to one thread; run with ``OMP_NUM_THREADS=1
   OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1`` (``make bench`` does).
+- A frame checked for a reflection beside the stripe (``MeasureParams.reflection_check``,
+  which the service asks a few times a second): its median time, one run.
 - Stages: the time spent in each step of ``measure_frame`` (``axis``, tracked), ms per frame.
 - Extractors: ours (tracked, as the core runs it), plain Steger (``plain_steger``: OpenCV's
   filters over the whole frame and Steger's test at every pixel), grey centroid (per column,
@@ -157,7 +159,9 @@ def main() -> None:
     cv2.setNumThreads(1)
     data, rig = sequences(args.shafts, args.frames, args.seed)
     geometry = geometry_of(rig.calibration)
-    params = MeasureParams()
+    # As the service measures a frame between its reflection checks (a few a second, timed
+    # on their own below).
+    params = MeasureParams(reflection_check=False)
     n_frames = sum(len(s) for s in data)
     out: dict = {"shafts": args.shafts, "frames_per_shaft": args.frames, "runs": args.runs,
                  "seed": args.seed, "image_size": list(rig.config.image_size), "core": {},
@@ -174,6 +178,11 @@ def main() -> None:
             "median_frame_ms": statistics.median(t for r in runs for t in r[3]),
             "mean_abs_error_um": float(np.mean(runs[0][2])) if runs[0][2] else None,
             "measured": len(runs[0][2])}
+    checked = run_core(data, geometry, Method.AXIS, replace(params, reflection_check=True))
+    out["reflection_check"] = {
+        "median_frame_ms": statistics.median(checked[3]),
+        "mean_abs_error_um": float(np.mean(checked[2])) if checked[2] else None,
+        "extra_ms": statistics.median(checked[3]) - out["core"]["axis"]["median_frame_ms"]}
     out["stages_ms"] = stage_times(data, geometry, params)
     flat = [(image, d) for seq in data for image, d in seq]
     plain_data = flat[:: max(1, len(flat) // 20)]  # 20 frames are plenty for a 200 ms one
@@ -227,6 +236,10 @@ def main() -> None:
               f"{v['plain_steger_vs_core']:10.1f} {v['plain_steger_vs_median_frame']:12.1f} "
               + (f"{v['mean_abs_error_um']:13.2f}" if v["mean_abs_error_um"] is not None
                  else f"{'- (' + str(v['measured']) + ' ok)':>13}"))
+    rc = out["reflection_check"]
+    print(f"\na frame checked for a reflection (axis, tracked, one run): median "
+          f"{rc['median_frame_ms']:.2f} ms, {rc['extra_ms']:.2f} ms more; at 5 checks a "
+          f"second {rc['extra_ms'] * 5 / 10:.1f} % of a core")
     print("\nwhere the time goes (axis, tracked), ms per frame:")
     for name, v in out["stages_ms"].items():
         print(f"  {name:>28} {v:7.3f}")
