@@ -311,13 +311,16 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     y = bins.mean
     base0 = np.median(y[:, :4], axis=1)
     height0 = np.maximum(y.max(axis=1) - base0, 1e-3)
-    width0 = max(float(width_px), 0.6)
+    # The stripe's width as the extractor saw it, within what a profile of this reach holds.
+    width0 = min(max(float(width_px), 0.6), params.reach_px / 3.0)
     zeros, widths = np.zeros(k), np.full(k, width0 + 0.2)
-    plain = _least_squares(
-        bins, np.concatenate([base0, height0, zeros, widths]),
-        np.concatenate([np.full(k, -np.inf), zeros, np.full(k, -2.0), np.full(k, 0.3)]),
-        np.concatenate([np.full(k, np.inf), np.full(k, np.inf), np.full(k, 2.0),
-                        np.full(k, 6.0)]), ghost=False)
+    if not np.isfinite(y).all():
+        return Reflection(reason="the stripe's profiles are not finite")
+    lo0 = np.concatenate([np.full(k, -np.inf), zeros, np.full(k, -2.0), np.full(k, 0.3)])
+    hi0 = np.concatenate([np.full(k, np.inf), np.full(k, np.inf), np.full(k, 2.0),
+                          np.full(k, 6.0)])
+    plain = _least_squares(bins, np.clip(np.concatenate([base0, height0, zeros, widths]),
+                                         lo0 + 1e-6, hi0 - 1e-6), lo0, hi0, ghost=False)
     reach = params.reach_px
     lo = np.concatenate([[-reach, -reach, 0.0, 0.0], np.full(k, -np.inf), zeros,
                          np.full(k, -2.0), np.full(k, 0.3)])

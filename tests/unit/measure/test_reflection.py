@@ -117,3 +117,11 @@ def test_profiles_are_sampled_along_the_normals() -> None:
     prof = rf.cross_profiles(img, np.array([[10.0, 10.0]]), np.array([[1.0, 0.0]]),
                              np.array([0.0, 1.0, 2.0, 2.5]))
     assert np.allclose(prof, [[0.0, 0.0, 100.0, 50.0]])
+
+
+def test_an_implausible_width_is_held_to_the_profiles_reach() -> None:
+    """The geometric method's points may include a lit machine edge (a wide "line"): the fit
+    starts within the profiles' reach instead of failing."""
+    img = arc_image((3.0, 0.0))
+    xy, n, _ = centres(img)
+    assert rf.fit_reflection(img, xy, n, 9.4)
