@@ -397,7 +397,8 @@ def measure_frame(
     if lopsided > limit or params.reflection_check:
         st = points.stripe
         found = fit_reflection(image, st.xy - shift, st.normal,
-                               float(np.median(st.width_px)), params.reflection)
+                               float(np.median(st.width_px)), params.reflection,
+                               lopsided=lopsided > limit)
         if found:
             return _without_reflection(found, points, geometry, method, params,
                                        center_prior, known)

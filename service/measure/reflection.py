@@ -32,6 +32,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import trim_mean
 
+from service.measure.band import full_scale
+
 __all__ = ["Reflection", "ReflectionParams", "cross_profiles", "fit_reflection"]
 
 
@@ -51,8 +53,18 @@ class ReflectionParams:
     min_per_bin : int
         Fewest centres a bin must average.
     min_explained : float
-        Least share of the no-reflection model's misfit that the reflection must explain:
-        below it the lopsidedness is something else and is not corrected.
+        Least share of the single line's misfit to the profiles that the reflection must
+        explain for a stripe that is not lopsided (a clean stripe's profile is not quite a
+        Gaussian: a reflection explains 5-63 % of that misfit, 50-99 % with a reflection of a
+        tenth of the stripe's height or more).
+    min_explained_asymmetry : float
+        Least share of the single line's odd misfit (one side against the other) that the
+        reflection must explain for a lopsided stripe: below it the lopsidedness is
+        something else and is not corrected.
+    max_clipped : float
+        Largest share of centres whose core is clipped at the sensor's full scale: a
+        flat-topped stripe is not the model's Gaussian line, and its "reflection" would be
+        the clipping (speckle clips some bright grains only; over-exposure, whole stretches).
     max_gain : float
         A "reflection" brighter than this share of the stripe may be the stripe: refused.
     max_shift_px : float
@@ -66,6 +78,8 @@ class ReflectionParams:
     step_px: float = 0.5
     min_per_bin: int = 8
     min_explained: float = 0.7
+    min_explained_asymmetry: float = 0.75
+    max_clipped: float = 0.5
     max_gain: float = 0.9
     max_shift_px: float = 1.0
     starts: int = 3
@@ -86,7 +100,9 @@ class Reflection:
     shift_px : ndarray, shape (N,)
         How far each centre must move along its given normal to undo the pull, px.
     explained : float
-        Share of the no-reflection model's misfit that the reflection explains (0-1).
+        Share of the single line's misfit to the profiles that the reflection explains (0-1).
+    explained_asymmetry : float
+        ... and of the odd part of that misfit (one side of the stripe against the other).
     reason : str
         Why there is no fit, when there is none.
     """
@@ -96,6 +112,7 @@ class Reflection:
     blur_px: float = 0.0
     shift_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
     explained: float = 0.0
+    explained_asymmetry: float = 0.0
     reason: str = ""
 
     def __bool__(self) -> bool:
@@ -156,6 +173,10 @@ class _Bins:
         self.label = np.clip(np.searchsorted(edges, self.angle, side="right") - 1, 0, k - 1)
         self.s = np.arange(-params.reach_px, params.reach_px + 1e-9, params.step_px)
         prof = cross_profiles(image, xy, self.normal, self.s)
+        # Centres whose core reaches the sensor's full scale: a clipped, flat-topped stripe.
+        top = full_scale(image)
+        core = np.abs(self.s) <= 0.5
+        self.clipped = float((prof[:, core].max(axis=1) >= top - max(0.5, 1e-3 * top)).mean())
         self.count = np.bincount(self.label, minlength=k)
         # A trimmed mean: a glint or a droplet's rim in a few profiles does not make the bin.
         self.mean = np.array([trim_mean(prof[self.label == j], 0.2, axis=0)
@@ -276,8 +297,15 @@ def _starts(bins: _Bins, width: float, reach: float, count: int
     return starts
 
 
+def _odd_misfit(p: np.ndarray, bins: _Bins, ghost: bool) -> float:
+    """The misfit's part that is odd across the stripe (one side against the other)."""
+    r = (_model(p, bins, ghost) - bins.mean) * bins.weight
+    return float(((r - r[:, ::-1]) ** 2).sum()) / 4.0
+
+
 def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
-                   width_px: float, params: ReflectionParams | None = None) -> Reflection:
+                   width_px: float, params: ReflectionParams | None = None,
+                   lopsided: bool = False) -> Reflection:
     """Fit a reflection to the stripe's profiles and the pull it leaves at each centre.
 
     Parameters
@@ -292,6 +320,11 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
         The stripe's Gaussian sigma, px (a start for the fit).
     params : ReflectionParams, optional
         Settings.
+    lopsided : bool
+        The stripe is known to be lopsided (``StripePoints.balance``): the reflection must
+        explain the profiles' asymmetry (``min_explained_asymmetry``), not the whole of their
+        misfit to a single line (``min_explained``), some of which (a clipped, flat-topped
+        stripe) no reflection is asked to explain.
 
     Returns
     -------
@@ -308,6 +341,10 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     if (bins.count < params.min_per_bin).any():
         return Reflection(reason="the centres' directions are too uneven to model a "
                                  "reflection")
+    if bins.clipped > params.max_clipped:
+        return Reflection(reason=f"the stripe's core is clipped at {bins.clipped:.0%} of its "
+                                 "centres: a reflection beside a flat-topped stripe is not "
+                                 "modelled")
     y = bins.mean
     base0 = np.median(y[:, :4], axis=1)
     height0 = np.maximum(y.max(axis=1) - base0, 1e-3)
@@ -336,15 +373,22 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     if sol is None:
         return Reflection(reason="no reflection fits the profiles")
     explained = 1.0 - sol.cost / plain.cost if plain.cost > 0 else 0.0
+    odd_plain = _odd_misfit(plain.x, bins, ghost=False)
+    asymmetry = 1.0 - _odd_misfit(sol.x, bins, ghost=True) / odd_plain if odd_plain > 0 else 0.0
     dx, dy, gain, blur = (float(v) for v in sol.x[:4])
     u = sol.x[4 + 2 * k:4 + 3 * k]
-    found = dict(offset_px=(dx, dy), gain=gain, blur_px=blur, explained=explained)
+    found = dict(offset_px=(dx, dy), gain=gain, blur_px=blur, explained=explained,
+                 explained_asymmetry=asymmetry)
     if not sol.success:
         return Reflection(**found, reason=f"the reflection model did not converge "
                                           f"({sol.message})")
-    if explained < params.min_explained:
-        return Reflection(**found, reason=f"a reflection explains {explained:.0%} of the "
+    if lopsided and asymmetry < params.min_explained_asymmetry:
+        return Reflection(**found, reason=f"a reflection explains {asymmetry:.0%} of the "
                                           f"profiles' asymmetry (need "
+                                          f"{params.min_explained_asymmetry:.0%})")
+    if not lopsided and explained < params.min_explained:
+        return Reflection(**found, reason=f"a reflection explains {explained:.0%} of the "
+                                          f"profiles' misfit to a single line (need "
                                           f"{params.min_explained:.0%})")
     if gain > params.max_gain:
         return Reflection(**found, reason=f"the second line is {gain:.2f} of the stripe's "
