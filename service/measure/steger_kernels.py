@@ -547,10 +547,14 @@ def refine_centres(roi: np.ndarray, iy: np.ndarray, ix: np.ndarray, nx: np.ndarr
 def not_weak(strength: np.ndarray, width: np.ndarray, min_relative: float, lo: float,
              hi: float) -> np.ndarray:
     """Centres whose curvature reaches ``min_relative`` of the 90th percentile and whose
-    width lies within [lo, hi] times the median width of those (``stripe.reject_weak``)."""
-    keep = strength >= min_relative * np.percentile(strength, 90.0)
+    width lies within [lo, hi] times the median width of the strongest tenth
+    (``stripe.reject_weak``): the laser's stripe is the sharpest line in the frame, though not
+    always the longest (a lit machine edge crossing the frame gives five times its centres,
+    nine pixels wide, and their median width had the stripe's own centres dropped)."""
+    p90 = np.percentile(strength, 90.0)
+    keep = strength >= min_relative * p90
     if keep.any():
-        med = np.median(width[keep])
+        med = np.median(width[strength >= p90])
         if med > 0.0:
             keep &= (width >= lo * med) & (width <= hi * med)
     return keep

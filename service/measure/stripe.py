@@ -65,7 +65,8 @@ class StripeParams:
     min_relative_strength : float
         ... and this fraction of the 90th percentile of the centres' curvatures (weak tails).
     width_range : tuple of float
-        Accepted stripe width relative to the median width (smeared or split points outside).
+        Accepted stripe width relative to the median width of the strongest tenth of the
+        centres (smeared or split points, and wide lines that are not the laser, outside).
     link_gap_px : float
         Centres closer than this belong to the same line (Steger's linking).
     min_chain : int
