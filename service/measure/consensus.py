@@ -8,7 +8,7 @@ about the shaft's axis; a ghost, an edge or a glint does not lie on it. With the
 the centre that holds the most points (``ring_consensus``). Without it (``geometric``), RANSAC
 over circles through three points (``circle_consensus``). Either way whole chains of linked
 image centres are judged together (``by_chain``): a chain that mostly lies off the circle is
-something else crossing it.
+something else crossing it, unless a long stretch of it lies on the circle.
 
 Pure functions: section coordinates in mm, no I/O.
 """
@@ -100,9 +100,15 @@ def circle_consensus(section_mm: np.ndarray, tol_mm: float, max_radius_mm: float
     return support[int(np.argmax(support.sum(axis=1)))]
 
 
-def by_chain(inside: np.ndarray, chain: np.ndarray | None, min_share: float = 0.5
-             ) -> np.ndarray:
-    """``inside``, less the points of chains of which fewer than ``min_share`` are inside.
+def by_chain(inside: np.ndarray, chain: np.ndarray | None, min_share: float = 0.5,
+             min_on_circle: int = 30) -> np.ndarray:
+    """``inside``, less the points of chains of which fewer than ``min_share`` are inside,
+    unless ``min_on_circle`` or more are.
+
+    A line crossing the circle (a lit edge, a ghost's chain) has a handful of its points on
+    it, where it crosses; a long stretch of a chain on the circle is the stripe, whatever
+    else the chain runs into (a large coolant drop's bright rim links to the stripe on both
+    sides of the drop and can make most of the chain).
 
     Parameters
     ----------
@@ -112,9 +118,12 @@ def by_chain(inside: np.ndarray, chain: np.ndarray | None, min_share: float = 0.
         Each point's chain label (``StripePoints.chain``); None judges points alone.
     min_share : float
         Least share of a chain's points on the circle for the chain to count.
+    min_on_circle : int
+        ... or least number of its points on the circle.
     """
     if chain is None or len(chain) == 0:
         return inside
     _, inverse = np.unique(chain, return_inverse=True)
-    share = np.bincount(inverse, weights=inside.astype(np.float64)) / np.bincount(inverse)
-    return inside & (share[inverse] >= min_share)
+    on = np.bincount(inverse, weights=inside.astype(np.float64))
+    share = on / np.bincount(inverse)
+    return inside & ((share[inverse] >= min_share) | (on[inverse] >= min_on_circle))
