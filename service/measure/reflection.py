@@ -9,14 +9,15 @@ centre's profile. The profiles are sampled along the normals, averaged within a 
 normal direction (the speckle averages out; the reflection's offset across the stripe is
 nearly the same within a bin) and fitted by::
 
-    p_k(s) = B_k + A_k * [ G(s - u_k; w_k) + gain * G(s - u_k - d . n_k; sqrt(w_k^2 + b^2)) ]
+    p_k(s) = B_k + C_k s + A_k [ G(s - u_k; w_k) + gain G(s - u_k - d . n_k; sqrt(w_k^2 + b^2)) ]
 
-with ``G(s; w) = exp(-s^2 / 2 w^2)``: per bin a background ``B_k``, height ``A_k``, width
-``w_k`` and the stripe's true centre ``u_k`` relative to the measured centres (px along the
-normal); shared by all bins the reflection's offset ``d`` (px), relative height ``gain`` and
-extra blur ``b`` (px). ``u_k`` is the pull to undo: each centre moves by ``u`` interpolated
-at its normal's direction. Everything is estimated from the image: nothing about the laser
-or the reflection is assumed beyond its being a shifted, blurred copy.
+with ``G(s; w) = exp(-s^2 / 2 w^2)``: per bin a background ``B_k`` with a slope ``C_k`` (stray
+light, a lit edge the stripe crosses), height ``A_k``, width ``w_k`` and the stripe's true
+centre ``u_k`` relative to the measured centres (px along the normal); shared by all bins the
+reflection's offset ``d`` (px), relative height ``gain`` and extra blur ``b`` (px). ``u_k`` is
+the pull to undo: each centre moves by ``u`` interpolated at its normal's direction.
+Everything is estimated from the image: nothing about the laser or the reflection is assumed
+beyond its being a shifted, blurred copy.
 
 Pure functions, no I/O; a fit that does not hold returns a falsy ``Reflection`` with the
 reason.
@@ -58,13 +59,16 @@ class ReflectionParams:
         Gaussian: a reflection explains 5-63 % of that misfit, 50-99 % with a reflection of a
         tenth of the stripe's height or more).
     min_explained_asymmetry : float
-        Least share of the single line's odd misfit (one side against the other) that the
-        reflection must explain for a lopsided stripe: below it the lopsidedness is
+        ... or, for a lopsided stripe, least share of the single line's odd misfit (one side
+        against the other) that the reflection must explain: below both the lopsidedness is
         something else and is not corrected.
     max_clipped : float
-        Largest share of centres whose core is clipped at the sensor's full scale: a
-        flat-topped stripe is not the model's Gaussian line, and its "reflection" would be
-        the clipping (speckle clips some bright grains only; over-exposure, whole stretches).
+        Largest share of centres whose core is clipped at the sensor's full scale. A stripe
+        clipped along its whole length is flat-topped, not the model's Gaussian line (an
+        unspeckled line at 3.6 times full scale: its centres moved a quarter pixel past the
+        truth); where speckle leaves some centres below full scale the mean profiles stay
+        rounded (speckle of contrast 0.25, three times full scale, 90 % of the centres
+        clipped: 0.30 px of pull taken to 0.03).
     max_gain : float
         A "reflection" brighter than this share of the stripe may be the stripe: refused.
     max_shift_px : float
@@ -79,7 +83,7 @@ class ReflectionParams:
     min_per_bin: int = 8
     min_explained: float = 0.7
     min_explained_asymmetry: float = 0.75
-    max_clipped: float = 0.5
+    max_clipped: float = 0.95
     max_gain: float = 0.9
     max_shift_px: float = 1.0
     starts: int = 3
@@ -191,7 +195,7 @@ class _Bins:
 
 def _model(p: np.ndarray, bins: _Bins, ghost: bool = True) -> np.ndarray:
     """The bins' modelled profiles (K, M) for parameters ``p``: ``[dx, dy, gain, blur]``
-    (with ``ghost``) then per bin ``base, height, u, width``."""
+    (with ``ghost``) then per bin ``base, height, u, width, slope``."""
     return _model_and_jacobian(p, bins, ghost, jacobian=False)[0]
 
 
@@ -201,7 +205,7 @@ def _model_and_jacobian(p: np.ndarray, bins: _Bins, ghost: bool, jacobian: bool 
     m = bins.s.size
     s = bins.s[None, :]
     g = 4 if ghost else 0
-    base, height, u, width = (p[g + i * k:g + (i + 1) * k][:, None] for i in range(4))
+    base, height, u, width, slope = (p[g + i * k:g + (i + 1) * k][:, None] for i in range(5))
     a = s - u
     g1 = np.exp(-0.5 * (a / width) ** 2)
     total = g1
@@ -212,7 +216,7 @@ def _model_and_jacobian(p: np.ndarray, bins: _Bins, ghost: bool, jacobian: bool 
         b = a - delta
         g2 = np.exp(-0.5 * (b / wg) ** 2)
         total = g1 + gain * g2
-    out = base + height * total
+    out = base + slope * s + height * total
     if not jacobian:
         return out, None
     jac = np.zeros((k, m, p.size))
@@ -232,6 +236,7 @@ def _model_and_jacobian(p: np.ndarray, bins: _Bins, ghost: bool, jacobian: bool 
         jac[..., 3] = hg2 * b**2 / wg**3 * (blur / wg)
     jac[rows, :, g + 2 * k + rows] = height * d_u
     jac[rows, :, g + 3 * k + rows] = height * d_w
+    jac[rows, :, g + 4 * k + rows] = bins.s[None, :]
     return out, jac
 
 
@@ -264,10 +269,10 @@ def _starts(bins: _Bins, width: float, reach: float, count: int
     # The stripe's own small shift and width change, linearised: d/du and d/dw of G.
     g_shift = g_main * s / width**2
     g_width = g_main * s**2 / width**3
-    # Columns 1, stripe, its shift and width (the same for every grid point), and the
-    # reflection: least squares per (grid point, bin) from the normal equations, the misfit
-    # as y'y - x'A'y.
-    fixed = np.stack([np.ones_like(s), g_main, g_shift, g_width], axis=1)  # (M, 4)
+    # Columns 1, stripe, its shift and width, background slope (the same for every grid
+    # point), and the reflection: least squares per (grid point, bin) from the normal
+    # equations, the misfit as y'y - x'A'y.
+    fixed = np.stack([np.ones_like(s), g_main, g_shift, g_width, s], axis=1)  # (M, 5)
     ff = fixed.T @ fixed
     fy = y @ fixed  # (K, 4)
     yy = (y * y).sum(axis=1)  # (K,)
@@ -275,16 +280,16 @@ def _starts(bins: _Bins, width: float, reach: float, count: int
     found: list[tuple[float, float, float, float, float]] = []
     for blur in (0.8, 1.6, 2.5):
         g_ghost = _gauss(s[None, None, :], delta[..., None], math.hypot(width, blur))
-        ata = np.empty((*delta.shape, 5, 5))
-        ata[..., :4, :4] = ff
-        ata[..., :4, 4] = ata[..., 4, :4] = g_ghost @ fixed
-        ata[..., 4, 4] = (g_ghost * g_ghost).sum(axis=-1)
-        aty = np.empty((*delta.shape, 5))
-        aty[..., :4] = fy
-        aty[..., 4] = np.einsum("gkm,km->gk", g_ghost, y)
-        coef = np.linalg.solve(ata + 1e-9 * np.eye(5), aty[..., None])[..., 0]
+        ata = np.empty((*delta.shape, 6, 6))
+        ata[..., :5, :5] = ff
+        ata[..., :5, 5] = ata[..., 5, :5] = g_ghost @ fixed
+        ata[..., 5, 5] = (g_ghost * g_ghost).sum(axis=-1)
+        aty = np.empty((*delta.shape, 6))
+        aty[..., :5] = fy
+        aty[..., 5] = np.einsum("gkm,km->gk", g_ghost, y)
+        coef = np.linalg.solve(ata + 1e-9 * np.eye(6), aty[..., None])[..., 0]
         cost = ((yy - (coef * aty).sum(axis=-1)) * bins.count).sum(axis=1)
-        ratio = np.median(coef[..., 4] / np.maximum(coef[..., 1], 1e-9), axis=1)
+        ratio = np.median(coef[..., 5] / np.maximum(coef[..., 1], 1e-9), axis=1)
         cost[(ratio <= 0) | (coef[..., 1] <= 0).any(axis=1)] = math.inf
         found += [(float(cost[i]), float(dx[i]), float(dy[i]), float(ratio[i]), blur)
                   for i in np.argsort(cost)[:count] if np.isfinite(cost[i])]
@@ -321,10 +326,10 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     params : ReflectionParams, optional
         Settings.
     lopsided : bool
-        The stripe is known to be lopsided (``StripePoints.balance``): the reflection must
-        explain the profiles' asymmetry (``min_explained_asymmetry``), not the whole of their
-        misfit to a single line (``min_explained``), some of which (a clipped, flat-topped
-        stripe) no reflection is asked to explain.
+        The stripe is known to be lopsided (``StripePoints.balance``): the reflection may
+        explain the profiles' asymmetry (``min_explained_asymmetry``) instead of the whole of
+        their misfit to a single line (``min_explained``), some of which (glints, droplets'
+        rims, a stripe clipped here and there) no reflection is asked to explain.
 
     Returns
     -------
@@ -353,20 +358,18 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     zeros, widths = np.zeros(k), np.full(k, width0 + 0.2)
     if not np.isfinite(y).all():
         return Reflection(reason="the stripe's profiles are not finite")
-    lo0 = np.concatenate([np.full(k, -np.inf), zeros, np.full(k, -2.0), np.full(k, 0.3)])
-    hi0 = np.concatenate([np.full(k, np.inf), np.full(k, np.inf), np.full(k, 2.0),
-                          np.full(k, 6.0)])
-    plain = _least_squares(bins, np.clip(np.concatenate([base0, height0, zeros, widths]),
+    free = np.full(k, np.inf)
+    lo0 = np.concatenate([-free, zeros, np.full(k, -2.0), np.full(k, 0.3), -free])
+    hi0 = np.concatenate([free, free, np.full(k, 2.0), np.full(k, 6.0), free])
+    plain = _least_squares(bins, np.clip(np.concatenate([base0, height0, zeros, widths, zeros]),
                                          lo0 + 1e-6, hi0 - 1e-6), lo0, hi0, ghost=False)
     reach = params.reach_px
-    lo = np.concatenate([[-reach, -reach, 0.0, 0.0], np.full(k, -np.inf), zeros,
-                         np.full(k, -2.0), np.full(k, 0.3)])
-    hi = np.concatenate([[reach, reach, 1.5, 5.0], np.full(k, np.inf), np.full(k, np.inf),
-                         np.full(k, 2.0), np.full(k, 6.0)])
+    lo = np.concatenate([[-reach, -reach, 0.0, 0.0], lo0])
+    hi = np.concatenate([[reach, reach, 1.5, 5.0], hi0])
     sol = None
     for dx, dy, gain, blur in _starts(bins, width0 + 0.2, reach, params.starts):
         p0 = np.clip(np.concatenate([[dx, dy, gain, blur], base0, height0 / (1.0 + gain),
-                                     zeros, widths]), lo + 1e-6, hi - 1e-6)
+                                     zeros, widths, zeros]), lo + 1e-6, hi - 1e-6)
         trial = _least_squares(bins, p0, lo, hi, ghost=True)
         if sol is None or trial.cost < sol.cost:
             sol = trial
@@ -382,10 +385,13 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     if not sol.success:
         return Reflection(**found, reason=f"the reflection model did not converge "
                                           f"({sol.message})")
-    if lopsided and asymmetry < params.min_explained_asymmetry:
+    if lopsided and asymmetry < params.min_explained_asymmetry \
+            and explained < params.min_explained:
         return Reflection(**found, reason=f"a reflection explains {asymmetry:.0%} of the "
-                                          f"profiles' asymmetry (need "
-                                          f"{params.min_explained_asymmetry:.0%})")
+                                          f"profiles' asymmetry and {explained:.0%} of their "
+                                          f"misfit to a single line (need "
+                                          f"{params.min_explained_asymmetry:.0%} or "
+                                          f"{params.min_explained:.0%})")
     if not lopsided and explained < params.min_explained:
         return Reflection(**found, reason=f"a reflection explains {explained:.0%} of the "
                                           f"profiles' misfit to a single line (need "

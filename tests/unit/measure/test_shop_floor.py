@@ -102,6 +102,21 @@ def test_a_bright_machine_edge_is_not_the_stripe() -> None:
         assert abs(m.diameter_mm - 30.0) < 0.008
 
 
+def test_a_narrow_lit_edge_with_more_centres_than_the_stripe_does_not_set_its_width() -> None:
+    """A lit band 8-10 px wide crossing the frame is a line to Steger, nine pixels wide, with
+    five times the stripe's centres: their median width had every stripe centre dropped as
+    "too narrow" (0 of 1640 centres on the shaft's circle)."""
+    spec = Disturbances.from_dict({"background": {"edge_dn": 140.0,
+                                                  "edge_width_px": [8, 10]}})
+    r = ShaftRenderer(RigConfig(disturbances=spec), seed=901)
+    clean = extract_stripe(ShaftRenderer(RigConfig(), seed=901).render(21.7, 1))
+    found = extract_stripe(r.render(21.7, 1))
+    d = np.min(np.hypot(*(found.xy[:, None, :] - clean.xy[None, :, :]).transpose(2, 0, 1)),
+               axis=1)
+    assert (d < 1.0).sum() > 0.5 * len(clean), ((d < 1.0).sum(), len(clean))
+    assert (d < 1.0).mean() > 0.8  # and the edge's wide centres are gone
+
+
 def test_noise_is_the_pixels_not_the_light_gradient() -> None:
     rng = np.random.default_rng(2)
     yy, xx = np.mgrid[0:1024, 0:1376].astype(np.float32)
@@ -145,6 +160,23 @@ def test_a_chain_mostly_off_the_circle_goes_whole() -> None:
     assert list(consensus.by_chain(inside, None)) == list(inside)
 
 
+def test_a_long_stretch_on_the_circle_stays_whatever_its_chain_runs_into() -> None:
+    """A large drop's rim links to the stripe on both sides of it: 45 % of the chain on the
+    circle (138 of 302 centres in a held-out frame) is still the stripe."""
+    inside = np.r_[np.ones(40, bool), np.zeros(60, bool), np.ones(3, bool), np.zeros(20, bool)]
+    chain = np.r_[np.zeros(100, int), np.ones(23, int)]
+    keep = consensus.by_chain(inside, chain)
+    assert keep[:40].all() and not keep[40:].any()  # the crossing line's three points go
+
+
+def test_a_drop_larger_than_the_stripe_is_wide_does_not_take_the_stripe_with_it() -> None:
+    spec = Disturbances.from_dict({"droplets": {"count": 5, "radius_px": [3.0, 10.0]}})
+    r = ShaftRenderer(RigConfig(disturbances=spec), seed=903)
+    m = measure_frame(r.render(21.7, 3), geometry_of(r.calibration))
+    assert m.status is Status.OK, m.reason
+    assert abs(m.diameter_mm - 21.7) < 0.008
+
+
 def test_uncertain_diameters_are_refused_with_the_figure() -> None:
     r = ShaftRenderer(RigConfig(), seed=4)
     g = geometry_of(r.calibration)
@@ -177,15 +209,19 @@ def test_the_tracker_does_not_take_a_stray_free_centre_into_its_reference() -> N
 
 
 def test_a_frame_whose_points_are_all_off_the_circle_is_refused_quietly(recwarn) -> None:
-    """Lines that are not the shaft's (here: two straight bright bars) leave no point on the
-    circle about the axis: too few points, said so, and no warning on the way."""
+    """Lines that are not the shaft's (here: two straight bright bars) leave no arc on the
+    circle about the axis: refused, said so, and no warning on the way. (Where a bar runs
+    tangent to a circle about the axis some 30 of its centres lie on that circle, a stretch
+    that ``consensus.by_chain`` keeps: over 6 degrees of arc, refused as too short.)"""
     r = ShaftRenderer(RigConfig(), seed=1)
     g = geometry_of(r.calibration)
     img = np.full((1024, 1376), 5, np.uint8)
     img[100:900, 200:202] = 160
     img[300:302, 300:1200] = 160
     m = measure_frame(img, g)
-    assert m.status is Status.TOO_FEW_POINTS and "lie on one circle" in m.reason, m.reason
+    assert m.diameter_mm is None
+    assert (m.status is Status.TOO_FEW_POINTS and "lie on one circle" in m.reason) or (
+        m.status is Status.ARC_TOO_SHORT and "degrees of the section" in m.reason), m.reason
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
 
 
