@@ -163,11 +163,18 @@ def test_plc_stopped_and_restarted(rig: Rig) -> None:
 
 
 def test_a_reflection_beside_the_stripe_holds_the_offsets(rig: Rig) -> None:
-    """A second line 3 px beside the stripe and as bright as it pulls its centres by tens of
-    micrometres while the fit stays confident, and no model tells which line is the stripe
-    (a fainter reflection is modelled and measured through: ``test_shop_floor``): the
-    frames are refused as uncertain, saying why, and an offset that falls due meanwhile is
-    not written; once the reflection is gone, it is."""
+    """A reflection 3 px beside the stripe pulls its centres by tens of micrometres while the
+    fit stays confident. A fainter one is modelled and measured through: the service goes on
+    measuring and says a reflection is there. A second line as bright as the stripe, where
+    no model tells which line is the stripe: the frames are refused as uncertain, saying why,
+    and an offset that falls due meanwhile is not written; once it is gone, it is."""
+    faint = {"ghost": {"gain": 0.3, "offset_px": [3.0, 0.0], "blur_px": 1.5}}
+    assert control(rig.camera.control_port, {"set": {"disturbances": faint}})["ok"]
+    until(lambda: rig.status()["pipeline"]["reflection"]["present"], 20,
+          "the reflection is found")
+    latest = rig.svc.get("/api/v1/measurements/latest").json()
+    assert latest["status"] == "ok" and "a reflection at (" in latest["note"], latest
+    assert abs(latest["diameter_mm"] - 30.0) < 0.008, latest
     ghost = {"ghost": {"gain": 1.6, "offset_px": [3.0, 0.0], "blur_px": 1.5}}
     assert control(rig.camera.control_port, {"set": {"disturbances": ghost}})["ok"]
     until(lambda: any("lopsided" in p["text"] for p in rig.status()["problems"]), 20,
