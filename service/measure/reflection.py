@@ -388,9 +388,6 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     u = sol.x[4 + 2 * k:4 + 3 * k]
     found = dict(offset_px=(dx, dy), gain=gain, blur_px=blur, explained=explained,
                  explained_asymmetry=asymmetry)
-    if not sol.success:
-        return Reflection(**found, reason=f"the reflection model did not converge "
-                                          f"({sol.message})")
     if lopsided and asymmetry < params.min_explained_asymmetry \
             and explained < params.min_explained:
         return Reflection(**found, reason=f"a reflection explains {asymmetry:.0%} of the "
@@ -402,6 +399,9 @@ def fit_reflection(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
         return Reflection(**found, reason=f"a reflection explains {explained:.0%} of the "
                                           f"profiles' misfit to a single line (need "
                                           f"{params.min_explained:.0%})")
+    if not sol.success:
+        return Reflection(**found, reason=f"the reflection model did not converge "
+                                          f"({sol.message})")
     if gain > params.max_gain:
         return Reflection(**found, reason=f"the second line is {gain:.2f} of the stripe's "
                                           "height: which one is the stripe is not clear")
