@@ -78,7 +78,7 @@ class MeasureParams:
         Look for a reflection on every frame, not only on a lopsided one: a faint
         reflection close to the stripe (a tenth of its height, 2 px off) leaves the profile
         within the lopsidedness limit but pulls the centres by 10-20 um of diameter. It costs
-        20-40 ms a frame; the service asks for it a few times a second and on every frame
+        about 30 ms a frame; the service asks for it a few times a second and on every frame
         while a reflection is there (``service.runtime.pipeline``).
     reflection_shift_rel : float
         Relative standard uncertainty of the modelled pull: the diameter's uncertainty takes
