@@ -13,7 +13,7 @@ from drivers.camera.aravis import AravisCamera
 from drivers.camera.base import CameraConfig, Frame
 from drivers.sim.control import control
 from drivers.sim.gige import check_stamp
-from service.measure.diameter import measure_frame
+from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import geometry_of
 from service.measure.result import Status
 from service.runtime.roi import KEEP, RegionFollower
@@ -28,6 +28,11 @@ def delivered_per_s(cam: AravisCamera, seconds: float = 1.5) -> float:
     return (cam.status().counters.completed - before) / seconds
 
 
+# Frame by frame as the service measures between its reflection checks (a few a second): a
+# check on every frame (30 ms) would let this loop see only some of the camera's ring.
+AS_THE_SERVICE = MeasureParams(reflection_check=False)
+
+
 def follow(cam: AravisCamera, follower: RegionFollower, geometry, until, timeout_s: float
            ) -> list[tuple[Frame, object]]:
     """Measure frames, let the follower steer the region, until ``until(frame, m)``."""
@@ -37,7 +42,8 @@ def follow(cam: AravisCamera, follower: RegionFollower, geometry, until, timeout
         frame = cam.get_frame(0.5)
         if frame is None:
             continue
-        m = measure_frame(frame.image, geometry, near=near, origin=frame.origin)
+        m = measure_frame(frame.image, geometry, params=AS_THE_SERVICE, near=near,
+                          origin=frame.origin)
         near = m.points_px if m.status is Status.OK else None
         region = None if frame.origin is None else (*frame.origin, frame.image.shape[1],
                                                     frame.image.shape[0])
@@ -63,7 +69,7 @@ def test_region_follows_the_stripe_and_comes_back_after_a_loss(sim_camera_factor
         assert len(whole) == 8 and all(f.image.shape == (1024, 1376) for f in whole)
         full_rate = delivered_per_s(cam)
         full_period_us = control(sim.control_port, {"get": "stats"})["stats"]["frame_period_us"]
-        full = [measure_frame(f.image, geometry) for f in whole]
+        full = [measure_frame(f.image, geometry, params=AS_THE_SERVICE) for f in whole]
         assert all(m.status is Status.OK for m in full)
 
         # The region narrows to the stripe and its margin.
