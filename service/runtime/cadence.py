@@ -8,6 +8,8 @@ that part is lit). A lopsided stripe is always checked by the measurement itself
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["ReflectionWatch"]
 
 
@@ -30,6 +32,8 @@ class ReflectionWatch:
         """Whether the frame taken at ``now_s`` is checked (and, if so, counted as the check)."""
         if self.hz <= 0:
             return self.present
+        if math.isinf(self.hz):
+            return True
         # A hair's tolerance: frames at exactly the rate are not pushed to the next one.
         if (self.present or self._last_s is None
                 or (now_s - self._last_s) * self.hz >= 1.0 - 1e-6):

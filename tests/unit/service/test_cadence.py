@@ -43,4 +43,5 @@ def test_a_lopsided_frame_found_between_checks_starts_the_checks() -> None:
 def test_the_extremes() -> None:
     always, never = ReflectionWatch(float("inf")), ReflectionWatch(0.0)
     assert all(always.due(t / 1000) for t in range(50))
+    assert always.due(0.049)  # the same instant again (inf * 0 is not a number)
     assert not any(never.due(t) for t in range(1, 50))
