@@ -31,9 +31,14 @@ class Service:
     plc_port: int
     control_port: int
     data: Path
+    log: Path
 
     def get(self, path: str, **kw) -> httpx.Response:
         return httpx.get(self.url + path, timeout=10, **kw)
+
+    def stderr(self) -> str:
+        """What the service wrote to its standard error so far."""
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
 
 
 # The tests' compensation: a wide band, offsets written (the embedded default: +-0.020 mm,
@@ -93,15 +98,19 @@ path = "{data / 'gauge.db'}"
     nominal="" if nominal is None else f"nominal_mm = {nominal}")}
 {extra_toml}
 """)
-    proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, env={**os.environ, **(env or {})})
+    # Its log to a file: a pipe nobody reads would fill (64 KiB) with a long outage's
+    # warnings and block the service on its next log line; the file is there to read after.
+    log = tmp_path / f"serve-{api}.log"
+    with log.open("w") as err:
+        proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)],
+                                stdout=subprocess.PIPE, stderr=err, text=True,
+                                start_new_session=True, env={**os.environ, **(env or {})})
     line = proc.stdout.readline()
     if not line:
-        raise RuntimeError(f"serve did not start: {proc.stderr.read()[-3000:]}")
+        raise RuntimeError(f"serve did not start: {log.read_text(errors='replace')[-3000:]}")
     ready = json.loads(line)
     return Service(proc, ready["url"], ready["modbus_port"], plc,
-                   ready.get("sim_camera_control_port", 0), data)
+                   ready.get("sim_camera_control_port", 0), data, log)
 
 
 def stop_service(svc: Service) -> None:

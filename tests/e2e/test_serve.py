@@ -129,7 +129,7 @@ def test_ctrl_c_stops_the_service_and_its_simulators_at_once(tmp_path) -> None:
         os.killpg(svc.proc.pid, signal.SIGINT)
         assert svc.proc.wait(20) == 130
         assert time.monotonic() - t0 < 6.0
-        err = svc.proc.stderr.read() if svc.proc.stderr else ""
+        err = svc.stderr()
         assert "Traceback" not in err, err[-2000:]
     finally:
         stop_service(svc)
