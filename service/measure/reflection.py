@@ -176,7 +176,9 @@ class _Bins:
         k = params.bins
         edges = np.quantile(self.angle, np.linspace(0.0, 1.0, k + 1))
         self.label = np.clip(np.searchsorted(edges, self.angle, side="right") - 1, 0, k - 1)
-        self.s = np.arange(-params.reach_px, params.reach_px + 1e-9, params.step_px)
+        # Symmetric about the centre by construction: the odd misfit mirrors the samples.
+        half = round(params.reach_px / params.step_px)
+        self.s = params.step_px * np.arange(-half, half + 1, dtype=np.float64)
         prof = cross_profiles(image, xy, self.normal, self.s)
         # Centres whose core reaches the sensor's full scale: a clipped, flat-topped stripe.
         top = full_scale(image)
@@ -208,14 +210,14 @@ def _model_and_jacobian(p: np.ndarray, bins: _Bins, ghost: bool, jacobian: bool 
     g = 4 if ghost else 0
     base, height, u, width, slope = (p[g + i * k:g + (i + 1) * k][:, None] for i in range(5))
     a = s - u
-    g1 = np.exp(-0.5 * (a / width) ** 2)
+    g1 = _gauss(s, u, width)
     total = g1
     if ghost:
         dx, dy, gain, blur = p[:4]
         delta = (bins.nbar @ np.array([dx, dy]))[:, None]
         wg = np.sqrt(width**2 + blur**2)
         b = a - delta
-        g2 = np.exp(-0.5 * (b / wg) ** 2)
+        g2 = _gauss(s, u + delta, wg)
         total = g1 + gain * g2
     out = base + slope * s + height * total
     if not jacobian:

@@ -112,6 +112,16 @@ def test_the_models_jacobian_is_its_derivative(dx, dy, gain, blur, u, width, gho
     assert np.allclose(jac, num, atol=1e-5 * max(1.0, np.abs(num).max()))
 
 
+def test_the_profiles_are_sampled_symmetrically_about_each_centre() -> None:
+    """The odd (one side against the other) misfit mirrors the samples: a reach that is not
+    a whole number of steps must not shift the grid."""
+    img = arc_image((3.0, 0.0))
+    xy, n, _ = centres(img)
+    for reach in (9.0, 9.3, 7.7):
+        s = rf._Bins(img, xy, n, rf.ReflectionParams(reach_px=reach)).s
+        assert np.allclose(s, -s[::-1]) and 0.0 in s, (reach, s[:3])
+
+
 def test_profiles_are_sampled_along_the_normals() -> None:
     img = np.zeros((20, 20), np.float32)
     img[:, 12] = 100.0
