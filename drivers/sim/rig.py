@@ -298,13 +298,7 @@ class ShaftRenderer:
         rng_shop = np.random.default_rng([self.seed, int(frame_index), 1])
         img = self._ambient(diameter_mm).copy()
         if rad.size:
-            roi = rad
-            if cfg.speckle_contrast > 0:
-                field_ = rng.standard_normal(rad.shape, dtype=np.float32)
-                g = max(cfg.speckle_grain_px, 0.3)
-                field_ = cv2.GaussianBlur(field_, (0, 0), g)
-                field_ /= max(float(field_.std()), 1e-6)
-                roi = rad * np.clip(1.0 + cfg.speckle_contrast * field_, 0.0, None)
+            roi = self._speckled(rad, rng)
             if spec:
                 roi = disturb_stripe(roi, spec, rng_shop)
             if cfg.blur_px > 0:
@@ -315,6 +309,30 @@ class ShaftRenderer:
         sigma = np.sqrt(img / cfg.electrons_per_dn + cfg.read_noise_dn**2)
         img += sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+    def _speckled(self, rad: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """``rad`` times the frame's speckle (the first draw of the frame's generator)."""
+        cfg = self.config
+        if not cfg.speckle_contrast > 0:
+            return rad
+        field_ = rng.standard_normal(rad.shape, dtype=np.float32)
+        field_ = cv2.GaussianBlur(field_, (0, 0), max(cfg.speckle_grain_px, 0.3))
+        field_ /= max(float(field_.std()), 1e-6)
+        return rad * np.clip(1.0 + cfg.speckle_contrast * field_, 0.0, None)
+
+    def stripe_light(self, diameter_mm: float, frame_index: int | None = None
+                     ) -> tuple[np.ndarray, tuple[int, int]]:
+        """The stripe's light as the lens forms it (blurred), DN, on its box, and the box's
+        top-left pixel (x, y): with frame ``frame_index``'s speckle, or none when None. No
+        feed marks, disturbances, ambient light or sensor noise: what an extractor could at
+        best see of the stripe (the benches' speckle floor)."""
+        cfg = self.config
+        rad, (x0, y0, _, _) = self._stripe_radiance(diameter_mm)
+        if frame_index is not None and rad.size:
+            rad = self._speckled(rad, np.random.default_rng([self.seed, int(frame_index)]))
+        if cfg.blur_px > 0 and rad.size:
+            rad = cv2.GaussianBlur(rad, (0, 0), cfg.blur_px)
+        return rad, (x0, y0)
 
     def render_clean(self, diameter_mm: float) -> np.ndarray:
         """The noise- and speckle-free float image (blurred), for tests of the extractor."""
