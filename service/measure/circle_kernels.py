@@ -220,22 +220,39 @@ def robust_rounds(x: np.ndarray, y: np.ndarray, sw_all: np.ndarray, cx: float, c
 
 @numba.njit(**_OPTS)
 def circle_information(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float,
-                       w: np.ndarray, n_free: int) -> np.ndarray:
-    """``s^-2 J^T W J`` of a circle fit, with ``s^2`` the weighted residual variance inflated
-    for correlation along the arc (``fit.circle_covariance``)."""
+                       w: np.ndarray, n_free: int, use: np.ndarray, clip: float
+                       ) -> np.ndarray:
+    """``s^-2 J^T W J`` over the points ``use`` marks, with ``s^2`` their weighted residual
+    variance inflated for correlation along the arc (``fit.circle_covariance``); the other
+    points whose weighted residual lies within twice ``clip`` count in ``s^2`` at ``clip``
+    (winsorized), those beyond it not at all."""
     n = x.shape[0]
     dx, dy = x - cx, y - cy
     dist = np.maximum(np.hypot(dx, dy), 1e-300)
-    res = dist - r
+    counted = np.zeros(n, np.bool_)
+    wres = np.zeros(n)
     s2 = 0.0
+    n_use = 0
     for i in range(n):
-        s2 += w[i] * res[i] * res[i]
-    s2 /= max(n - n_free, 1)
-    order = order_along_arc(x, y, cx, cy)
-    s2 *= correlation_factor((res * np.sqrt(w))[order])
+        v = (dist[i] - r) * math.sqrt(w[i])
+        if use[i]:
+            n_use += 1
+        elif clip < math.inf and abs(v) <= 2.0 * clip:
+            v = clip if v > 0 else -clip
+        else:
+            continue
+        counted[i] = True
+        wres[i] = v
+        s2 += v * v
+    s2 /= max(n_use - n_free, 1)
+    idx = np.flatnonzero(counted)
+    order = order_along_arc(x[idx], y[idx], cx, cy)
+    s2 *= correlation_factor(wres[idx][order])
     s2 = max(s2, 1e-30)
     info = np.zeros((3, 3))
     for i in range(n):
+        if not use[i]:
+            continue
         j = (-dx[i] / dist[i], -dy[i] / dist[i], -1.0)
         for a in range(3):
             for b in range(3):

@@ -17,11 +17,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.measure.circle_kernels import MAD_TO_SIGMA
 
-def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: float
-                   ) -> np.ndarray:
+
+def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: float,
+                   scatter_sigmas: float = 4.0) -> np.ndarray:
     """The points within ``window_mm`` of the radius about ``center_mm`` that most points
-    share.
+    share, the window widened to ``scatter_sigmas`` of the ring's own radial scatter where
+    that is wider.
+
+    A thick light sheet under speckle scatters the stripe's points by tens of micrometres:
+    a fixed window then cuts the tails of the stripe's own scatter, one frame more on one
+    side, another on the other, which moves the fitted radius by more than the points left
+    inside show (at a sheet sigma of 0.15 mm a 50 um window dropped 14 % of the points and
+    the reported uncertainty fell a quarter short of the diameter's scatter).
 
     Parameters
     ----------
@@ -30,8 +39,11 @@ def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: flo
     center_mm : ndarray, shape (2,)
         The section's centre (the spindle axis), mm.
     window_mm : float
-        Half-width of the ring, mm: the stripe's own radial scatter plus how far the centre
-        may be off.
+        Least half-width of the ring, mm: the stripe's own radial scatter plus how far the
+        centre may be off.
+    scatter_sigmas : float
+        Half-width of the ring in robust standard deviations of its points' radii about
+        its radius, when that is wider than ``window_mm``; 0 keeps ``window_mm``.
 
     Returns
     -------
@@ -47,7 +59,14 @@ def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: flo
     ends = np.searchsorted(s, s + 2.0 * window_mm, side="right")
     i = int(np.argmax(ends - np.arange(n)))
     radius = float(np.median(s[i:ends[i]]))
-    return np.abs(rho - radius) <= window_mm
+    window = window_mm
+    for _ in range(3):  # a cut sample understates its scatter: widen until it holds
+        dev = np.abs(rho - radius)
+        scatter = MAD_TO_SIGMA * float(np.median(dev[dev <= window]))
+        if not scatter_sigmas * scatter > window * 1.05:
+            break
+        window = scatter_sigmas * scatter
+    return np.abs(rho - radius) <= window
 
 
 def circle_consensus(section_mm: np.ndarray, tol_mm: float, max_radius_mm: float,

@@ -20,7 +20,13 @@ from service.measure.section import (
     project_to_section,
 )
 from service.measure.sheet_correction import correct_sheet_bias
-from service.measure.stripe import StripeParams, StripePoints, extract_stripe
+from service.measure.stripe import (
+    StripeParams,
+    StripePoints,
+    extract_stripe,
+    matched_scale,
+    with_scale,
+)
 from service.measure.triangulate import triangulate
 
 DEFAULT_METHOD = Method.AXIS
@@ -85,8 +91,13 @@ class MeasureParams:
         in how far it moves when the pull is this share larger.
     consensus_mm : float
         With ``axis`` and ``geometric``, section points farther than this from the circle that
-        most points share (plus three sigmas of the axis prior, with ``axis``) are not the
-        shaft's (``service.measure.consensus``): a ghost, an edge, a glint.
+        most points share (plus three sigmas of the axis prior, with ``axis``; with ``axis``
+        or four robust sigmas of the ring's own scatter, when wider: a thick sheet's) are not
+        the shaft's (``service.measure.consensus``): a ghost, an edge, a glint.
+    arc_weighting : bool
+        Weigh the points of ``axis`` and ``geometric`` fits by the inverse of their scatter's
+        smooth profile along the arc, estimated from the first fit's residuals
+        (``fit.arc_variance``), and fit again.
     """
 
     stripe: StripeParams = field(default_factory=StripeParams)
@@ -105,6 +116,7 @@ class MeasureParams:
     reflection_check: bool = True
     reflection_shift_rel: float = 0.1
     consensus_mm: float = 0.05
+    arc_weighting: bool = True
 
 
 @dataclass(frozen=True)
@@ -276,19 +288,27 @@ def fit_section(
         weights = fits.point_weights(points.stripe.strength, len(sec))
         if method in (Method.AXIS, Method.GEOMETRIC):
             circ = _fit_circle(sec, method, center_prior, weights)
+            refit = False
+            if circ and params.arc_weighting:
+                # Weigh each point by how much the points about it scatter (fits.arc_variance).
+                res = (np.hypot(*(sec - circ.center).T) - circ.radius) * np.sqrt(weights)
+                weights = weights / fits.arc_variance(sec, circ.center, circ.inliers, res)
+                refit = True
             if circ and params.sheet_correction:
                 # Take out the sheet's error modelled on this fit, and fit again from it.
                 moved = correct_sheet_bias(points, circ.center, circ.radius, geometry, params)
                 again = _fit_circle(moved, method, center_prior, weights, start=circ)
                 if again:
                     sec, circ = moved, again
+            elif refit:
+                circ = _fit_circle(sec, method, center_prior, weights, start=circ) or circ
         else:  # the paper's algorithms, as the paper has them: unweighted
             circ = (fits.fit_kasa if method is Method.CIRCLE else fits.fit_paper)(sec)
         free = fits.fit_geometric(sec, weights=weights) \
             if method is Method.AXIS and params.free_fit else None
         if free:  # for the axis tracker
-            cov = fits.circle_covariance(sec[free.inliers], free.center, free.radius,
-                                         weights=weights[free.inliers])
+            cov = fits.circle_covariance(sec, free.center, free.radius, weights=weights,
+                                         inliers=free.inliers)
             free_extra = {"free_center_mm": (float(free.center[0]), float(free.center[1])),
                           "free_center_cov": (float(cov[0, 0]), float(cov[0, 1]),
                                               float(cov[1, 1]))}
@@ -394,6 +414,8 @@ def measure_frame(
             f"{len(points.section)} stripe points, need {params.min_points}{why}",
             n_points=len(points.section), points_px=points.stripe.xy)
     lopsided, limit = side_balance(points), side_balance_limit(points, params)
+    if not lopsided > limit:
+        points = _with_matched_filters(image, points, geometry, method, params, known, shift)
     if lopsided > limit or params.reflection_check:
         st = points.stripe
         found = fit_reflection(image, st.xy - shift, st.normal,
@@ -409,6 +431,35 @@ def measure_frame(
                 f"{limit:.3f}): a second line runs beside it and pulls its centres, and "
                 f"{found.reason}", n_points=len(points.section), points_px=st.xy)
     return fit_section(points, geometry, method, params, center_prior)
+
+
+def _with_matched_filters(image: np.ndarray, points: SectionPoints, geometry: RigGeometry,
+                          method: Method, params: MeasureParams,
+                          known: tuple[np.ndarray, float] | None,
+                          shift: np.ndarray) -> SectionPoints:
+    """The stripe found again with derivative filters that suit its width, when it is wider
+    than ``params.stripe.sigma_px`` suits (``stripe.matched_scale``: a thick light sheet).
+
+    Speckle moves each centre by about the sheet's width squared times the speckle's slope
+    across it; filters narrow against the stripe follow the grains inside its core and add
+    to that (a sheet sigma of 0.10 mm: 4.1 um of scatter from frame to frame with 1.5 px
+    filters, 3.2 um with 3 px ones). Only for a stripe that is not lopsided (the caller's
+    check): wider filters would merge a second line beside it into the stripe. The first
+    points stay when the second search finds fewer than half as many.
+    """
+    scale = matched_scale(points.stripe.width_px, params.stripe)
+    if not scale > params.stripe.sigma_px:
+        return points
+    again = extract_stripe(image, with_scale(params.stripe, scale), points.stripe.xy - shift)
+    if not again:
+        return points
+    wide = section_points(replace(again, xy=again.xy + shift), geometry)
+    if method in (Method.AXIS, Method.GEOMETRIC):
+        wide = on_the_shaft(wide, params, known)
+    wide = drop_grazing(wide, geometry, params, None if known is None else known[0])
+    if len(wide.section) < max(params.min_points, 0.5 * len(points.section)):
+        return points
+    return wide
 
 
 def _without_reflection(found: Reflection, points: SectionPoints, geometry: RigGeometry,

@@ -146,18 +146,34 @@ def correlation_factor(residuals: np.ndarray, max_lag_fraction: float = 0.2) -> 
 
 def circle_covariance(points: np.ndarray, center: np.ndarray, radius: float,
                       center_prior_sigma: float | None = None,
-                      weights: np.ndarray | None = None) -> np.ndarray:
+                      weights: np.ndarray | None = None,
+                      inliers: np.ndarray | None = None,
+                      clip: float | None = None) -> np.ndarray:
     """Covariance of (cx, cy, r) of a circle fit, mm^2, from its Jacobian and residuals.
 
     ``s^2 (J^T W J)^-1`` with ``s^2`` the weighted residual variance, inflated by
     ``correlation_factor`` for residuals correlated along the arc; with a centre prior of
     standard deviation ``center_prior_sigma`` (mm) its information is added to the centre's.
+
+    With ``inliers`` the Jacobian and ``s^2`` are the kept points' (the points a fit kept of
+    ``points``). With ``clip`` too (the weighted residual beyond which the fit set points
+    aside, mm) the points set aside just past it, within twice it, count in ``s^2`` at
+    ``clip``: the winsorized variance of a trimmed mean. They are the tails of the stripe's
+    own scatter, cut one frame more on one side, another on the other, which moves the fit
+    by more than the kept points show; points farther out are something else (a glint, a
+    drop's rim) and do not count. ``fit_axis_prior`` counts them: with the axis exact, the
+    z-scores' standard deviation went from 1.20 to 1.07 on the default rig (120 frames,
+    three diameters) and from 1.21 to 1.07 at a sheet sigma of 0.15 mm. The free fit does
+    not: on a 130-degree arc its plain uncertainty was honest (1.05) and the winsorized one
+    not (0.84).
     """
     pts = np.asarray(points, np.float64)
     w = np.ones(len(pts)) if weights is None else np.asarray(weights, np.float64)
+    use = np.ones(len(pts), bool) if inliers is None else np.asarray(inliers, bool)
     n_free = 3 if center_prior_sigma is None else 1
     info = ck.circle_information(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
-                                 float(center[0]), float(center[1]), float(radius), w, n_free)
+                                 float(center[0]), float(center[1]), float(radius), w, n_free,
+                                 use, math.inf if clip is None else float(clip))
     if center_prior_sigma is not None:
         info[0, 0] += 1.0 / center_prior_sigma**2
         info[1, 1] += 1.0 / center_prior_sigma**2
@@ -167,10 +183,25 @@ def circle_covariance(points: np.ndarray, center: np.ndarray, radius: float,
         return np.full((3, 3), np.inf)
 
 
+def rejection_clip(points: np.ndarray, center: np.ndarray, radius: float,
+                   weights: np.ndarray, inliers: np.ndarray, reject_k: float,
+                   floor_mm: float) -> float:
+    """The weighted residual beyond which ``fit_axis_prior``'s rejection rounds set points
+    aside, mm: ``reject_k`` robust standard deviations (MAD) of the inliers' residuals about
+    their median, at least ``floor_mm``."""
+    res = (np.hypot(*(np.asarray(points) - center).T) - radius) * np.sqrt(weights)
+    kept = res[inliers]
+    if kept.size == 0:
+        return float(floor_mm)
+    scale = ck.MAD_TO_SIGMA * float(np.median(np.abs(kept - np.median(kept))))
+    return max(reject_k * scale, floor_mm)
+
+
 def circle_radius_std(points: np.ndarray, center: np.ndarray, radius: float,
-                      weights: np.ndarray | None = None) -> float:
+                      weights: np.ndarray | None = None,
+                      inliers: np.ndarray | None = None) -> float:
     """Standard uncertainty of a free circle fit's radius, mm (``circle_covariance``)."""
-    cov = circle_covariance(points, center, radius, weights=weights)
+    cov = circle_covariance(points, center, radius, weights=weights, inliers=inliers)
     return float(math.sqrt(max(cov[2, 2], 0.0))) if np.isfinite(cov[2, 2]) else math.inf
 
 
@@ -179,8 +210,8 @@ def _with_std(fit: CircleFit, points: np.ndarray, weights: np.ndarray | None = N
     if not fit:
         return fit
     keep = fit.inliers if fit.inliers.size == len(points) else np.ones(len(points), bool)
-    w = None if weights is None else weights[keep]
-    return replace(fit, radius_std=circle_radius_std(points[keep], fit.center, fit.radius, w))
+    return replace(fit, radius_std=circle_radius_std(points, fit.center, fit.radius, weights,
+                                                     keep))
 
 
 def point_weights(strength: np.ndarray | None, n: int) -> np.ndarray:
@@ -197,6 +228,59 @@ def point_weights(strength: np.ndarray | None, n: int) -> np.ndarray:
     if not med > 0:
         return np.ones(n)
     return np.clip((s / med) ** 2, 1e-3, 1.0)
+
+
+def arc_variance(points: np.ndarray, center: np.ndarray, inliers: np.ndarray,
+                 residuals: np.ndarray, degree: int = 2, max_ratio: float = 16.0
+                 ) -> np.ndarray:
+    """Relative variance of each point's residual, a smooth function of its place on the arc.
+
+    Along the stripe the points' scatter is not the same: where the camera sees the shaft
+    obliquely the stripe is wider (speckle moves its centre by the width squared times the
+    speckle's slope) and each pixel spans more of the section; at 21.7 mm the residuals
+    scattered 4 um in the middle of the arc and 10 um at its ends. A polynomial of
+    ``degree`` in the angle is fitted by least squares to the logarithm of the inliers'
+    squared residuals (a feasible generalised least squares: the profile is the data's, not
+    a model of the rig), so that the points can be weighted by the inverse.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Section points, mm.
+    center : ndarray, shape (2,)
+        The fitted centre, mm.
+    inliers : ndarray of bool, shape (N,)
+        The points the fit kept (the profile is fitted to them).
+    residuals : ndarray, shape (N,)
+        The points' residuals about the fit (weighted as the fit weighs them), mm.
+    degree : int
+        Degree of the polynomial in the angle.
+    max_ratio : float
+        The profile stays within ``1 / max_ratio`` and ``max_ratio`` of its median.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Relative variances, median 1 over the inliers; all ones when there are too few
+        inliers to say (fewer than ten per coefficient).
+    """
+    n = len(points)
+    ones = np.ones(n)
+    use = np.asarray(inliers, bool)
+    if use.sum() < 10 * (degree + 1):
+        return ones
+    d = np.asarray(points, np.float64) - center
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    mid = math.atan2(float(np.sin(ang[use]).mean()), float(np.cos(ang[use]).mean()))
+    ang = (ang - mid + math.pi) % (2 * math.pi) - math.pi
+    half = max(float(np.abs(ang[use]).max()), 1e-9)
+    design = np.vander(ang / half, degree + 1)
+    r2 = np.asarray(residuals, np.float64) ** 2
+    floor = 0.01 * float(r2[use].mean()) + 1e-30
+    coef, *_ = np.linalg.lstsq(design[use], np.log(r2[use] + floor), rcond=None)
+    v = np.exp(design @ coef)
+    v /= float(np.median(v[use]))
+    return np.clip(v, 1.0 / max_ratio, max_ratio)
 
 
 def fit_kasa(points: np.ndarray) -> CircleFit:
@@ -493,8 +577,9 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
         return CircleFit.failure("axis-prior fit did not converge", len(pts))
     center = np.array([cx, cy])
     use = pts[inliers]
-    cov = circle_covariance(use, center, radius, center_prior_sigma=center_sigma,
-                            weights=w[inliers])
+    clip = rejection_clip(pts, center, radius, w, inliers, reject_k, floor_mm)
+    cov = circle_covariance(pts, center, radius, center_prior_sigma=center_sigma, weights=w,
+                            inliers=inliers, clip=clip)
     std = float(math.sqrt(max(cov[2, 2], 0.0))) if np.isfinite(cov[2, 2]) else math.inf
     return CircleFit(center, radius, circle_rms(use, center, radius), inliers, radius_std=std)
 

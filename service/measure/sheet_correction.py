@@ -88,7 +88,7 @@ def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
         return points.section
     center = np.asarray(center, np.float64)
     angles, _ = arc_angles(points.section, center)
-    blur, filter_px = params.stripe.optics_blur_px, params.stripe.sigma_px
+    blur, filter_px = params.stripe.optics_blur_px, st.filter_px
     smoothing = float(np.hypot(filter_px, blur))
     gkey = geometry_key(geometry)
     c_q = tuple(round(float(v) / POSITION_STEP_MM) for v in center)

@@ -161,3 +161,66 @@ def test_every_method_reports_an_uncertainty(renderer, method) -> None:
     res = measure_frame(renderer.render(30.0, 1), geometry_of(renderer.calibration), method)
     assert 0 < res.uncertainty_mm < 1.0
     assert res or res.status is Status.UNCERTAIN
+
+
+def uneven_arc(seed: int, n: int = 400) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An arc whose points scatter three times as much at its ends as in its middle (a
+    stripe seen obliquely there), centre (3, -4) mm, radius 15 mm."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, math.radians(100), n) + 0.7
+    sigma = 0.004 * (1 + 2 * np.linspace(-1, 1, n) ** 2)
+    c = np.array([3.0, -4.0])
+    r = 15.0 + rng.normal(0, 1, n) * sigma
+    return c + r[:, None] * np.column_stack([np.cos(t), np.sin(t)]), c, sigma
+
+
+def test_weights_from_the_scatter_along_the_arc_reach_the_best_linear_fit() -> None:
+    """``arc_variance`` recovers the scatter's profile from one fit's residuals (within 16 %,
+    median over the points), and weighting by it gives the radius scatter of weights from
+    the true profile: sum(1 / sigma^2)^-1/2 = 0.28 um, against 0.32 um unweighted."""
+    plain, weighted, z, misfit = [], [], [], []
+    for seed in range(200):
+        pts, c, sigma = uneven_arc(seed)
+        a = F.fit_axis_prior(pts, c, 1e-6)
+        res = np.hypot(*(pts - c).T) - a.radius
+        v = F.arc_variance(pts, a.center, a.inliers, res)
+        truth = sigma**2 / np.median(sigma**2)
+        misfit.append(np.median(np.abs(np.log(v / truth))))
+        b = F.fit_axis_prior(pts, c, 1e-6, weights=1.0 / v)
+        plain.append(a.radius - 15.0)
+        weighted.append(b.radius - 15.0)
+        z.append((b.radius - 15.0) / b.radius_std)
+    best = 1.0 / math.sqrt(np.sum(1.0 / uneven_arc(0)[2] ** 2))
+    assert np.median(misfit) < 0.25
+    assert np.std(weighted) < 1.1 * best and np.std(weighted) < 0.92 * np.std(plain)
+    assert 0.85 < np.std(z) < 1.15, np.std(z)
+
+
+def test_arc_variance_says_nothing_of_too_few_points() -> None:
+    pts, c, _ = uneven_arc(1, n=25)
+    assert np.array_equal(F.arc_variance(pts, c, np.ones(25, bool), np.ones(25)), np.ones(25))
+
+
+def test_the_uncertainty_counts_the_tails_the_fit_set_aside() -> None:
+    """Errors with heavy tails, correlated along the arc (one in ten four times as large,
+    over four neighbours): the axis-prior fit sets the largest aside, and its uncertainty
+    counts those just past its threshold at the threshold (the winsorized variance of a
+    trimmed mean). On these draws that errs to the safe side (z-score std 0.96; not
+    counted, 1.10); on speckled frames of a thick sheet not counting them left the
+    uncertainty a fifth short."""
+    z, z_plain, cut = [], [], 0
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        e = rng.normal(0, 0.004, 303) * np.where(rng.random(303) < 0.1, 4.0, 1.0)
+        noise = np.convolve(e, np.ones(4) / 2.0, mode="valid")
+        t = np.linspace(0, math.radians(110), 300) + 0.7
+        c = np.array([3.0, -4.0])
+        pts = c + (15.0 + noise)[:, None] * np.column_stack([np.cos(t), np.sin(t)])
+        a = F.fit_axis_prior(pts, c, 1e-6)
+        cut += not a.inliers.all()
+        plain = F.circle_covariance(pts[a.inliers], a.center, a.radius, center_prior_sigma=1e-6)
+        z.append((a.radius - 15.0) / a.radius_std)
+        z_plain.append((a.radius - 15.0) / math.sqrt(plain[2, 2]))
+    assert cut > 200
+    assert 0.85 < np.std(z) < 1.1, np.std(z)
+    assert np.std(z) < np.std(z_plain)

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from service.measure.geometry import geometry_of
-from service.measure.stripe import StripeParams, extract_stripe, steger_centres
+from service.measure.stripe import (
+    StripeParams,
+    extract_stripe,
+    matched_scale,
+    steger_centres,
+    with_scale,
+)
 
 
 def line_image(angle_deg: float, offset_px: float, width_px: float = 1.6, amp: float = 150.0,
@@ -181,11 +187,40 @@ def ring_image(radius_px: float, width_px: float = 1.5, size: int = 160) -> np.n
 @pytest.mark.parametrize("radius", [25.0, 40.0, 60.0])
 def test_curvature_correction_removes_the_inward_shift_of_a_curved_stripe(radius: float) -> None:
     img, c = ring_image(radius)
-    plain = extract_stripe(img, StripeParams(curvature_correction=False)).xy
+    plain = extract_stripe(img, StripeParams(curvature_correction=False))
     fixed = extract_stripe(img, StripeParams(optics_blur_px=0.0)).xy  # no lens in this image
-    r_plain = np.hypot(*(plain - c).T) - radius
+    r_plain = np.hypot(*(plain.xy - c).T) - radius
     r_fixed = np.hypot(*(fixed - c).T) - radius
     # Theory: smoothing by s moves the ridge inward by about s^2 / (2 radius).
-    expected = 1.5**2 / (2 * radius)
+    expected = plain.filter_px**2 / (2 * radius)
     assert np.mean(r_plain) == pytest.approx(-expected, rel=0.15)
     assert abs(np.mean(r_fixed)) < 0.15 * expected
+
+
+@pytest.mark.parametrize("width, scale", [(1.0, 1.5), (1.25, 1.5), (1.6, 2.5), (2.2, 3.5),
+                                          (3.0, 4.0)])
+def test_a_wide_stripe_gets_filters_that_suit_it(width: float, scale: float) -> None:
+    """1.6 times the stripe's width, to a quarter pixel, when that is half a pixel or more
+    above the least scale (a stripe near the boundary keeps it), at most 4 px."""
+    img, *_ = line_image(30.0, 0.2, width_px=width, noise=1.0)
+    points = extract_stripe(img)
+    assert points.filter_px == 1.5
+    assert matched_scale(points.width_px, StripeParams()) == scale
+    assert matched_scale(points.width_px, StripeParams(scale_per_width=0.0)) == 1.5
+
+
+def test_wider_filters_come_with_a_background_disc_that_passes_under_the_stripe() -> None:
+    params = with_scale(StripeParams(), 3.5)
+    assert params.sigma_px == 3.5 and params.background_px >= 6 * 3.5 / 1.6
+    assert with_scale(StripeParams(), 1.5) == StripeParams()
+    assert with_scale(StripeParams(background_px=0), 3.5).background_px == 0
+
+
+def test_a_wide_stripe_found_with_filters_that_suit_it_is_found_where_it_is() -> None:
+    """Steger's centre of a Gaussian line is exact at any scale: the wider filters move no
+    centre of a straight line (8 bits aside)."""
+    img, n, c = line_image(23.0, 0.3, width_px=2.2)
+    wide = extract_stripe(img, with_scale(StripeParams(), 3.5))
+    assert wide.filter_px == 3.5 and len(wide) > 150
+    err = centre_errors(wide.xy, n, c, (200, 160), margin=20)
+    assert np.max(np.abs(err)) < 0.02
