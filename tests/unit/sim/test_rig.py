@@ -54,3 +54,35 @@ def test_laser_azimuth_sets_the_visible_arc() -> None:
         assert m, m.reason
         arcs.append(m.arc_deg)
     assert arcs[0] > arcs[1] + 20
+
+
+def test_the_stripes_light_is_the_frames_without_its_noise() -> None:
+    """``stripe_light``: the speckled light of frame i is what the frame holds over its
+    ambient light, but for the sensor's noise and 8 bits; without a frame, the clean
+    light of ``render_clean``."""
+    r = ShaftRenderer(RigConfig(), seed=3)
+    light, (x0, y0) = r.stripe_light(25.0, 2)
+    h, w = light.shape
+    frame = r.render(25.0, 2).astype(np.float64)[y0:y0 + h, x0:x0 + w]
+    ambient = r._ambient(25.0)[y0:y0 + h, x0:x0 + w]
+    bright = light > 50
+    left = (frame - ambient - light)[bright]
+    # The sensor's shot and read noise (another frame's speckle would leave ~19 DN here).
+    noise = np.sqrt(np.mean((light + ambient)[bright]) / 8.0 + 1.2**2)
+    assert abs(left.mean()) < 0.5 and np.std(left) < 1.3 * noise, (left.mean(), np.std(left))
+    clean, _ = r.stripe_light(25.0)
+    assert np.array_equal(clean, r.render_clean(25.0)[y0:y0 + h, x0:x0 + w])
+    assert not np.array_equal(light, clean)
+
+
+def test_the_speckle_floor_weighs_each_centre_by_its_own_scatter() -> None:
+    """``speckle_floor.floor_um`` on shifts of known, uneven variance: the scatter of the
+    inverse-variance mean, sum(1 / v)^-1/2, not that of the plain mean."""
+    from tests.bench.speckle_floor import floor_um
+
+    rng = np.random.default_rng(1)
+    sd = np.linspace(1.0, 6.0, 200)
+    shifts = rng.normal(0.0, 1.0, (400, 200)) * sd
+    best = 2.0 / np.sqrt(np.sum(1.0 / sd**2))
+    assert np.std(floor_um(shifts)) == pytest.approx(best, rel=0.1)
+    assert np.std(2.0 * shifts.mean(axis=1)) > 1.5 * best
