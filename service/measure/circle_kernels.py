@@ -258,3 +258,60 @@ def circle_information(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: fl
             for b in range(3):
                 info[a, b] += w[i] * j[a] * j[b]
     return info / s2
+
+
+@numba.njit(**_OPTS)
+def arc_variance(x: np.ndarray, y: np.ndarray, cx: float, cy: float, use: np.ndarray,
+                 res: np.ndarray, max_ratio: float) -> np.ndarray:
+    """``fit.arc_variance`` compiled: exp of a quadratic in the angle about (cx, cy), fitted by
+    least squares to log(res^2 + floor) over the points ``use`` marks, median 1 over them,
+    within [1 / max_ratio, max_ratio]."""
+    n = x.shape[0]
+    ang = np.arctan2(y - cy, x - cx)
+    s_sum, c_sum, m, r2_sum = 0.0, 0.0, 0, 0.0
+    for i in range(n):
+        if use[i]:
+            s_sum += math.sin(ang[i])
+            c_sum += math.cos(ang[i])
+            r2_sum += res[i] * res[i]
+            m += 1
+    mid = math.atan2(s_sum, c_sum)
+    floor = 0.01 * r2_sum / max(m, 1) + 1e-30
+    half = 1e-9
+    for i in range(n):
+        ang[i] = (ang[i] - mid + math.pi) % (2.0 * math.pi) - math.pi
+        if use[i] and abs(ang[i]) > half:
+            half = abs(ang[i])
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for i in range(n):
+        if not use[i]:
+            continue
+        u = ang[i] / half
+        row = (u * u, u, 1.0)
+        t = math.log(res[i] * res[i] + floor)
+        for j in range(3):
+            b[j] += row[j] * t
+            for k in range(3):
+                a[j, k] += row[j] * row[k]
+    coef = _solve3(a, b)
+    v = np.empty(n)
+    for i in range(n):
+        u = ang[i] / half
+        v[i] = math.exp(coef[0] * u * u + coef[1] * u + coef[2])
+    med = np.median(v[use])
+    for i in range(n):
+        v[i] = min(max(v[i] / med, 1.0 / max_ratio), max_ratio)
+    return v
+
+
+@numba.njit(**_OPTS)
+def rejection_clip(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float,
+                   sw: np.ndarray, inliers: np.ndarray, reject_k: float, floor: float
+                   ) -> float:
+    """``fit.rejection_clip`` compiled."""
+    idx = np.flatnonzero(inliers)
+    if idx.shape[0] == 0:
+        return floor
+    res = (np.hypot(x[idx] - cx, y[idx] - cy) - r) * sw[idx]
+    return max(reject_k * _mad(res)[1], floor)

@@ -37,6 +37,7 @@ def compile_kernels() -> float:
     free = fit.fit_geometric(pts)
     fit.fit_axis_prior(pts, np.zeros(2), 0.001, start=free)
     fit.circle_covariance(pts, free.center, free.radius, center_prior_sigma=0.001)
+    fit.arc_variance(pts, free.center, free.inliers, np.ones(len(pts)))
     ones = np.ones(len(pts))
     sheet_kernels.light_coefficients(pts, 0.0, 0.0, ones, np.eye(2))
     sheet_kernels.profile_sigma(ones, ones, ones, 12, 0.5)

@@ -189,12 +189,12 @@ def rejection_clip(points: np.ndarray, center: np.ndarray, radius: float,
     """The weighted residual beyond which ``fit_axis_prior``'s rejection rounds set points
     aside, mm: ``reject_k`` robust standard deviations (MAD) of the inliers' residuals about
     their median, at least ``floor_mm``."""
-    res = (np.hypot(*(np.asarray(points) - center).T) - radius) * np.sqrt(weights)
-    kept = res[inliers]
-    if kept.size == 0:
-        return float(floor_mm)
-    scale = ck.MAD_TO_SIGMA * float(np.median(np.abs(kept - np.median(kept))))
-    return max(reject_k * scale, floor_mm)
+    pts = np.asarray(points, np.float64)
+    return float(ck.rejection_clip(np.ascontiguousarray(pts[:, 0]),
+                                   np.ascontiguousarray(pts[:, 1]), float(center[0]),
+                                   float(center[1]), float(radius),
+                                   np.sqrt(np.asarray(weights, np.float64)),
+                                   np.asarray(inliers, bool), float(reject_k), float(floor_mm)))
 
 
 def circle_radius_std(points: np.ndarray, center: np.ndarray, radius: float,
@@ -231,17 +231,16 @@ def point_weights(strength: np.ndarray | None, n: int) -> np.ndarray:
 
 
 def arc_variance(points: np.ndarray, center: np.ndarray, inliers: np.ndarray,
-                 residuals: np.ndarray, degree: int = 2, max_ratio: float = 16.0
-                 ) -> np.ndarray:
+                 residuals: np.ndarray, max_ratio: float = 16.0) -> np.ndarray:
     """Relative variance of each point's residual, a smooth function of its place on the arc.
 
     Along the stripe the points' scatter is not the same: where the camera sees the shaft
     obliquely the stripe is wider (speckle moves its centre by the width squared times the
     speckle's slope) and each pixel spans more of the section; at 21.7 mm the residuals
-    scattered 4 um in the middle of the arc and 10 um at its ends. A polynomial of
-    ``degree`` in the angle is fitted by least squares to the logarithm of the inliers'
-    squared residuals (a feasible generalised least squares: the profile is the data's, not
-    a model of the rig), so that the points can be weighted by the inverse.
+    scattered 4 um in the middle of the arc and 10 um at its ends. A quadratic in the angle
+    is fitted by least squares to the logarithm of the inliers' squared residuals (a
+    feasible generalised least squares: the profile is the data's, not a model of the rig),
+    so that the points can be weighted by the inverse.
 
     Parameters
     ----------
@@ -253,8 +252,6 @@ def arc_variance(points: np.ndarray, center: np.ndarray, inliers: np.ndarray,
         The points the fit kept (the profile is fitted to them).
     residuals : ndarray, shape (N,)
         The points' residuals about the fit (weighted as the fit weighs them), mm.
-    degree : int
-        Degree of the polynomial in the angle.
     max_ratio : float
         The profile stays within ``1 / max_ratio`` and ``max_ratio`` of its median.
 
@@ -262,25 +259,15 @@ def arc_variance(points: np.ndarray, center: np.ndarray, inliers: np.ndarray,
     -------
     ndarray, shape (N,)
         Relative variances, median 1 over the inliers; all ones when there are too few
-        inliers to say (fewer than ten per coefficient).
+        inliers to say (fewer than thirty: ten per coefficient).
     """
-    n = len(points)
-    ones = np.ones(n)
     use = np.asarray(inliers, bool)
-    if use.sum() < 10 * (degree + 1):
-        return ones
-    d = np.asarray(points, np.float64) - center
-    ang = np.arctan2(d[:, 1], d[:, 0])
-    mid = math.atan2(float(np.sin(ang[use]).mean()), float(np.cos(ang[use]).mean()))
-    ang = (ang - mid + math.pi) % (2 * math.pi) - math.pi
-    half = max(float(np.abs(ang[use]).max()), 1e-9)
-    design = np.vander(ang / half, degree + 1)
-    r2 = np.asarray(residuals, np.float64) ** 2
-    floor = 0.01 * float(r2[use].mean()) + 1e-30
-    coef, *_ = np.linalg.lstsq(design[use], np.log(r2[use] + floor), rcond=None)
-    v = np.exp(design @ coef)
-    v /= float(np.median(v[use]))
-    return np.clip(v, 1.0 / max_ratio, max_ratio)
+    if use.sum() < 30:
+        return np.ones(len(points))
+    pts = np.asarray(points, np.float64)
+    return ck.arc_variance(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                           float(center[0]), float(center[1]), use,
+                           np.asarray(residuals, np.float64), float(max_ratio))
 
 
 def fit_kasa(points: np.ndarray) -> CircleFit:
