@@ -91,9 +91,12 @@ class MeasureParams:
         in how far it moves when the pull is this share larger.
     consensus_mm : float
         With ``axis`` and ``geometric``, section points farther than this from the circle that
-        most points share (plus three sigmas of the axis prior, with ``axis``; with ``axis``
-        or four robust sigmas of the ring's own scatter, when wider: a thick sheet's) are not
-        the shaft's (``service.measure.consensus``): a ghost, an edge, a glint.
+        most points share (plus three sigmas of the axis prior, with ``axis``) are not the
+        shaft's (``service.measure.consensus``): a ghost, an edge, a glint.
+    consensus_sigmas : float
+        With ``axis``, the ring widens to this many robust sigmas of its points' own radial
+        scatter when that is wider (a thick sheet under speckle scatters them by tens of
+        micrometres); not for a lopsided stripe, whose scatter is a second line's pull.
     arc_weighting : bool
         Weigh the points of ``axis`` and ``geometric`` fits by the inverse of their scatter's
         smooth profile along the arc, estimated from the first fit's residuals
@@ -116,6 +119,7 @@ class MeasureParams:
     reflection_check: bool = True
     reflection_shift_rel: float = 0.1
     consensus_mm: float = 0.05
+    consensus_sigmas: float = 4.0
     arc_weighting: bool = True
 
 
@@ -211,14 +215,19 @@ def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasurePa
 def on_the_shaft(points: SectionPoints, params: MeasureParams,
                  known: tuple[np.ndarray, float] | None) -> SectionPoints:
     """The points of the circle that most points share, by whole chains: about the ``known``
-    centre (section mm, its sigma mm) when there is one, else by RANSAC
+    centre (section mm, its sigma mm) when there is one (a ring as wide as the stripe's own
+    scatter, unless the stripe is lopsided: ``consensus.ring_consensus``), else by RANSAC
     (``service.measure.consensus``) unless one algebraic circle through all of them already
     holds nine in ten within ``consensus_mm`` (a clean frame: nothing to choose between)."""
     if len(points.section) < 3:
         return points
     if known is not None:
         window = params.consensus_mm + 3.0 * known[1]
-        inside = consensus.ring_consensus(points.section, known[0], window)
+        # A lopsided stripe's scatter is a second line's pull, not the stripe's own: the ring
+        # does not widen to it.
+        lopsided = side_balance(points) > side_balance_limit(points, params)
+        inside = consensus.ring_consensus(points.section, known[0], window,
+                                          0.0 if lopsided else params.consensus_sigmas)
     else:
         pre = fits.fit_hyper(points.section, uncertainty=False)
         inside = np.zeros(len(points.section), bool)
@@ -470,20 +479,24 @@ def _without_reflection(found: Reflection, points: SectionPoints, geometry: RigG
 
     The correction's own uncertainty is added to the diameter's: the diameter moves by
     ``params.reflection_shift_rel`` of the correction's effect when the pull is that much
-    larger, and that is taken as one standard uncertainty."""
+    larger, and that is taken as one standard uncertainty (both fits with the same weights:
+    weights from each fit's own scatter along the arc would add their difference to it)."""
     st = points.stripe
 
-    def moved(scale: float) -> Measurement:
+    def moved(scale: float, p: MeasureParams = params) -> Measurement:
         xy = st.xy + (scale * found.shift_px)[:, None] * st.normal
         again = section_points(replace(st, xy=xy, balance=None), geometry)
-        again = drop_grazing(again, geometry, params, None if known is None else known[0])
-        return fit_section(again, geometry, method, params, center_prior)
+        again = drop_grazing(again, geometry, p, None if known is None else known[0])
+        return fit_section(again, geometry, method, p, center_prior)
 
     m = moved(1.0)
     if m.status is not Status.OK:
         return replace(m, reflection_px=found.offset_px)
-    more = moved(1.0 + params.reflection_shift_rel)
-    extra = abs(more.diameter_mm - m.diameter_mm) if more.status is Status.OK else math.inf
+    same = replace(params, arc_weighting=False)
+    ref = moved(1.0, same) if params.arc_weighting else m
+    more = moved(1.0 + params.reflection_shift_rel, same)
+    extra = abs(more.diameter_mm - ref.diameter_mm) \
+        if more.status is Status.OK and ref.status is Status.OK else math.inf
     std = math.hypot(m.uncertainty_mm or 0.0, extra)
     if not std <= params.max_uncertainty_mm:
         return Measurement.failed(

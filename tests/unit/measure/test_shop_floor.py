@@ -351,3 +351,22 @@ def test_a_thick_sheet_is_measured_with_filters_that_suit_it() -> None:
         e_narrow.append(measure_frame(img, g, Method.AXIS, narrow).diameter_mm - 30.0)
         e_suited.append(measure_frame(img, g, Method.AXIS, suited).diameter_mm - 30.0)
     assert np.std(e_suited) < 0.9 * np.std(e_narrow), (np.std(e_suited), np.std(e_narrow))
+
+
+def test_a_lopsided_stripes_ring_does_not_widen() -> None:
+    """A ghost's pull scatters the stripe's points too, but that is a second line, not the
+    stripe's own scatter: the ring stays as wide as ``consensus_mm``."""
+    from service.measure.diameter import axis_center, on_the_shaft, section_points
+
+    r = ShaftRenderer(RigConfig(disturbances=FAMILIES["ghost"]), seed=12)
+    g = geometry_of(r.calibration)
+    known = (axis_center(g), 0.001)
+    points = section_points(extract_stripe(r.render(30.0, 1)), g)
+    fixed = MeasureParams(consensus_sigmas=0.0)
+    assert np.array_equal(on_the_shaft(points, MeasureParams(), known).section,
+                          on_the_shaft(points, fixed, known).section)
+    thick = ShaftRenderer(RigConfig(sheet_sigma_mm=0.15), seed=12)
+    g = geometry_of(thick.calibration)
+    points = section_points(extract_stripe(thick.render(30.0, 1)), g)
+    assert len(on_the_shaft(points, MeasureParams(), known).section) > \
+        len(on_the_shaft(points, fixed, known).section)
