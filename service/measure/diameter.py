@@ -452,9 +452,9 @@ def _with_matched_filters(image: np.ndarray, points: SectionPoints, geometry: Ri
     Speckle moves each centre by about the sheet's width squared times the speckle's slope
     across it; filters narrow against the stripe follow the grains inside its core and add
     to that (a sheet sigma of 0.10 mm: 4.1 um of scatter from frame to frame with 1.5 px
-    filters, 3.2 um with 3 px ones). Only for a stripe that is not lopsided (the caller's
-    check): wider filters would merge a second line beside it into the stripe. The first
-    points stay when the second search finds fewer than half as many.
+    filters, 3.3 um with the 2.5 px ones chosen). Only for a stripe that is not lopsided (the
+    caller's check): wider filters would merge a second line beside it into the stripe. The
+    first points stay when the second search finds fewer than half as many.
     """
     scale = matched_scale(points.stripe.width_px, params.stripe)
     if not scale > params.stripe.sigma_px:
