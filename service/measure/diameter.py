@@ -409,12 +409,7 @@ def measure_frame(
     if method is Method.AXIS:
         known = center_prior if center_prior is not None else (
             None if (c0 := axis_center(geometry)) is None else (c0, params.axis_sigma_mm))
-    points = section_points(stripe, geometry)
-    found = len(points.section)
-    if method in (Method.AXIS, Method.GEOMETRIC):
-        points = on_the_shaft(points, params, known)
-    on_circle = len(points.section)
-    points = drop_grazing(points, geometry, params, None if known is None else known[0])
+    points, found, on_circle = _shaft_points(stripe, geometry, method, params, known)
     if len(points.section) < params.min_points:
         why = "" if on_circle == found else \
             f" ({on_circle} of the {found} found lie on one circle, the shaft's)"
@@ -442,6 +437,20 @@ def measure_frame(
     return fit_section(points, geometry, method, params, center_prior)
 
 
+def _shaft_points(stripe: StripePoints, geometry: RigGeometry, method: Method,
+                  params: MeasureParams, known: tuple[np.ndarray, float] | None
+                  ) -> tuple[SectionPoints, int, int]:
+    """The stripe's section points on the shaft's circle (``axis``, ``geometric``) and not
+    grazing; with the number found and the number on the circle."""
+    points = section_points(stripe, geometry)
+    found = len(points.section)
+    if method in (Method.AXIS, Method.GEOMETRIC):
+        points = on_the_shaft(points, params, known)
+    on_circle = len(points.section)
+    points = drop_grazing(points, geometry, params, None if known is None else known[0])
+    return points, found, on_circle
+
+
 def _with_matched_filters(image: np.ndarray, points: SectionPoints, geometry: RigGeometry,
                           method: Method, params: MeasureParams,
                           known: tuple[np.ndarray, float] | None,
@@ -462,10 +471,8 @@ def _with_matched_filters(image: np.ndarray, points: SectionPoints, geometry: Ri
     again = extract_stripe(image, with_scale(params.stripe, scale), points.stripe.xy - shift)
     if not again:
         return points
-    wide = section_points(replace(again, xy=again.xy + shift), geometry)
-    if method in (Method.AXIS, Method.GEOMETRIC):
-        wide = on_the_shaft(wide, params, known)
-    wide = drop_grazing(wide, geometry, params, None if known is None else known[0])
+    wide = _shaft_points(replace(again, xy=again.xy + shift), geometry, method, params,
+                         known)[0]
     if len(wide.section) < max(params.min_points, 0.5 * len(points.section)):
         return points
     return wide

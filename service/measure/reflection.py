@@ -280,7 +280,7 @@ def _starts(bins: _Bins, width: float, reach: float, count: int
     # equations, the misfit as y'y - x'A'y.
     fixed = np.stack([np.ones_like(s), g_main, g_shift, g_width, s], axis=1)  # (M, 5)
     ff = fixed.T @ fixed
-    fy = y @ fixed  # (K, 4)
+    fy = y @ fixed  # (K, 5)
     yy = (y * y).sum(axis=1)  # (K,)
     delta = dx[:, None] * bins.nbar[None, :, 0] + dy[:, None] * bins.nbar[None, :, 1]
     found: list[tuple[float, float, float, float, float]] = []
