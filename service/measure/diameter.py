@@ -84,8 +84,9 @@ class MeasureParams:
         Look for a reflection on every frame, not only on a lopsided one: a faint
         reflection close to the stripe (a tenth of its height, 2 px off) leaves the profile
         within the lopsidedness limit but pulls the centres by 10-20 um of diameter. It costs
-        about 30 ms a frame; the service asks for it a few times a second and on every frame
-        while a reflection is there (``service.runtime.pipeline``).
+        about 1.5 tracked frames more (a linear screen clears a frame without one; the fit
+        runs where it does not); the service asks for it a few times a second and on every
+        frame while a reflection is there (``service.runtime.pipeline``).
     reflection_shift_rel : float
         Relative standard uncertainty of the modelled pull: the diameter's uncertainty takes
         in how far it moves when the pull is this share larger.

@@ -29,7 +29,7 @@ def delivered_per_s(cam: AravisCamera, seconds: float = 1.5) -> float:
 
 
 # Frame by frame as the service measures between its reflection checks (a few a second): a
-# check on every frame (30 ms) would let this loop see only some of the camera's ring.
+# check on every frame (several ms) would let this loop see only some of the camera's ring.
 AS_THE_SERVICE = MeasureParams(reflection_check=False)
 
 
