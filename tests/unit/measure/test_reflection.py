@@ -189,3 +189,65 @@ def test_a_lopsided_stripe_asks_the_asymmetry_to_be_explained() -> None:
     either = rf.ReflectionParams(min_explained=1.0, min_explained_asymmetry=0.9)
     assert not rf.fit_reflection(img, xy, n, width, either)
     assert rf.fit_reflection(img, xy, n, width, either, lopsided=True)
+
+
+NO_SCREEN = rf.ReflectionParams(screen_margin=10.0)  # the screen never clears: always the fit
+
+
+def test_the_screen_clears_a_stripe_alone_without_the_fit(monkeypatch) -> None:
+    img = arc_image(None)
+    xy, n, width = centres(img)
+    fits: list[bool] = []
+    real = rf._least_squares
+    monkeypatch.setattr(rf, "_least_squares",
+                        lambda bins, p0, lo, hi, ghost, **kw: fits.append(ghost)
+                        or real(bins, p0, lo, hi, ghost, **kw))
+    found = rf.fit_reflection(img, xy, n, width)
+    assert not found and "at most" in found.reason, found.reason
+    assert fits == [False]  # the single line's fit only
+    full = rf.fit_reflection(img, xy, n, width, NO_SCREEN)
+    assert not full and full.explained < found.explained + 0.02
+
+
+@pytest.mark.parametrize("gain", [0.05, 0.2, 0.6, 0.9, 1.2])
+def test_the_screen_passes_every_reflection_the_fit_would_take_out(gain) -> None:
+    """With the screen or without, the same reflections are found, the same pull taken out:
+    faint ones (the screen reads within 0.02 of the fit) and bright ones (the single line is
+    dragged between the two and fits them badly: the screen stands aside)."""
+    for off in ((1.5, 0.0), (2.0, 1.0), (3.0, 0.0), (0.0, 4.0), (-3.0, 3.0), (5.0, 1.0),
+                (0.0, 6.0)):
+        for blur in (0.8, 1.5, 2.5):
+            img = arc_image(off, gain=gain, blur=blur, seed=int(10 * gain + 3 * off[0]) % 97)
+            xy, n, width = centres(img)
+            screened = rf.fit_reflection(img, xy, n, width)
+            full = rf.fit_reflection(img, xy, n, width, NO_SCREEN)
+            assert bool(screened) == bool(full), (off, blur, screened.reason, full.reason)
+            if full:
+                assert np.allclose(screened.shift_px, full.shift_px)
+
+
+def test_the_fit_reaches_the_minimum_scipy_finds() -> None:
+    """The small Levenberg-Marquardt against scipy's trust-region solver on the same model,
+    start and bounds."""
+    from scipy.optimize import least_squares
+
+    img = arc_image((2.5, 2.5), gain=0.2)
+    xy, n, _ = centres(img)
+    bins = rf._Bins(img, xy, n, rf.ReflectionParams())
+    k = bins.nbar.shape[0]
+    free = np.full(k, np.inf)
+    lo = np.concatenate([[-9, -9, 0, 0], -free, np.zeros(k), np.full(k, -2.0),
+                         np.full(k, 0.3), -free])
+    hi = np.concatenate([[9, 9, 1.5, 5], free, free, np.full(k, 2.0), np.full(k, 6.0), free])
+    p0 = np.concatenate([[2.0, 2.0, 0.3, 1.6], np.full(k, 10.0), np.full(k, 120.0),
+                         np.zeros(k), np.full(k, 1.3), np.zeros(k)])
+    ours = rf._least_squares(bins, p0, lo, hi, ghost=True)
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        return ((rf._model(p, bins) - bins.mean) * bins.weight).ravel()
+
+    ref = least_squares(residual, p0, bounds=(lo, hi), x_scale="jac", xtol=1e-12,
+                        ftol=1e-12)
+    assert ours.success
+    assert ours.cost <= ref.cost * (1 + 1e-4), (ours.cost, ref.cost)
+    assert np.allclose(ours.x[:2], ref.x[:2], atol=0.02), (ours.x[:4], ref.x[:4])
