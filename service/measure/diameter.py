@@ -331,6 +331,7 @@ def fit_section(
     arc = fits.arc_span_deg(sec[used], center)
     common = dict(center_mm=(float(center[0]), float(center[1])), n_points=n_used, arc_deg=arc,
                   rms_residual_mm=float(rms), points_px=points.stripe.xy[used],
+                  filter_px=points.stripe.filter_px,
                   uncertainty_mm=float(std) if np.isfinite(std) else None, note=note,
                   **free_extra)
     if n_used < params.min_points:
@@ -363,6 +364,7 @@ def measure_frame(
     center_prior: tuple[np.ndarray, float] | None = None,
     near: np.ndarray | None = None,
     origin: tuple[int, int] | None = None,
+    scale_px: float | None = None,
 ) -> Measurement:
     """Measure the shaft diameter in one stripe image.
 
@@ -386,6 +388,12 @@ def measure_frame(
         Where ``image`` lies on the calibrated sensor (x, y of its top-left pixel, px) when
         it is a region of it (the camera's region of interest); every position in and out
         (``near``, ``points_px``) is in the whole sensor's pixels.
+    scale_px : float, optional
+        The derivative filters' scale the previous frame's stripe was found with (its
+        ``filter_px``): a wide stripe is extracted once, at that scale, while its width still
+        suits it within a quarter pixel (the scale's rounding) and it is not lopsided
+        there; otherwise, and on a frame checked for a reflection, the frame is measured from
+        the default scale as without it.
 
     Returns
     -------
@@ -399,7 +407,12 @@ def measure_frame(
     if problem:
         return Measurement.failed(Status.BAD_IMAGE, method, problem)
     shift = np.zeros(2) if origin is None else np.asarray(origin, np.float64)
-    stripe = extract_stripe(image, params.stripe, None if near is None else near - shift)
+    hinted = scale_px is not None and scale_px > params.stripe.sigma_px \
+        and not params.reflection_check
+    stripe_params = with_scale(params.stripe, float(scale_px)) if hinted else params.stripe
+    stripe = extract_stripe(image, stripe_params, None if near is None else near - shift)
+    if hinted and not _still_suits(stripe, float(scale_px), params):
+        return measure_frame(image, geometry, method, params, center_prior, near, origin)
     if not stripe:
         return Measurement.failed(Status.NO_STRIPE, method, stripe.reason or "no stripe found")
     if origin is not None:
@@ -419,7 +432,9 @@ def measure_frame(
             f"{len(points.section)} stripe points, need {params.min_points}{why}",
             n_points=len(points.section), points_px=points.stripe.xy)
     lopsided, limit = side_balance(points), side_balance_limit(points, params)
-    if not lopsided > limit:
+    if hinted and lopsided > limit:  # a second line beside it: judged at the default scale
+        return measure_frame(image, geometry, method, params, center_prior, near, origin)
+    if not hinted and not lopsided > limit:
         points = _with_matched_filters(image, points, geometry, method, params, known, shift)
     if lopsided > limit or params.reflection_check:
         st = points.stripe
@@ -436,6 +451,16 @@ def measure_frame(
                 f"{limit:.3f}): a second line runs beside it and pulls its centres, and "
                 f"{found.reason}", n_points=len(points.section), points_px=st.xy)
     return fit_section(points, geometry, method, params, center_prior)
+
+
+def _still_suits(stripe: StripePoints, scale_px: float, params: MeasureParams) -> bool:
+    """Whether a stripe found at the previous frame's wider scale still suits it: found, and
+    its width asks for that scale within a quarter pixel, the scale's rounding (a stripe
+    grown narrower or wider is measured afresh)."""
+    if not stripe:
+        return False
+    want = matched_scale(stripe.width_px, params.stripe)
+    return want > params.stripe.sigma_px and abs(want - scale_px) <= 0.25 + 1e-9
 
 
 def _shaft_points(stripe: StripePoints, geometry: RigGeometry, method: Method,

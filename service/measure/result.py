@@ -66,6 +66,9 @@ class Measurement:
     reflection_px : tuple of float or None
         The image offset (dx, dy, px) of a reflection beside the stripe whose pull was
         modelled and taken out (``service.measure.reflection``), None when there was none.
+    filter_px : float or None
+        The derivative filters' scale the stripe was found with, px (wider than the default
+        for a wide stripe): where the next frame's extraction starts.
     """
 
     status: Status
@@ -82,6 +85,7 @@ class Measurement:
     free_center_cov: tuple[float, float, float] | None = None
     points_px: np.ndarray = field(default_factory=lambda: np.empty((0, 2)), repr=False)
     reflection_px: tuple[float, float] | None = None
+    filter_px: float | None = None
 
     def __bool__(self) -> bool:
         return self.status is Status.OK

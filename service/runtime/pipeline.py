@@ -93,8 +93,10 @@ class FramePipeline:
         self._slots: asyncio.Semaphore | None = None
         self._in_flight: asyncio.Queue | None = None
         self._running = False
-        # The stripe's centres in the last frame measured (px), None after a failure.
+        # The stripe's centres in the last frame measured (px), None after a failure, and
+        # the filters' scale it was found with (a wide stripe is extracted once at it).
         self._near: np.ndarray | None = None
+        self._scale_px: float | None = None
 
     def image_size(self) -> tuple[int, int] | None:
         """(width, height) of the camera's whole frames: the latest whole frame's, else the
@@ -135,10 +137,10 @@ class FramePipeline:
 
     def _measure(self, frame: Frame, geometry: RigGeometry,
                  prior: tuple[np.ndarray, float] | None, near: np.ndarray | None,
-                 params: MeasureParams) -> Measurement:
+                 scale_px: float | None, params: MeasureParams) -> Measurement:
         t0 = time.monotonic_ns()
         m = measure_frame(frame.image, geometry, self.method, params, prior, near,
-                          frame.origin)
+                          frame.origin, scale_px)
         if self.stage_listener is not None:
             t1 = time.monotonic_ns()
             self.stage_listener("wait", (t0 - frame.received_ns) / 1e9)
@@ -197,7 +199,7 @@ class FramePipeline:
                 prior = in_use.tracker.center() if in_use.tracker is not None else None
                 params = self._params_now()
                 fut = loop.run_in_executor(self._pool, self._measure, frame, in_use.geometry,
-                                           prior, self._near, params)
+                                           prior, self._near, self._scale_px, params)
                 await self._in_flight.put((frame, in_use, fut, params.reflection_check))
                 submitted = True
             except asyncio.CancelledError:
@@ -226,6 +228,7 @@ class FramePipeline:
             finally:
                 self._slots.release()
             self._near = m.stripe_px
+            self._scale_px = m.filter_px if m.stripe_px is not None else None
             self.reflections.seen(checked, m.reflection_px is not None)
             if m.reflection_px is not None:
                 self.counters["reflections_modelled"] += 1

@@ -14,7 +14,9 @@ frames of each (fresh speckle per frame; seeded), as a lathe delivers them.
   which the service asks a few times a second): its median time, one run.
 - Stages: the time spent in each step of ``measure_frame`` (``axis``, tracked), ms per frame.
 - Extractors: ours (tracked, as the core runs it), plain Steger (``plain_steger``: OpenCV's
-  filters over the whole frame and Steger's test at every pixel), grey centroid (per column,
+  filters over the whole frame and Steger's test at every pixel, as fast as plain can be:
+  the yardstick of the core's ratios), the same pruned by the strength test before the
+  eigenvector (``plain_steger_pruned``), grey centroid (per column,
   the intensity-weighted centre of the pixels above half the column's peak). Each
   extractor's points go through the same triangulation and the same ``geometric`` fit; time
   per frame (median over the runs) and mean |diameter error| per frame are reported.
@@ -49,7 +51,7 @@ from service.measure.diameter import (
 from service.measure.geometry import RigGeometry, geometry_of
 from service.measure.result import Method, Status
 from service.measure.stripe import StripeParams, StripePoints, extract_stripe
-from tests.bench.plain_steger import plain_steger
+from tests.bench.plain_steger import plain_steger, plain_steger_pruned
 
 
 def grey_centroid(image: np.ndarray, _: StripeParams) -> StripePoints:
@@ -73,8 +75,13 @@ def grey_centroid(image: np.ndarray, _: StripeParams) -> StripePoints:
 Sequence = list[tuple[np.ndarray, float]]
 
 
-def sequences(shafts: int, frames: int, seed: int) -> tuple[list[Sequence], ShaftRenderer]:
-    rig = ShaftRenderer(RigConfig(), seed=seed)
+WIDE_RIG = {"sheet_sigma_mm": 0.12, "speckle_grain_px": 1.6}
+"""A thick light sheet and coarse speckle: the stripe is found with wider filters."""
+
+
+def sequences(shafts: int, frames: int, seed: int, **rig_kw: float
+              ) -> tuple[list[Sequence], ShaftRenderer]:
+    rig = ShaftRenderer(RigConfig(**rig_kw), seed=seed)
     rng = np.random.default_rng(seed)
     out = []
     for k, d in enumerate(rng.uniform(20.0, 47.0, shafts)):
@@ -89,14 +96,15 @@ def run_core(data: list[Sequence], geometry: RigGeometry, method: Method,
     first_ms, errors, each_ms = [], [], []
     t0 = time.perf_counter()
     for seq in data:
-        near = None
+        near = scale = None
         for i, (image, d) in enumerate(seq):
             t1 = time.perf_counter()
-            m = measure_frame(image, geometry, method, params, near=near)
+            m = measure_frame(image, geometry, method, params, near=near, scale_px=scale)
             each_ms.append((time.perf_counter() - t1) * 1000.0)
             if i == 0:
                 first_ms.append(each_ms[-1])
             near = m.stripe_px
+            scale = m.filter_px if near is not None else None
             if m.status is Status.OK:
                 errors.append(abs(m.diameter_mm - d) * 1000.0)
     fps = sum(len(s) for s in data) / (time.perf_counter() - t0)
@@ -105,6 +113,20 @@ def run_core(data: list[Sequence], geometry: RigGeometry, method: Method,
 
 STAGES = ["extract_stripe", "section_points", "drop_grazing", "_fit_circle",
           "correct_sheet_bias"]
+
+
+def core_row(data: list[Sequence], geometry: RigGeometry, method: Method,
+             params: MeasureParams, runs: int) -> dict:
+    """The core's figures over ``runs`` runs of every frame: medians."""
+    results = [run_core(data, geometry, method, params) for _ in range(runs)]
+    fps = [r[0] for r in results]
+    return {"fps_one_core": statistics.median(fps), "fps_runs": fps,
+            "ms_per_frame": 1000.0 / statistics.median(fps),
+            "first_frame_ms": statistics.median(r[1] for r in results),
+            # The median frame over every frame of every run: what a tracked frame costs.
+            "median_frame_ms": statistics.median(t for r in results for t in r[3]),
+            "mean_abs_error_um": float(np.mean(results[0][2])) if results[0][2] else None,
+            "measured": len(results[0][2])}
 
 
 def stage_times(data: list[Sequence], geometry: RigGeometry, params: MeasureParams
@@ -168,16 +190,13 @@ def main() -> None:
                  "extractors": {}}
     run_core(data[:1], geometry, Method.AXIS, params)  # warm caches and compiled code
     for method in (Method.AXIS, Method.GEOMETRIC):
-        runs = [run_core(data, geometry, method, params) for _ in range(args.runs)]
-        fps = [r[0] for r in runs]
-        out["core"][method.value] = {
-            "fps_one_core": statistics.median(fps), "fps_runs": fps,
-            "ms_per_frame": 1000.0 / statistics.median(fps),
-            "first_frame_ms": statistics.median(r[1] for r in runs),
-            # The median frame over every frame of every run: what a tracked frame costs.
-            "median_frame_ms": statistics.median(t for r in runs for t in r[3]),
-            "mean_abs_error_um": float(np.mean(runs[0][2])) if runs[0][2] else None,
-            "measured": len(runs[0][2])}
+        out["core"][method.value] = core_row(data, geometry, method, params, args.runs)
+    wide, wide_rig = sequences(args.shafts, args.frames, args.seed, **WIDE_RIG)
+    wide_geometry = geometry_of(wide_rig.calibration)
+    run_core(wide[:1], wide_geometry, Method.AXIS, params)
+    out["core"]["axis, wide sheet"] = core_row(wide, wide_geometry, Method.AXIS, params,
+                                               args.runs)
+    out["wide_rig"] = WIDE_RIG
     checked = run_core(data, geometry, Method.AXIS, replace(params, reflection_check=True))
     out["reflection_check"] = {
         "median_frame_ms": statistics.median(checked[3]),
@@ -188,6 +207,7 @@ def main() -> None:
     plain_data = flat[:: max(1, len(flat) // 20)]  # 20 frames are plenty for a 200 ms one
     extractors: dict[str, tuple[Callable, list]] = {
         "ours": (None, flat), "plain_steger": (plain_steger, plain_data),
+        "plain_steger_pruned": (plain_steger_pruned, plain_data),
         "grey_centroid": (grey_centroid, flat)}
     # The extractors are compared by the free circle through their points, every one fitted
     # (none refused as uncertain, as the paper's comparison does).
@@ -228,10 +248,10 @@ def main() -> None:
           f"medians, one core\n")
     print("frames/s and ms/frame over all frames (each shaft's first, full-search frame in);"
           " the median frame, and the plain Steger's ms over each")
-    print(f"{'core':>10} {'frames/s':>9} {'ms/frame':>9} {'median ms':>10} {'1st frame ms':>13} "
+    print(f"{'core':>16} {'frames/s':>9} {'ms/frame':>9} {'median ms':>10} {'1st frame ms':>13} "
           f"{'plain/core':>10} {'plain/median':>12} {'mean|err| um':>13}")
     for name, v in out["core"].items():
-        print(f"{name:>10} {v['fps_one_core']:9.1f} {v['ms_per_frame']:9.2f} "
+        print(f"{name:>16} {v['fps_one_core']:9.1f} {v['ms_per_frame']:9.2f} "
               f"{v['median_frame_ms']:10.2f} {v['first_frame_ms']:13.1f} "
               f"{v['plain_steger_vs_core']:10.1f} {v['plain_steger_vs_median_frame']:12.1f} "
               + (f"{v['mean_abs_error_um']:13.2f}" if v["mean_abs_error_um"] is not None

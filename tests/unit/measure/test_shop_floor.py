@@ -5,6 +5,7 @@ consensus, the refusal of uncertain diameters, the tracker's gate)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -370,3 +371,48 @@ def test_a_lopsided_stripes_ring_does_not_widen() -> None:
     points = section_points(extract_stripe(thick.render(30.0, 1)), g)
     assert len(on_the_shaft(points, MeasureParams(), known).section) > \
         len(on_the_shaft(points, fixed, known).section)
+
+
+def test_a_wide_stripe_is_extracted_once_at_the_scale_the_last_frame_found(monkeypatch) -> None:
+    """Tracked as the service tracks it (the last frame's centres and filter scale), a thick
+    sheet's stripe is extracted once a frame, at the matched scale, and measured as the full
+    path measures it (to a tenth of its uncertainty: the band about the last frame's centres
+    is not the band about this frame's first ones, and the background is estimated over
+    it); a frame checked for a reflection, or a stripe that no longer suits the scale, goes
+    the full path."""
+    from service.measure import diameter
+
+    r = ShaftRenderer(RigConfig(sheet_sigma_mm=0.12, speckle_grain_px=1.6), seed=4)
+    g = geometry_of(r.calibration)
+    params = MeasureParams(reflection_check=False)
+    calls: list[float] = []
+    real = diameter.extract_stripe
+    monkeypatch.setattr(diameter, "extract_stripe",
+                        lambda image, p, near=None: calls.append(p.sigma_px)
+                        or real(image, p, near))
+    first = measure_frame(r.render(30.0, 0), g, Method.AXIS, params)
+    assert first and first.filter_px > params.stripe.sigma_px, first
+    near, scale = first.stripe_px, first.filter_px
+    for i in range(1, 6):
+        img = r.render(30.0, i)
+        calls.clear()
+        hinted = measure_frame(img, g, Method.AXIS, params, near=near, scale_px=scale)
+        assert calls == [scale], calls
+        full = measure_frame(img, g, Method.AXIS, params, near=near)
+        assert hinted.status is full.status is Status.OK
+        assert abs(hinted.diameter_mm - full.diameter_mm) < 0.1 * full.uncertainty_mm, \
+            (hinted.diameter_mm, full.diameter_mm, full.uncertainty_mm)
+        near, scale = hinted.stripe_px, hinted.filter_px
+    calls.clear()
+    checked = replace(params, reflection_check=True)
+    measure_frame(img, g, Method.AXIS, checked, near=near, scale_px=scale)
+    assert calls[0] == params.stripe.sigma_px, calls
+    # The default rig's narrow stripe does not suit the wide scale: measured afresh.
+    plain = ShaftRenderer(RigConfig(), seed=4)
+    gp = geometry_of(plain.calibration)
+    img = plain.render(30.0, 1)
+    calls.clear()
+    again = measure_frame(img, gp, Method.AXIS, params, scale_px=2.5)
+    assert calls == [2.5, params.stripe.sigma_px], calls
+    assert again.filter_px == params.stripe.sigma_px
+    assert again.diameter_mm == measure_frame(img, gp, Method.AXIS, params).diameter_mm
