@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from service.measure import steger_kernels as kernels
+from service.measure.robust import median
 
 _TOPHAT_PX = 5
 """Disc of the coarse pass's top-hat, decimated px (20 full-resolution px at decimation 4):
@@ -220,4 +221,4 @@ def local_background(image: np.ndarray, disc_px: int) -> np.ndarray:
     # The opening of a noisy image lies below it by a good part of the noise (a minimum
     # filter comes first), which would add to every stripe height: put back the median
     # difference, which a thin stripe does not move (sampled: it is only a level).
-    return full + np.float32(np.median(image[::6, ::6] - full[::6, ::6]))
+    return full + np.float32(median(image[::6, ::6] - full[::6, ::6]))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.measure.circle_kernels import MAD_TO_SIGMA
+from service.measure.robust import median
 
 
 def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: float,
@@ -58,11 +59,11 @@ def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: flo
     # The window [s_i, s_i + 2 w] holding the most radii; the ring's radius is their median.
     ends = np.searchsorted(s, s + 2.0 * window_mm, side="right")
     i = int(np.argmax(ends - np.arange(n)))
-    radius = float(np.median(s[i:ends[i]]))
+    radius = median(s[i:ends[i]])
     window = window_mm
     for _ in range(3):  # a cut sample understates its scatter: widen until it holds
         dev = np.abs(rho - radius)
-        scatter = MAD_TO_SIGMA * float(np.median(dev[dev <= window]))
+        scatter = MAD_TO_SIGMA * median(dev[dev <= window])
         if not scatter_sigmas * scatter > window * 1.05:
             break
         window = scatter_sigmas * scatter

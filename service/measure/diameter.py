@@ -13,6 +13,7 @@ from service.measure import fit as fits
 from service.measure.geometry import RigGeometry
 from service.measure.reflection import Reflection, ReflectionParams, fit_reflection
 from service.measure.result import Measurement, Method, Status
+from service.measure.robust import median
 from service.measure.section import (
     light_plane_basis,
     light_plane_coordinates,
@@ -439,7 +440,7 @@ def measure_frame(
     if lopsided > limit or params.reflection_check:
         st = points.stripe
         found = fit_reflection(image, st.xy - shift, st.normal,
-                               float(np.median(st.width_px)), params.reflection,
+                               median(st.width_px), params.reflection,
                                lopsided=lopsided > limit)
         if found:
             return _without_reflection(found, points, geometry, method, params,
@@ -544,7 +545,7 @@ def _without_reflection(found: Reflection, points: SectionPoints, geometry: RigG
 def side_balance(points: SectionPoints) -> float:
     """The median lopsidedness of the points' profiles (0 when it was not measured)."""
     b = points.stripe.balance
-    return float(np.median(np.abs(b))) if b is not None and len(b) else 0.0
+    return median(np.abs(b)) if b is not None and len(b) else 0.0
 
 
 def side_balance_limit(points: SectionPoints, params: MeasureParams) -> float:
@@ -552,5 +553,5 @@ def side_balance_limit(points: SectionPoints, params: MeasureParams) -> float:
     balance is a mean of four differences of two bilinear samples, about 0.7 noise / height
     in standard deviation, and the median of its magnitude 0.67 of that."""
     st = points.stripe
-    height = float(np.median(st.peak)) if st.peak is not None and len(st.peak) else 0.0
+    height = median(st.peak) if st.peak is not None and len(st.peak) else 0.0
     return params.max_side_balance + (0.47 * st.noise / height if height > 0 else 0.0)

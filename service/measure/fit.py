@@ -24,6 +24,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from service.measure import circle_kernels as ck
+from service.measure.robust import median
 
 
 @dataclass(frozen=True)
@@ -224,7 +225,7 @@ def point_weights(strength: np.ndarray | None, n: int) -> np.ndarray:
     if strength is None:
         return np.ones(n)
     s = np.asarray(strength, np.float64)
-    med = float(np.median(s)) if s.size else 0.0
+    med = median(s) if s.size else 0.0
     if not med > 0:
         return np.ones(n)
     return np.clip((s / med) ** 2, 1e-3, 1.0)

@@ -29,6 +29,7 @@ from service.measure.band import (
     local_background,
     tube_band,
 )
+from service.measure.robust import median
 
 __all__ = ["Band", "StripeParams", "StripePoints", "extract_stripe", "full_scale",
            "matched_scale", "reject_weak", "steger_centres", "with_scale"]
@@ -407,7 +408,7 @@ def matched_scale(width_px: np.ndarray, params: StripeParams) -> float:
     (``StripeParams.scale_per_width``): ``params.sigma_px`` unless the stripe is wide."""
     if not params.scale_per_width > 0 or len(width_px) == 0:
         return float(params.sigma_px)
-    want = params.scale_per_width * float(np.median(width_px))
+    want = params.scale_per_width * median(width_px)
     if not want >= params.sigma_px + params.rescale_step_px:
         return float(params.sigma_px)
     return float(min(round(want * 4.0) / 4.0, params.max_sigma_px))
