@@ -45,3 +45,23 @@ def test_a_new_renderer_renders_the_whole_ring_again() -> None:
     assert ring.refresh(stop) == 0
     ring.set_renderer(ShaftRenderer(RigConfig(image_size=(320, 240), ambient_dn=40.0), seed=1))
     assert ring.refresh(stop) == 3
+
+
+def test_a_slow_drift_renders_the_ring_once_a_step() -> None:
+    """The diameter shown moves in steps of the ring's: a drift within a step renders
+    nothing, a step renders each frame once, all at the same diameter."""
+    diameter = [30.0]
+    renderer = ShaftRenderer(RigConfig(image_size=(320, 240)), seed=1)
+    shown: list[float] = []
+    real = renderer.render
+    renderer.render = lambda d, i=0: shown.append(d) or real(d, i)  # type: ignore[method-assign]
+    ring = FrameRing(renderer, 4, lambda: diameter[0], step_mm=2.5e-4)
+    ring.fill()
+    stop = threading.Event()
+    for d in (30.00005, 30.0001, 29.99988):
+        diameter[0] = d
+        assert ring.refresh(stop) == 0, d
+    diameter[0] = 30.00013
+    assert ring.refresh(stop) == 4
+    assert shown[-4:] == [30.00025] * 4
+    assert ring.refresh(stop) == 0
