@@ -185,6 +185,10 @@ class MeasurementSettings(_Section):
 
     method: Method = Method.AXIS
     workers: int = Field(2, ge=1, le=32)
+    processes: bool = True
+    """Measure in ``workers`` processes (else threads, which contend with the service's
+    event loop for the interpreter: frame -> registers latency grows tenfold at 100
+    frames/s)."""
     max_rate_hz: float | None = Field(None, gt=0)
     """At most this many frames a second are measured (a CPU budget on a shared PC); the
     camera's frames beyond it are dropped from its queue and counted. None: as many as the

@@ -211,7 +211,8 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     publisher = Publisher(sequence, feed, modbus, compensation)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
                              settings.camera.roi_margin_px if settings.camera.roi_enabled
-                             else None, ms.max_rate_hz, ms.reflection_check_hz)
+                             else None, ms.max_rate_hz, ms.reflection_check_hz,
+                             ms.processes)
     health = HealthReport(settings, camera, context, pipeline, feed, compensation, writer,
                           modbus)
     context.load_active()

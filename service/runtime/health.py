@@ -155,6 +155,11 @@ class HealthReport:
                          "subscriber_dropped": feed.subscribers.dropped,
                          "compensation_dropped": comp.dropped,
                          "errors": self.pipeline.counters["errors"],
+                         "workers": {"count": self.pipeline.workers,
+                                     "processes": self.pipeline.processes,
+                                     "restarts": self.pipeline.counters["worker_restarts"],
+                                     "frames_lost": self.pipeline.counters[
+                                         "frames_lost_with_a_worker"]},
                          "reflection": {
                              "present": self.pipeline.reflections.present,
                              "modelled_frames": self.pipeline.counters["reflections_modelled"]},

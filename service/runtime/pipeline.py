@@ -14,17 +14,19 @@ import asyncio
 import collections
 import contextlib
 import logging
+import multiprocessing
+import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import BrokenExecutor, Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
 
 from drivers.camera.base import Camera, CameraError, Frame
-from service.measure.diameter import MeasureParams, measure_frame
-from service.measure.geometry import RigGeometry
+from service.measure.diameter import MeasureParams
 from service.measure.result import Measurement, Method
+from service.measuring import measure_timed, worker_start
 from service.runtime.cadence import ReflectionWatch
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 from service.runtime.roi import KEEP, RegionFollower
@@ -61,12 +63,18 @@ class FramePipeline:
     reflection_check_hz : float
         Frames a second checked for a reflection beside the stripe while none is seen
         (``ReflectionWatch``).
+    processes : bool
+        Measure in worker processes instead of threads. A frame's measurement is mostly
+        numpy calls on a few hundred values, which hold the interpreter's lock between them:
+        in threads it contends with the event loop that publishes the results and answers
+        the CNC (at 100 frames a second on two cores, frame -> registers p99 of 35-100 ms).
+        A frame and its result cross a pipe (a tracked region of interest, tens of kB).
     """
 
     def __init__(self, camera: Camera, context: CalibrationContext, method: Method,
                  params: MeasureParams, workers: int, on_result: OnResult,
                  roi_margin_px: int | None = None, max_rate_hz: float | None = None,
-                 reflection_check_hz: float = 5.0) -> None:
+                 reflection_check_hz: float = 5.0, processes: bool = False) -> None:
         self.camera, self.context = camera, context
         self.roi_margin_px = roi_margin_px
         self._min_interval_s = 0.0 if not max_rate_hz else 1.0 / max_rate_hz
@@ -84,11 +92,12 @@ class FramePipeline:
                           for free in (False, True) for check in (False, True)}
         self.method, self.params, self.workers = method, params, workers
         self.on_result = on_result
-        # Told each frame's time waiting for a worker and measuring (from worker threads).
+        # Told each frame's time waiting for a worker and measuring (on the loop).
         self.stage_listener: Callable[[str, float], None] | None = None
         self.latest_frame: Frame | None = None
         self.counters: collections.Counter[str] = collections.Counter()
-        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="measure")
+        self.processes = processes
+        self._pool = self._new_pool()
         self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
         self._slots: asyncio.Semaphore | None = None
         self._in_flight: asyncio.Queue | None = None
@@ -97,6 +106,25 @@ class FramePipeline:
         # the filters' scale it was found with (a wide stripe is extracted once at it).
         self._near: np.ndarray | None = None
         self._scale_px: float | None = None
+
+    def _new_pool(self) -> Executor:
+        if not self.processes:
+            return ThreadPoolExecutor(self.workers, thread_name_prefix="measure")
+        # Spawned, not forked: the service's threads (camera, loop) must not be copied
+        # half-way through what they hold.
+        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=worker_start, initargs=(os.getpid(),))
+
+    def _renew_pool(self, broken: Executor, err: BaseException) -> None:
+        """A worker process died (killed, out of memory): its pool takes no more frames, so
+        a new one takes over (once per broken pool); the frames in flight are lost and
+        counted."""
+        if broken is not self._pool:
+            return
+        log.error("a measuring worker process died (%s): starting new workers", err)
+        self.counters["worker_restarts"] += 1
+        self._pool = self._new_pool()
+        broken.shutdown(wait=False, cancel_futures=True)
 
     def image_size(self) -> tuple[int, int] | None:
         """(width, height) of the camera's whole frames: the latest whole frame's, else the
@@ -134,18 +162,6 @@ class FramePipeline:
         await asyncio.get_running_loop().run_in_executor(None, self.camera.stop)
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._intake_pool.shutdown(wait=True, cancel_futures=True)
-
-    def _measure(self, frame: Frame, geometry: RigGeometry,
-                 prior: tuple[np.ndarray, float] | None, near: np.ndarray | None,
-                 scale_px: float | None, params: MeasureParams) -> Measurement:
-        t0 = time.monotonic_ns()
-        m = measure_frame(frame.image, geometry, self.method, params, prior, near,
-                          frame.origin, scale_px)
-        if self.stage_listener is not None:
-            t1 = time.monotonic_ns()
-            self.stage_listener("wait", (t0 - frame.received_ns) / 1e9)
-            self.stage_listener("measure", (t1 - t0) / 1e9)
-        return m
 
     def _params_now(self) -> MeasureParams:
         """The settings for the next frame: with the free fit and the reflection check when
@@ -198,9 +214,16 @@ class FramePipeline:
                     continue
                 prior = in_use.tracker.center() if in_use.tracker is not None else None
                 params = self._params_now()
-                fut = loop.run_in_executor(self._pool, self._measure, frame, in_use.geometry,
-                                           prior, self._near, self._scale_px, params)
-                await self._in_flight.put((frame, in_use, fut, params.reflection_check))
+                pool = self._pool
+                try:
+                    fut = loop.run_in_executor(pool, measure_timed, frame.image,
+                                               frame.origin, in_use.geometry, self.method,
+                                               params, prior, self._near, self._scale_px)
+                except BrokenExecutor as err:
+                    self.counters["errors"] += 1
+                    self._renew_pool(pool, err)
+                    continue
+                await self._in_flight.put((frame, in_use, fut, params.reflection_check, pool))
                 submitted = True
             except asyncio.CancelledError:
                 raise
@@ -216,11 +239,18 @@ class FramePipeline:
         """Results in frame order, each as soon as it and those before it are done."""
         assert self._slots is not None and self._in_flight is not None
         while True:
-            frame, in_use, fut, checked = await self._in_flight.get()
+            frame, in_use, fut, checked, pool = await self._in_flight.get()
             try:
-                m = await fut
+                m, t0, t1 = await fut
+                if self.stage_listener is not None:
+                    self.stage_listener("wait", (t0 - frame.received_ns) / 1e9)
+                    self.stage_listener("measure", (t1 - t0) / 1e9)
             except asyncio.CancelledError:
                 raise
+            except BrokenExecutor as err:
+                self.counters["frames_lost_with_a_worker"] += 1
+                self._renew_pool(pool, err)
+                continue
             except Exception:
                 self.counters["errors"] += 1
                 log.exception("measurement error")

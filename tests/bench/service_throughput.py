@@ -11,8 +11,9 @@ same wall clock). Polling adds up to 10 ms (5 ms on average): the pollers are cl
 service too, 200 requests a second between them. The simulated camera replays a
 ring of pre-rendered frames (``sim_replay_frames``), so that it does not compete with the
 service for the CPU; each frame rate runs with the camera's region of interest following the
-stripe and with the whole sensor. "CPU" is the service process's (not its children's) user
-and system time over the run, in % of one core.
+stripe and with the whole sensor. The service measures in worker processes, as installed.
+"CPU" is the service's user and system time over the run (its own process and its measuring
+workers, not the simulators), in % of one core.
 
 Run: ``.venv/bin/python -m tests.bench.service_throughput [--seconds S] [--fps F ...]
 [--roi on off]``.
@@ -34,7 +35,7 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.plc.registers import REGISTERS, RegisterType, WordOrder, from_words
 from drivers.sim.control import control
-from tests.e2e.conftest import start_service, stop_service
+from tests.e2e.conftest import measuring_workers, start_service, stop_service
 
 POLL_S = 0.01
 SEQ = next(r for r in REGISTERS if r.name == "measurement_seq")
@@ -93,13 +94,20 @@ def client_latencies(svc, seen: dict[int, float]) -> list[float]:
     return [(t - arrival[s]) * 1000.0 for s, t in seen.items() if s in arrival]
 
 
-def cpu_seconds(pid: int) -> float:
-    """User and system CPU time of a process so far, s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+def cpu_seconds(pid: int, workers: bool = True) -> float:
+    """User and system CPU time of a process so far, s, with that of its measuring worker
+    processes when ``workers``."""
+    total = 0.0
+    for p in [pid, *(measuring_workers(pid) if workers else [])]:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
 
 
-def run(fps: float, seconds: float, roi: bool, client_s: float) -> dict:
+def run(fps: float, seconds: float, roi: bool, client_s: float, embedded: bool = False) -> dict:
     """The service alone for ``seconds`` (its own figures), then with the two polling clients
     for ``client_s`` (the figures as a client sees them, and the service's under that load)."""
     rest_seen: dict[int, float] = {}
@@ -107,7 +115,8 @@ def run(fps: float, seconds: float, roi: bool, client_s: float) -> dict:
     env = {"SHAFTGAUGE_CAMERA__AUTO_ROI": "true" if roi else "false",
            "SHAFTGAUGE_CAMERA__QUEUE_SIZE": "8"}
     with tempfile.TemporaryDirectory() as tmp:
-        svc = start_service(Path(tmp), diameter=30.0, fps=fps, env=env)
+        svc = start_service(Path(tmp), diameter=30.0, fps=fps, env=env, embedded=embedded,
+                            processes=True)
         try:
             assert control(svc.control_port, {"get": "stats"})["ok"]
             time.sleep(5.0)  # warm up
@@ -156,12 +165,14 @@ def main() -> None:
     ap.add_argument("--fps", type=float, nargs="+", default=[25.0, 50.0, 100.0, 200.0])
     ap.add_argument("--roi", nargs="+", choices=["on", "off"], default=["on", "off"])
     ap.add_argument("--client-seconds", type=float, default=10.0)
+    ap.add_argument("--embedded", action="store_true",
+                    help="the embedded default as `make run` starts it (tool wear, OPC UA)")
     ap.add_argument("--json", default="bench-results/service_throughput.json")
     args = ap.parse_args()
     results = []
     for fps in args.fps:
         for roi in args.roi:
-            r = run(fps, args.seconds, roi == "on", args.client_seconds)
+            r = run(fps, args.seconds, roi == "on", args.client_seconds, args.embedded)
             results.append(r)
             c = r["with_clients"]
             print(f"camera at {fps:4.0f} fps, region of interest {roi:>3}: "

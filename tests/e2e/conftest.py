@@ -60,13 +60,16 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   fps: float = 10.0, camera_device: str | None = None,
                   plc_port: int | None = None, data: Path | None = None,
                   env: dict[str, str] | None = None, nominal: float | None = 30.0,
-                  opcua_port: int | None = None, embedded: bool = False) -> Service:
+                  opcua_port: int | None = None, embedded: bool = False,
+                  processes: bool = False) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
     ``nominal`` None leaves the feature unset; the OPC UA server only on ``opcua_port`` or
     with ``embedded`` (its start costs a second of CPU: the fault suite restarts the service
     dozens of times); ``embedded``: the embedded default's feature, tool wear and OPC UA
-    server (``camera.sim_feature``), no nominal of the test's."""
+    server (``camera.sim_feature``), no nominal of the test's; ``processes``: measured in
+    worker processes as an installation does (a spawned worker costs about 3 s of CPU at
+    start, and the suites start the service dozens of times: threads unless asked)."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
@@ -104,7 +107,9 @@ path = "{data / 'gauge.db'}"
     with log.open("w") as err:
         proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)],
                                 stdout=subprocess.PIPE, stderr=err, text=True,
-                                start_new_session=True, env={**os.environ, **(env or {})})
+                                start_new_session=True,
+                                env={**os.environ, "SHAFTGAUGE_MEASUREMENT__PROCESSES":
+                                     "true" if processes else "false", **(env or {})})
     line = proc.stdout.readline()
     if not line:
         raise RuntimeError(f"serve did not start: {log.read_text(errors='replace')[-3000:]}")
@@ -125,6 +130,22 @@ def stop_service(svc: Service) -> None:
     with contextlib.suppress(ProcessLookupError):
         os.killpg(svc.proc.pid, signal.SIGKILL)
     svc.proc.wait(10)
+
+
+def measuring_workers(pid: int) -> list[int]:
+    """The measuring worker processes of the service ``pid`` (its children that
+    multiprocessing spawned; not its resource tracker, not the simulators)."""
+    out = []
+    for p in Path("/proc").iterdir():
+        if not p.name.isdigit():
+            continue
+        try:
+            parent = int((p / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            if parent == pid and b"spawn_main" in (p / "cmdline").read_bytes():
+                out.append(int(p.name))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
 
 
 def wait_ready(svc: Service, timeout_s: float = 60.0) -> bool:

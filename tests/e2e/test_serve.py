@@ -8,13 +8,20 @@ import os
 import signal
 import socket
 import time
+from pathlib import Path
 
 import httpx
 from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.plc.registers import RegisterType, WordOrder, from_words, mm_to_units, units_to_mm
 from drivers.sim.control import control
-from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_ready
+from tests.e2e.conftest import (
+    TECH_KEY,
+    measuring_workers,
+    start_service,
+    stop_service,
+    wait_ready,
+)
 
 
 def wait_for(predicate, timeout_s: float, step_s: float = 0.2):
@@ -131,5 +138,50 @@ def test_ctrl_c_stops_the_service_and_its_simulators_at_once(tmp_path) -> None:
         assert time.monotonic() - t0 < 6.0
         err = svc.stderr()
         assert "Traceback" not in err, err[-2000:]
+    finally:
+        stop_service(svc)
+
+
+def test_worker_processes_measure_and_one_killed_is_replaced(tmp_path) -> None:
+    """As installed, frames are measured in worker processes: a worker killed (-9) breaks
+    its pool; the pipeline starts new workers, counts it, and measures on. The service
+    killed (-9) leaves no worker behind."""
+    svc = start_service(tmp_path, fps=20.0, processes=True)
+    try:
+        wait_ready(svc)
+
+        def workers() -> list[int]:
+            return measuring_workers(svc.proc.pid)
+
+        before = wait_for(workers, timeout_s=30)
+        assert before, "no worker process"
+        st = svc.get("/api/v1/status").json()["pipeline"]
+        assert st["workers"]["processes"] and st["workers"]["restarts"] == 0
+        measured = st["measured"]
+        os.kill(before[0], signal.SIGKILL)
+        restarted = wait_for(lambda: svc.get("/api/v1/status").json()["pipeline"]["workers"]
+                             ["restarts"] >= 1, timeout_s=20)
+        assert restarted
+        later = wait_for(lambda: (p := svc.get("/api/v1/status").json()["pipeline"])
+                         ["measured"] > measured + 40 and p, timeout_s=30)
+        assert later, "no measurements after the worker was killed"
+        assert set(workers()).isdisjoint({before[0]})
+        m = svc.get("/api/v1/measurements/latest").json()
+        assert m["status"] == "ok" and abs(m["diameter_mm"] - 30.0) < 0.010, m
+        left = workers()
+        os.kill(svc.proc.pid, signal.SIGKILL)
+        svc.proc.wait(10)
+
+        def gone() -> bool:
+            for pid in left:
+                try:
+                    if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] \
+                            != "Z":
+                        return False
+                except OSError:
+                    pass
+            return True
+
+        assert wait_for(gone, timeout_s=10), f"workers {left} outlived the service"
     finally:
         stop_service(svc)

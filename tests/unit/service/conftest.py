@@ -24,6 +24,8 @@ def make_settings(tmp_path, **sections) -> Settings:
         "api": {"keys": KEYS},
         "store": {"path": str(tmp_path / "data" / "gauge.db")},
         "compensation": {"nominal_mm": 30.0},
+        # In-process tests measure in threads: a spawned worker takes seconds to start.
+        "measurement": {"processes": False},
     }
     for k, v in sections.items():
         base[k] = {**base.get(k, {}), **v}
