@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import socket
 import sys
 import tempfile
@@ -47,12 +48,16 @@ def cmd_measure(args: argparse.Namespace) -> int:
             return _fail(str(err))
     if not args.max_uncertainty_um > 0:
         return _fail(f"--max-uncertainty-um must be positive, got {args.max_uncertainty_um}")
+    if not (args.fps > 0 and math.isfinite(args.fps)):
+        return _fail(f"--fps must be a positive frame rate, got {args.fps}")
+    if not args.reflection_check_hz >= 0:
+        return _fail(f"--reflection-check-hz must be 0 or more, got {args.reflection_check_hz}")
     params = MeasureParams(max_uncertainty_mm=args.max_uncertainty_um / 1000.0)
     try:
         correction = load_correction(args.correction) if args.correction else None
         calibration = load_calibration(args.calibration)
         results = measure_images(args.images, calibration, Method(args.method), params,
-                                 correction)
+                                 correction, args.fps, args.reflection_check_hz)
         if args.fuse:
             paths, ms = [], []
             for path, m in results:
@@ -410,6 +415,13 @@ def build_parser() -> argparse.ArgumentParser:
                    default=MeasureParams().max_uncertainty_mm * 1000.0, metavar="UM",
                    help="refuse a diameter more uncertain than this (status `uncertain`; "
                    "default %(default)g um; `inf` reports every fit)")
+    p.add_argument("--fps", type=float, default=10.0, metavar="HZ",
+                   help="the frame rate the images were taken at, for the reflection check's "
+                   "cadence (default %(default)g)")
+    p.add_argument("--reflection-check-hz", type=float, default=5.0, metavar="HZ",
+                   help="images a second of that rate looked at for a reflection beside the "
+                   "stripe, as the service does (default %(default)g; every image while one "
+                   "is seen, and every lopsided stripe); `inf` checks every image")
     p.add_argument("images", nargs="+", metavar="IMAGE", help="8- or 16-bit grey image files")
     p.set_defaults(func=cmd_measure)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,7 @@ import numpy as np
 
 from calib_store.model import Calibration
 from service.calibrate.master import DiameterCorrection, corrected
+from service.measure.cadence import ReflectionWatch
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.fuse import fuse
 from service.measure.geometry import geometry_of
@@ -116,10 +118,15 @@ def measurement_record(image: str, m: Measurement) -> dict[str, Any]:
 def measure_images(
     paths: list[str], calibration: Calibration, method: Method,
     params: MeasureParams | None = None, correction: DiameterCorrection | None = None,
+    fps: float = 10.0, reflection_check_hz: float = 5.0,
 ) -> Iterator[tuple[str, Measurement]]:
     """Check every file first (so that a bad one stops the run before any output), then yield
     ``(path, measurement)`` per image, in order, with the master ``correction`` applied as the
     service applies it.
+
+    Images are looked at for a reflection beside the stripe as the service looks at its
+    frames (``ReflectionWatch``): ``reflection_check_hz`` times a second of images taken at
+    ``fps`` (``inf``: every image), every image while one is seen, every lopsided stripe.
 
     Raises
     ------
@@ -129,9 +136,14 @@ def measure_images(
     for p in paths:
         check_image_file(p, calibration)
     geometry = geometry_of(calibration)
-    for p in paths:
-        yield p, corrected(measure_frame(read_grey_image(p), geometry, method, params),
-                           correction)
+    params = params or MeasureParams()
+    variants = {check: replace(params, reflection_check=check) for check in (False, True)}
+    watch = ReflectionWatch(reflection_check_hz)
+    for i, p in enumerate(paths):
+        checked = watch.due(i / fps)
+        m = measure_frame(read_grey_image(p), geometry, method, variants[checked])
+        watch.seen(checked, m.reflection_px is not None)
+        yield p, corrected(m, correction)
 
 
 def measure_files(

@@ -24,10 +24,10 @@ from dataclasses import replace
 import numpy as np
 
 from drivers.camera.base import Camera, CameraError, Frame
+from service.measure.cadence import ReflectionWatch
 from service.measure.diameter import MeasureParams
 from service.measure.result import Measurement, Method
 from service.measuring import measure_timed, worker_start
-from service.runtime.cadence import ReflectionWatch
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 from service.runtime.roi import KEEP, RegionFollower
 

@@ -198,3 +198,20 @@ def test_part_temperature_adds_the_diameter_at_20c(frames) -> None:
     assert shrink_um == pytest.approx(47.062 * 11.5e-6 * 10 * 1000, rel=0.01)
     bad = run("measure", "--calibration", str(cal), "--part-temp", "900", str(paths[1]))
     assert bad.returncode == 2 and "temperature" in bad.stderr
+
+
+@pytest.mark.parametrize(("args", "named"), [(["--fps", "0"], "--fps"),
+                                             (["--fps", "inf"], "--fps"),
+                                             (["--reflection-check-hz", "-1"],
+                                              "--reflection-check-hz")])
+def test_a_bad_cadence_is_refused_by_name(frames, args, named) -> None:
+    cal, paths = frames
+    res = run("measure", "--calibration", str(cal), *args, str(paths[0]))
+    assert res.returncode == 2 and named in res.stderr and not res.stdout, res.stderr
+
+
+def test_every_image_checked_when_asked(frames) -> None:
+    cal, paths = frames
+    res = run("measure", "--calibration", str(cal), "--reflection-check-hz", "inf",
+              *map(str, paths))
+    assert res.returncode == 0 and all(r["status"] == "ok" for r in lines(res.stdout))

@@ -286,7 +286,7 @@ def test_a_second_line_as_bright_as_the_stripe_is_refused() -> None:
 def test_a_faint_reflection_within_the_lopsidedness_limit_is_found() -> None:
     """A reflection a seventh of the stripe's height 2 px off leaves the profile within the
     lopsidedness limit but moves the diameter by about 20 um: the check on every frame finds
-    it (the service asks it a few times a second, ``service.runtime.cadence``)."""
+    it (the service asks it a few times a second, ``service.measure.cadence``)."""
     spec = Disturbances(ghost=Ghost(gain=0.15, offset_px=(2.0, 0.0), blur_px=1.0))
     r = ShaftRenderer(RigConfig(disturbances=spec), seed=5)
     g, img = geometry_of(r.calibration), r.render(21.7, 0)

@@ -1,9 +1,10 @@
-"""How often the pipeline asks for the costlier checks of a frame: pure state, time passed in.
+"""How often the costlier checks of a frame are asked: pure state, time passed in.
 
-Looking for a reflection beside the stripe (``service.measure.reflection``) costs several
-frames' worth of CPU, so the service does not ask it of every frame: a few times a second, and
-of every frame while the last check found one (a reflection from a machine part stays while
-that part is lit). A lopsided stripe is always checked by the measurement itself.
+Looking for a reflection beside the stripe (``service.measure.reflection``) costs about one
+and a half frames' worth of CPU, so neither the service nor the offline ``measure`` asks it of
+every frame: a few times a second, and of every frame while the last check found one (a
+reflection from a machine part stays while that part is lit). A lopsided stripe is always
+checked by the measurement itself.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""When the pipeline checks a frame for a reflection (``service.runtime.cadence``)."""
+"""When the pipeline checks a frame for a reflection (``service.measure.cadence``)."""
 
 from __future__ import annotations
 
-from service.runtime.cadence import ReflectionWatch
+from service.measure.cadence import ReflectionWatch
 
 
 def checks(watch: ReflectionWatch, times: list[float], found_at: set[float] = frozenset()
