@@ -22,7 +22,8 @@ test: setup
 	$(PY) -m service.measure.compiled
 	$(PY) -m pytest -m "not slow" -q
 
-## make bench: accuracy and speed figures; results land in bench-results/.
+## make bench: accuracy and speed figures; results land in bench-results/ (with the machine,
+## the commit and the date), the speed guard's baseline among them: commit them with the change.
 bench: setup
 	$(PY) -m service.measure.compiled
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PY) -m tests.bench.core_throughput
@@ -34,6 +35,8 @@ bench: setup
 	$(PY) -m tests.bench.camera_throughput
 	$(PY) -m tests.bench.service_throughput
 	$(PY) -m tests.bench.plant_publish
+	$(PY) -m tests.bench.guard --write
+	@git status --short bench-results
 
 ## make soak: the long soak and fault runs (an hour; SHAFTGAUGE_SOAK_S=600 for ten minutes).
 soak: setup

@@ -13,10 +13,8 @@ Run: ``.venv/bin/python -m tests.bench.beyond_paper [--frames N] [--json FILE]``
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -25,6 +23,7 @@ from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.fuse import fuse
 from service.measure.geometry import geometry_of
 from service.measure.result import Method
+from tests.bench.results import save_report
 
 AZIMUTHS = (20.0, 33.0, 47.0, 60.0)
 SPECKLE = (0.15, 0.25, 0.4)
@@ -129,9 +128,7 @@ def main() -> None:
           f"{f['single_mean_abs_mastered_um']:.2f} um, fused "
           f"{f['fused_mean_abs_mastered_um']:.2f} um -> {f['gain_mastered']:.1f}x")
     s["seconds"] = time.perf_counter() - t0
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(s, indent=2))
-    print(f"\nWritten {args.json} ({s['seconds']:.0f} s)")
+    save_report(s, "beyond_paper", path=args.json)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ Run: ``.venv/bin/python -m tests.bench.camera_throughput [--seconds S] [--fps F]
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import statistics
@@ -18,6 +17,7 @@ from pathlib import Path
 
 from drivers.camera.aravis import AravisCamera
 from drivers.camera.base import CameraConfig
+from tests.bench.results import save_report
 from tests.integration.conftest import sim_camera_process
 
 
@@ -77,7 +77,7 @@ def main() -> None:
                   f"{args.fps:g} fps)")
     finally:
         sim.stop()
-    Path(args.json).write_text(json.dumps(report, indent=2))
+    save_report(report, "camera_throughput", path=args.json)
 
 
 if __name__ == "__main__":

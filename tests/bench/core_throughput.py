@@ -27,14 +27,12 @@ Run: ``.venv/bin/python -m tests.bench.core_throughput [--shafts N] [--frames M]
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import time
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import replace
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -52,6 +50,7 @@ from service.measure.geometry import RigGeometry, geometry_of
 from service.measure.result import Method, Status
 from service.measure.stripe import StripeParams, StripePoints, extract_stripe
 from tests.bench.plain_steger import plain_steger, plain_steger_pruned
+from tests.bench.results import save_report
 
 
 def grey_centroid(image: np.ndarray, _: StripeParams) -> StripePoints:
@@ -270,9 +269,7 @@ def main() -> None:
         print(f"{name:>14} {v['frames']:6d} {v['ms_per_frame']:9.2f} {v['plain_vs_this']:10.1f} "
               f"{err:>13} {v['failed']:6d}")
     assert n_frames == len(flat)
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(out, indent=2))
-    print(f"\nWritten {args.json}")
+    save_report(out, "core_throughput", path=args.json)
 
 
 if __name__ == "__main__":

@@ -14,11 +14,9 @@ Run: ``.venv/bin/python -m tests.bench.paper_comparison [--frames N] [--json FIL
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +24,7 @@ from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import geometry_of
 from service.measure.result import Method
+from tests.bench.results import save_report
 
 COMPARE = MeasureParams(max_uncertainty_mm=math.inf)
 """Every frame measured, none refused as uncertain: the paper's comparison has no refusal."""
@@ -156,9 +155,7 @@ def main() -> None:
     print_summary(f"Added Gaussian noise, sigma {PAPER_NOISE_DN} DN (Tables 9, 10), "
                   f"{angle_frames} frames per diameter:", report["added_noise"])
     report["seconds"] = time.perf_counter() - t0
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(report, indent=2))
-    print(f"\nWritten {args.json} ({report['seconds']:.0f} s)")
+    save_report(report, "paper_comparison", path=args.json)
 
 
 if __name__ == "__main__":

@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from drivers.sim.board import Board, BoardPose, BoardRenderer
 from drivers.sim.rig import RigConfig, ShaftRenderer
+from tests.bench.results import save_report
 
 BOARD = Board(cols=11, rows=8, square_mm=8.0)
 
@@ -86,9 +85,7 @@ def main() -> None:
         out["sets"][name] = s
         print(f"{name:>32} {s['cx_std_px']:9.2f} {s['cy_std_px']:9.2f} "
               f"{100 * s['f_std_rel']:8.3f} {s['axis_shift_mm']:13.3f}")
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(out, indent=2))
-    print(f"\nWritten {args.json}")
+    save_report(out, "principal_point", path=args.json)
 
 
 if __name__ == "__main__":

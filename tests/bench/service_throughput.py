@@ -22,7 +22,6 @@ Run: ``.venv/bin/python -m tests.bench.service_throughput [--seconds S] [--fps F
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import tempfile
@@ -35,6 +34,7 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.plc.registers import REGISTERS, RegisterType, WordOrder, from_words
 from drivers.sim.control import control
+from tests.bench.results import save_report
 from tests.e2e.conftest import measuring_workers, start_service, stop_service
 
 POLL_S = 0.01
@@ -186,8 +186,7 @@ def main() -> None:
                   f"{c['client_rest']['median_ms']:.0f} ms, p99 {c['client_rest']['p99_ms']:.0f}"
                   f" ms, Modbus median {c['client_modbus']['median_ms']:.0f} ms, p99 "
                   f"{c['client_modbus']['p99_ms']:.0f} ms", flush=True)
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(results, indent=2))
+    save_report({"results": results}, "service_throughput", path=args.json)
 
 
 if __name__ == "__main__":
