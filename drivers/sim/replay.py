@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 import zlib
 from collections.abc import Callable
 
@@ -30,6 +31,8 @@ ROW_TIME_US = 6.0
 """Readout time of one sensor row, microseconds: 1024 rows take 6.1 ms (about 160 frames/s
 at full height), 400 rows 2.4 ms (about 380 frames/s)."""
 FRAME_OVERHEAD_US = 200.0
+REST = 2.0
+"""A ring being rendered again rests twice as long as each frame took: a third of a core."""
 
 
 def min_frame_period_us(height: int) -> int:
@@ -77,6 +80,7 @@ class FrameRing:
         self._next = 0
         self._rendered = 0
         self.rerendered = 0
+        self.rest = REST
 
     def _diameter(self) -> float:
         """The diameter to show now: the current one, to the step."""
@@ -91,9 +95,10 @@ class FrameRing:
 
     def refresh(self, stop: threading.Event) -> int:
         """Render again, one at a time, the frames that show an old diameter, starting with
-        those to be sent next (rendering outruns sending at up to ~25 frames/s, so a new
-        diameter reaches the frames sent almost at once); returns how many (stops early
-        when ``stop`` is set)."""
+        those to be sent next; returns how many (stops early when ``stop`` is set). Between
+        two frames it rests ``rest`` times as long as the last one took: the
+        camera shares the gauge's cores, and a ring rendered at full speed took one of them
+        for most of a second (a new diameter reaches the whole ring in about two seconds)."""
         done = 0
         with self._lock:
             first = self._next + 1
@@ -106,11 +111,13 @@ class FrameRing:
                 stale = self._shown[slot] != d
             if not stale:
                 continue
+            t0 = time.monotonic()
             image = self._render(d)
             with self._lock:
                 self._frames[slot], self._shown[slot] = image, d
                 self._crc.pop(slot, None)
             done += 1
+            stop.wait((time.monotonic() - t0) * self.rest)
         self.rerendered += done
         return done
 

@@ -73,8 +73,7 @@ def router(feed: MeasurementFeed, health: HealthReport, api: ApiSettings,
         if since is not None and until is not None and since > until:
             raise HTTPException(422, "since must not be after until")
         out = []
-        # A copy first: this runs in a worker thread while the event loop appends.
-        for rec in reversed(list(feed.history)):
+        for rec in feed.history_newest_first():
             if before_seq is not None and rec.seq >= before_seq:
                 continue
             if until is not None and rec.time > until:

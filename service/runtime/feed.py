@@ -10,7 +10,7 @@ import logging
 import sqlite3
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -103,7 +103,10 @@ class MeasurementFeed:
         self.latest_frame: Frame | None = None
         # The latest measured frame with its measurement and the geometry it was measured with.
         self.latest_measured: tuple[Frame, Measurement, RigGeometry] | None = None
-        self.history: collections.deque[MeasurementRecord] = collections.deque(maxlen=history)
+        # Plain tuples: the cyclic collector stops looking at a tuple of plain values (not at
+        # a subclass of tuple), and a full history walked at every full pass stopped the
+        # event loop for 40-90 ms.
+        self._history: collections.deque[tuple] = collections.deque(maxlen=history)
         self.subscribers = Subscribers()
         self.decisions = Subscribers()
         # Set when the service stops: live streams end instead of holding the shutdown.
@@ -135,12 +138,18 @@ class MeasurementFeed:
         self.latest = record
         self.counters["measured"] += 1
         self.counters["ok" if m else f"status_{m.status.value}"] += 1
-        self.history.append(record)
+        self._history.append(tuple(record))
         self._times.append(time.monotonic())
         self.latency_ms.append((time.monotonic_ns() - frame.received_ns) / 1e6)
         self.subscribers.publish(record)
         for listener in self._listeners:
             listener(record)
+
+    def history_newest_first(self) -> Iterator[MeasurementRecord]:
+        """The history's records, the newest first (from a copy: API threads read while the
+        event loop appends)."""
+        for values in reversed(list(self._history)):
+            yield MeasurementRecord._make(values)
 
     def measurement_age_s(self) -> float | None:
         """Seconds since the latest measurement was published."""

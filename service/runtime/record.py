@@ -4,16 +4,17 @@ function of the frame's measurement and what was in force when the frame was tak
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 from service.measure.result import Measurement
 from service.measure.thermal import diameter_at_reference
 
 
-@dataclass(frozen=True)
-class MeasurementRecord:
-    """One published measurement, as the API shows it (lengths in mm)."""
+class MeasurementRecord(NamedTuple):
+    """One published measurement, as the API shows it (lengths in mm). Plain values only:
+    the feed's history keeps them as plain tuples, which the cyclic collector leaves alone
+    (``MeasurementFeed.history_newest_first``)."""
 
     seq: int
     time: float                 # wall clock, Unix seconds
@@ -39,7 +40,7 @@ class MeasurementRecord:
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: a non-finite number (a fit's NaN residual, say) becomes None."""
         return {k: finite_or_none(v) if isinstance(v, float) else v
-                for k, v in asdict(self).items()}
+                for k, v in self._asdict().items()}
 
     @property
     def compensation_diameter_mm(self) -> float | None:
