@@ -20,7 +20,7 @@ run: setup
 test: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
-	$(PY) -m pytest -m "not slow" -q
+	$(PY) -m pytest -m "not slow" -q --durations=20
 
 ## make bench: accuracy and speed figures; results land in bench-results/ (with the machine,
 ## the commit and the date), the speed guard's baseline among them: commit them with the change.

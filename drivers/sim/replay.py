@@ -32,7 +32,10 @@ ROW_TIME_US = 6.0
 at full height), 400 rows 2.4 ms (about 380 frames/s)."""
 FRAME_OVERHEAD_US = 200.0
 REST = 2.0
-"""A ring being rendered again rests twice as long as each frame took: a third of a core."""
+"""A ring rendered again for a drift's step rests twice as long as each frame took: a third
+of a core."""
+JUMP_MM = 1e-3
+"""A change of the diameter larger than this is a jump, not a drift's step."""
 
 
 def min_frame_period_us(height: int) -> int:
@@ -95,10 +98,11 @@ class FrameRing:
 
     def refresh(self, stop: threading.Event) -> int:
         """Render again, one at a time, the frames that show an old diameter, starting with
-        those to be sent next; returns how many (stops early when ``stop`` is set). Between
-        two frames it rests ``rest`` times as long as the last one took: the
-        camera shares the gauge's cores, and a ring rendered at full speed took one of them
-        for most of a second (a new diameter reaches the whole ring in about two seconds)."""
+        those to be sent next; returns how many (stops early when ``stop`` is set). A drift's
+        step rests between two frames ``rest`` times as long as the last one took: the camera
+        shares the gauge's cores, and a ring rendered at full speed took one of them for
+        most of a second; a jump (more than ``JUMP_MM``) is rendered at full speed, so that
+        it reaches the frames sent at once."""
         done = 0
         with self._lock:
             first = self._next + 1
@@ -112,12 +116,15 @@ class FrameRing:
             if not stale:
                 continue
             t0 = time.monotonic()
+            with self._lock:
+                jump = abs(self._shown[slot] - d) > JUMP_MM
             image = self._render(d)
             with self._lock:
                 self._frames[slot], self._shown[slot] = image, d
                 self._crc.pop(slot, None)
             done += 1
-            stop.wait((time.monotonic() - t0) * self.rest)
+            if not jump:
+                stop.wait((time.monotonic() - t0) * self.rest)
         self.rerendered += done
         return done
 

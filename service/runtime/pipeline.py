@@ -1,9 +1,10 @@
 """Frames to measurements: camera -> bounded queue -> worker pool -> results in frame order.
 
 The camera's own thread fills a bounded drop-oldest queue; the intake task takes frames from
-it and hands each to a thread pool (numpy and OpenCV release the GIL), at most ``workers`` in
-flight, each with the calibration in force when it was taken and the stripe of the last frame
-measured (it is looked for there first: ``service.measure.stripe.extract_stripe``); the
+it and hands each to a pool of worker processes (or threads, ``processes``), at most
+``workers`` in flight, each with the calibration in force when it was taken and the stripe
+of the last frame measured (it is looked for there first:
+``service.measure.stripe.extract_stripe``); the
 publisher task hands the results on in frame order, and tells the camera where the stripe is
 (its region of interest follows it: ``service.runtime.roi``). Nothing downstream can stall
 acquisition."""

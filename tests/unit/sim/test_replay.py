@@ -65,3 +65,18 @@ def test_a_slow_drift_renders_the_ring_once_a_step() -> None:
     assert ring.refresh(stop) == 4
     assert shown[-4:] == [30.00025] * 4
     assert ring.refresh(stop) == 0
+
+
+def test_a_drifts_step_rests_between_frames_and_a_jump_does_not() -> None:
+    diameter = [30.0]
+    ring = FrameRing(ShaftRenderer(RigConfig(image_size=(320, 240)), seed=1), 3,
+                     lambda: diameter[0])
+    ring.fill()
+    stop = threading.Event()
+    rests: list[float] = []
+    stop.wait = lambda s=None: rests.append(s) or False  # type: ignore[method-assign]
+    diameter[0] = 30.00025  # a drift's step
+    assert ring.refresh(stop) == 3 and len(rests) == 3 and min(rests) > 0
+    rests.clear()
+    diameter[0] = 30.5  # a jump
+    assert ring.refresh(stop) == 3 and rests == []
