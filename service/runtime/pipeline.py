@@ -28,7 +28,7 @@ from drivers.camera.base import Camera, CameraError, Frame
 from service.measure.cadence import ReflectionWatch
 from service.measure.diameter import MeasureParams
 from service.measure.result import Measurement, Method
-from service.measuring import measure_timed, worker_start
+from service.measuring import FrameRef, FrameSlots, measure_timed, worker_start
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 from service.runtime.roi import KEEP, RegionFollower
 
@@ -99,6 +99,9 @@ class FramePipeline:
         self.counters: collections.Counter[str] = collections.Counter()
         self.processes = processes
         self._pool = self._new_pool()
+        # Frames reach worker processes through shared memory (made at the first frame, a
+        # whole sensor's worth a slot).
+        self._slots_shm: FrameSlots | None = None
         self._intake_pool = ThreadPoolExecutor(1, thread_name_prefix="intake")
         self._slots: asyncio.Semaphore | None = None
         self._in_flight: asyncio.Queue | None = None
@@ -115,6 +118,20 @@ class FramePipeline:
         # half-way through what they hold.
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
                                    initializer=worker_start, initargs=(os.getpid(),))
+
+    def _shared(self, frame: Frame, in_use: CalibrationInUse) -> FrameRef | None:
+        """The frame in shared memory for a worker process (None: in threads, or no slot)."""
+        if not self.processes:
+            return None
+        if self._slots_shm is None:
+            w, h = in_use.geometry.image_size
+            self._slots_shm = FrameSlots(self.workers + 2,
+                                         max(w * h * frame.image.itemsize, frame.image.nbytes))
+        return self._slots_shm.put(frame.image)
+
+    def _release(self, ref: FrameRef | None) -> None:
+        if self._slots_shm is not None and ref is not None:
+            self._slots_shm.release(ref)
 
     def _renew_pool(self, broken: Executor, err: BaseException) -> None:
         """A worker process died (killed, out of memory): its pool takes no more frames, so
@@ -163,6 +180,8 @@ class FramePipeline:
         await asyncio.get_running_loop().run_in_executor(None, self.camera.stop)
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._intake_pool.shutdown(wait=True, cancel_futures=True)
+        if self._slots_shm is not None:
+            self._slots_shm.close()
 
     def _params_now(self) -> MeasureParams:
         """The settings for the next frame: with the free fit and the reflection check when
@@ -215,16 +234,19 @@ class FramePipeline:
                     continue
                 prior = in_use.tracker.center() if in_use.tracker is not None else None
                 params = self._params_now()
-                pool = self._pool
+                pool, ref = self._pool, self._shared(frame, in_use)
                 try:
-                    fut = loop.run_in_executor(pool, measure_timed, frame.image,
+                    fut = loop.run_in_executor(pool, measure_timed,
+                                               frame.image if ref is None else ref,
                                                frame.origin, in_use.geometry, self.method,
                                                params, prior, self._near, self._scale_px)
                 except BrokenExecutor as err:
+                    self._release(ref)
                     self.counters["errors"] += 1
                     self._renew_pool(pool, err)
                     continue
-                await self._in_flight.put((frame, in_use, fut, params.reflection_check, pool))
+                await self._in_flight.put((frame, in_use, fut, params.reflection_check, pool,
+                                           ref))
                 submitted = True
             except asyncio.CancelledError:
                 raise
@@ -240,9 +262,12 @@ class FramePipeline:
         """Results in frame order, each as soon as it and those before it are done."""
         assert self._slots is not None and self._in_flight is not None
         while True:
-            frame, in_use, fut, checked, pool = await self._in_flight.get()
+            frame, in_use, fut, checked, pool, ref = await self._in_flight.get()
             try:
-                m, t0, t1 = await fut
+                try:
+                    m, t0, t1 = await fut
+                finally:
+                    self._release(ref)
                 if self.stage_listener is not None:
                     self.stage_listener("wait", (t0 - frame.received_ns) / 1e9)
                     self.stage_listener("measure", (t1 - t0) / 1e9)
