@@ -305,8 +305,9 @@ def _least_squares(bins: _Bins, p0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
         scale = np.maximum(scale, 1e-9 * scale.max())
         try:
             step = np.linalg.solve(a + damping * np.diag(scale), -g)
-        except np.linalg.LinAlgError:
+        except np.linalg.LinAlgError:  # counted: a matrix that stays singular ends the fit
             damping *= 10.0
+            nfev += 1
             continue
         trial = np.clip(p + step, lo, hi)
         r_t, jac_t, cost_t = evaluate(trial)
