@@ -144,7 +144,10 @@ class SectionPoints:
     section: np.ndarray
 
     def subset(self, keep: np.ndarray) -> SectionPoints:
-        """The points selected by a boolean mask or index array."""
+        """The points selected by a boolean mask or index array (these points themselves
+        when the mask keeps them all)."""
+        if keep.dtype == np.bool_ and keep.all():
+            return self
         return SectionPoints(self.stripe.subset(keep), self.points3d[keep], self.section[keep])
 
 
@@ -252,14 +255,16 @@ def axis_center(geometry: RigGeometry) -> np.ndarray | None:
 
 def _fit_circle(sec: np.ndarray, method: Method,
                 center_prior: tuple[np.ndarray, float] | None, weights: np.ndarray,
-                start: fits.CircleFit | None = None) -> fits.CircleFit:
+                start: fits.CircleFit | None = None, uncertainty: bool = True
+                ) -> fits.CircleFit:
     """The circle of ``axis`` (with the centre prior) or ``geometric``, from ``start`` when
     given (a fit of the same points before a sub-micrometre correction). Outliers are judged
-    again: corrected, a point at the stripe's faded end may rejoin or leave."""
+    again: corrected, a point at the stripe's faded end may rejoin or leave. Without
+    ``uncertainty`` the fit only starts another and has no ``radius_std``."""
     if method is Method.AXIS and center_prior is not None:
         return fits.fit_axis_prior(sec, center_prior[0], center_prior[1], weights=weights,
-                                   start=start)
-    return fits.fit_geometric(sec, weights=weights, start=start)
+                                   start=start, uncertainty=uncertainty)
+    return fits.fit_geometric(sec, weights=weights, start=start, uncertainty=uncertainty)
 
 
 def fit_section(
@@ -298,21 +303,29 @@ def fit_section(
     else:
         weights = fits.point_weights(points.stripe.strength, len(sec))
         if method in (Method.AXIS, Method.GEOMETRIC):
-            circ = _fit_circle(sec, method, center_prior, weights)
-            refit = False
+            # A first fit that another follows needs no uncertainty of its own (only if the
+            # second fails, below).
+            refit = params.arc_weighting or params.sheet_correction
+            first = circ = _fit_circle(sec, method, center_prior, weights,
+                                       uncertainty=not refit)
+            first_weights = weights
             if circ and params.arc_weighting:
                 # Weigh each point by how much the points about it scatter (fits.arc_variance).
                 res = (np.hypot(*(sec - circ.center).T) - circ.radius) * np.sqrt(weights)
                 weights = weights / fits.arc_variance(sec, circ.center, circ.inliers, res)
-                refit = True
             if circ and params.sheet_correction:
                 # Take out the sheet's error modelled on this fit, and fit again from it.
                 moved = correct_sheet_bias(points, circ.center, circ.radius, geometry, params)
                 again = _fit_circle(moved, method, center_prior, weights, start=circ)
                 if again:
                     sec, circ = moved, again
-            elif refit:
-                circ = _fit_circle(sec, method, center_prior, weights, start=circ) or circ
+            elif circ and refit:
+                circ = _fit_circle(sec, method, center_prior, weights, start=circ)
+            if refit and first and (circ is first or not circ):
+                # The second fit failed: the first stands, with its uncertainty.
+                axis = method is Method.AXIS and center_prior is not None
+                circ = fits.with_radius_std(first, sec, first_weights,
+                                            center_prior[1] if axis else None)
         else:  # the paper's algorithms, as the paper has them: unweighted
             circ = (fits.fit_kasa if method is Method.CIRCLE else fits.fit_paper)(sec)
         free = fits.fit_geometric(sec, weights=weights) \

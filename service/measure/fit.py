@@ -178,10 +178,7 @@ def circle_covariance(points: np.ndarray, center: np.ndarray, radius: float,
     if center_prior_sigma is not None:
         info[0, 0] += 1.0 / center_prior_sigma**2
         info[1, 1] += 1.0 / center_prior_sigma**2
-    try:
-        return np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        return np.full((3, 3), np.inf)
+    return ck.inverse3(info)
 
 
 def rejection_clip(points: np.ndarray, center: np.ndarray, radius: float,
@@ -364,6 +361,7 @@ def fit_hyper(points: np.ndarray, uncertainty: bool = True) -> CircleFit:
 def fit_geometric(
     points: np.ndarray, reject_k: float = 3.5, max_rounds: int = 6, floor_mm: float = 1e-4,
     weights: np.ndarray | None = None, start: CircleFit | None = None,
+    uncertainty: bool = True,
 ) -> CircleFit:
     """Orthogonal-distance circle fit with robust outlier rejection.
 
@@ -387,6 +385,8 @@ def fit_geometric(
     start : CircleFit, optional
         A fit of nearly the same points to start from (its centre, radius and inliers)
         instead of ``fit_hyper``.
+    uncertainty : bool
+        Compute ``radius_std`` (NaN without it): a fit that only starts another needs none.
 
     Returns
     -------
@@ -414,8 +414,8 @@ def fit_geometric(
     if status == 2:
         return CircleFit.failure("geometric fit did not converge", len(pts))
     center = np.array([cx, cy])
-    return _with_std(CircleFit(center, radius, circle_rms(pts[inliers], center, radius),
-                               inliers), pts, w)
+    fit = CircleFit(center, radius, circle_rms(pts[inliers], center, radius), inliers)
+    return _with_std(fit, pts, w) if uncertainty else fit
 
 
 def order_along_arc(points: np.ndarray, center: np.ndarray) -> np.ndarray:
@@ -511,7 +511,7 @@ def fit_paper(points: np.ndarray) -> CircleFit:
 def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: float,
                    reject_k: float = 3.5, max_rounds: int = 6,
                    floor_mm: float = 1e-4, weights: np.ndarray | None = None,
-                   start: CircleFit | None = None) -> CircleFit:
+                   start: CircleFit | None = None, uncertainty: bool = True) -> CircleFit:
     """Circle with a Gaussian prior on its centre, by maximum a posteriori.
 
     A surface turned on the lathe is concentric with the spindle axis, so the section centre
@@ -534,6 +534,8 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
         Outlier rejection and point weights, as in ``fit_geometric``.
     start : CircleFit, optional
         A fit of nearly the same points to start from (its centre, radius and inliers).
+    uncertainty : bool
+        Compute ``radius_std`` (NaN without it): a fit that only starts another needs none.
 
     Returns
     -------
@@ -550,11 +552,11 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
     pts = np.asarray(points, np.float64)
     w = np.ones(len(pts)) if weights is None else np.asarray(weights, np.float64)
     sw_all = np.sqrt(w)
-    inliers = np.ones(len(pts), bool)
-    center = c0.copy()
-    radius = float(np.average(np.hypot(*(pts - c0).T), weights=w))
     if start and start.inliers.size == len(pts):
         inliers, center, radius = start.inliers.copy(), start.center.copy(), start.radius
+    else:
+        inliers, center = np.ones(len(pts), bool), c0.copy()
+        radius = float(np.average(np.hypot(*(pts - c0).T), weights=w))
     cx, cy, radius, inliers, status = ck.robust_rounds(
         np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sw_all,
         float(center[0]), float(center[1]), float(radius), inliers, True, float(c0[0]),
@@ -565,11 +567,28 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
         return CircleFit.failure("axis-prior fit did not converge", len(pts))
     center = np.array([cx, cy])
     use = pts[inliers]
-    clip = rejection_clip(pts, center, radius, w, inliers, reject_k, floor_mm)
-    cov = circle_covariance(pts, center, radius, center_prior_sigma=center_sigma, weights=w,
-                            inliers=inliers, clip=clip)
+    fit = CircleFit(center, radius, circle_rms(use, center, radius), inliers)
+    return with_radius_std(fit, pts, w, center_sigma, reject_k, floor_mm) if uncertainty \
+        else fit
+
+
+def with_radius_std(fit: CircleFit, points: np.ndarray, weights: np.ndarray,
+                    center_sigma: float | None = None, reject_k: float = 3.5,
+                    floor_mm: float = 1e-4) -> CircleFit:
+    """``fit`` (of ``points`` with ``weights``, made with ``uncertainty=False``) with the
+    ``radius_std`` its fit would have given: ``fit_axis_prior``'s with ``center_sigma`` (and
+    the same ``reject_k``, ``floor_mm``), else ``fit_geometric``'s."""
+    if not fit:
+        return fit
+    pts = np.asarray(points, np.float64)
+    w = np.asarray(weights, np.float64)
+    if center_sigma is None:
+        return _with_std(fit, pts, w)
+    clip = rejection_clip(pts, fit.center, fit.radius, w, fit.inliers, reject_k, floor_mm)
+    cov = circle_covariance(pts, fit.center, fit.radius, center_prior_sigma=center_sigma,
+                            weights=w, inliers=fit.inliers, clip=clip)
     std = float(math.sqrt(max(cov[2, 2], 0.0))) if np.isfinite(cov[2, 2]) else math.inf
-    return CircleFit(center, radius, circle_rms(use, center, radius), inliers, radius_std=std)
+    return replace(fit, radius_std=std)
 
 
 def conic_semi_axes(coeffs: np.ndarray) -> tuple[np.ndarray, float, float] | None:

@@ -32,7 +32,7 @@ def light_coefficients(section: np.ndarray, cx: float, cy: float, brightness: np
         if not (math.isfinite(b) and b > 0.0):
             continue
         dx, dy = section[i, 0] - cx, section[i, 1] - cy
-        d = max(math.hypot(dx, dy), 1e-300)
+        d = max(math.sqrt(dx * dx + dy * dy), 1e-300)  # mm: no overflow
         p[i] = (dx * basis[0, 0] + dy * basis[1, 0]) / d
         q[i] = (dx * basis[0, 1] + dy * basis[1, 1]) / d
         use[i] = True

@@ -223,8 +223,8 @@ def local_parabolas(xy: np.ndarray, normal: np.ndarray, idx: np.ndarray, window_
     out = np.empty(n)
     for i in range(n):
         tx, ty = -normal[i, 1], normal[i, 0]
-        s = np.zeros((3, 3))
-        rhs = np.zeros(3)
+        # The normal equations' sums, w u^p (p = 0..4) and w u^p v (p = 0..2), as scalars.
+        s0 = s1 = s2 = s3 = s4 = r0 = r1 = r2 = 0.0
         for j in range(k):
             q = idx[i, j]
             rx = xy[q, 0] - xy[i, 0]
@@ -234,14 +234,21 @@ def local_parabolas(xy: np.ndarray, normal: np.ndarray, idx: np.ndarray, window_
             if abs(v) >= 2.0:
                 continue  # a parallel stray line
             wgt = math.exp(-0.5 * (u / window_px) ** 2)
-            basis = (1.0, u, u * u)
-            for a in range(3):
-                rhs[a] += wgt * basis[a] * v
-                for b in range(3):
-                    s[a, b] += wgt * basis[a] * basis[b]
-        for a in range(3):
-            s[a, a] += 1e-9
-        out[i] = _third_unknown(s, rhs)
+            wu = wgt * u
+            wu2 = wu * u
+            s0 += wgt
+            s1 += wu
+            s2 += wu2
+            s3 += wu2 * u
+            s4 += wu2 * u * u
+            r0 += wgt * v
+            r1 += wu * v
+            r2 += wu2 * v
+        s0 += 1e-9
+        s4 += 1e-9
+        det = _det3(s0, s1, s2, s1, s2 + 1e-9, s3, s2, s3, s4)
+        out[i] = 0.0 if det == 0.0 else \
+            _det3(s0, s1, r0, s1, s2 + 1e-9, r1, s2, s3, r2) / det
     return out
 
 
@@ -250,16 +257,6 @@ def _det3(a00: float, a01: float, a02: float, a10: float, a11: float, a12: float
           a20: float, a21: float, a22: float) -> float:
     return (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20)
             + a02 * (a10 * a21 - a11 * a20))
-
-
-@numba.njit(**_OPTS)
-def _third_unknown(s: np.ndarray, rhs: np.ndarray) -> float:
-    """The third unknown of the 3x3 system ``s z = rhs`` (Cramer's rule)."""
-    det = _det3(s[0, 0], s[0, 1], s[0, 2], s[1, 0], s[1, 1], s[1, 2], s[2, 0], s[2, 1], s[2, 2])
-    if det == 0.0:
-        return 0.0
-    return _det3(s[0, 0], s[0, 1], rhs[0], s[1, 0], s[1, 1], rhs[1], s[2, 0], s[2, 1],
-                 rhs[2]) / det
 
 
 @numba.njit(**_OPTS)
@@ -473,6 +470,83 @@ def chain_sizes(labels: np.ndarray) -> np.ndarray:
     out = np.empty(labels.shape[0], np.int64)
     for i in range(labels.shape[0]):
         out[i] = sizes[labels[i]]
+    return out
+
+
+@numba.njit(**_OPTS)
+def _linear_taps(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's INTER_LINEAR source pixel and weight of the next one for each of ``n_out``
+    destination pixels resized from ``n_in`` (pixel centres aligned, edges clamped)."""
+    scale = n_in / n_out
+    i0 = np.empty(n_out, np.int64)
+    frac = np.empty(n_out)
+    for i in range(n_out):
+        f = (i + 0.5) * scale - 0.5
+        j = math.floor(f)
+        a = f - j
+        if j < 0:
+            j, a = 0, 0.0
+        if j >= n_in - 1:
+            j, a = n_in - 1, 0.0
+        i0[i] = j
+        frac[i] = a
+    return i0, frac
+
+
+@numba.njit(**_FAST)
+def subtract_upsampled(image: np.ndarray, small: np.ndarray, level: float, step: int
+                       ) -> np.ndarray:
+    """``image - up(small) - m + level`` (float32), with ``up`` the bilinear resize of
+    ``small`` to ``image``'s size as ``cv2.resize(..., INTER_LINEAR)`` makes it and ``m`` the
+    median of ``image - up(small)`` over every ``step``-th pixel each way; in one pass,
+    without the full-size background."""
+    h, w = image.shape
+    sh, sw = small.shape
+    ry, fy = _linear_taps(h, sh)
+    rx, fx = _linear_taps(w, sw)
+    rx1 = np.minimum(rx + 1, sw - 1)
+    out = np.empty((h, w), np.float32)
+    for y in range(h):
+        y0 = ry[y]
+        y1 = min(y0 + 1, sh - 1)
+        b = fy[y]
+        for x in range(w):
+            a = fx[x]
+            top = (1.0 - a) * small[y0, rx[x]] + a * small[y0, rx1[x]]
+            bottom = (1.0 - a) * small[y1, rx[x]] + a * small[y1, rx1[x]]
+            out[y, x] = image[y, x] - ((1.0 - b) * top + b * bottom)
+    samples = np.empty(((h + step - 1) // step) * ((w + step - 1) // step))
+    m = 0
+    for y in range(0, h, step):
+        for x in range(0, w, step):
+            samples[m] = out[y, x]
+            m += 1
+    shift = np.float32(level - np.median(samples[:m]))
+    for y in range(h):
+        for x in range(w):
+            out[y, x] += shift
+    return out
+
+
+@numba.njit(**_OPTS)
+def in_patch(xy: np.ndarray, labels: np.ndarray, max_density: float) -> np.ndarray:
+    """For each point, whether its chain (``chain_labels``) is a patch: more than
+    ``max_density`` points per pixel of the diagonal of its box (at least 1 px)."""
+    n = labels.shape[0]
+    lo = np.full((n, 2), np.inf)
+    hi = np.full((n, 2), -np.inf)
+    counts = np.zeros(n, np.int64)
+    for i in range(n):
+        c = labels[i]
+        counts[c] += 1
+        for j in range(2):
+            lo[c, j] = min(lo[c, j], xy[i, j])
+            hi[c, j] = max(hi[c, j], xy[i, j])
+    out = np.empty(n, np.bool_)
+    for i in range(n):
+        c = labels[i]
+        extent = math.hypot(hi[c, 0] - lo[c, 0], hi[c, 1] - lo[c, 1])
+        out[i] = counts[c] > max_density * max(extent, 1.0)
     return out
 
 

@@ -26,8 +26,8 @@ from service.measure.band import (
     full_scale,
     gaussian_kernels,
     image_statistics,
-    local_background,
     tube_band,
+    without_background,
 )
 from service.measure.robust import median
 
@@ -193,7 +193,10 @@ class StripePoints:
         return len(self) > 0
 
     def subset(self, keep: np.ndarray) -> StripePoints:
-        """The points selected by a boolean mask or index array."""
+        """The points selected by a boolean mask or index array (these points themselves
+        when the mask keeps them all: the arrays are never changed in place)."""
+        if keep.dtype == np.bool_ and keep.all():
+            return self
         return StripePoints(
             self.xy[keep], self.normal[keep], self.strength[keep], self.width_px[keep],
             self.background, self.noise, self.reason,
@@ -242,7 +245,7 @@ def steger_centres(
     x0, x1 = max(0, band.x0 - r), min(w, band.x0 + bw + r)
     roi = image[y0:y1, x0:x1].astype(np.float32)
     if params.background_px > 0:
-        roi = roi - local_background(roi, params.background_px) + np.float32(background)
+        roi = without_background(roi, params.background_px, background)
     sel = np.zeros(roi.shape, bool)
     sel[band.y0 - y0:band.y0 - y0 + bh, band.x0 - x0:band.x0 - x0 + bw] = band.mask
     # Centres need the full filter support inside the image.
@@ -302,17 +305,8 @@ def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int,
     sizes = kernels.chain_sizes(labels)
     keep = sizes >= min_chain
     if keep.any():
-        order = np.argsort(labels, kind="stable")
-        lab, xy = labels[order], points.xy[order]
-        starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
-        lo = np.minimum.reduceat(xy, starts, axis=0)
-        hi = np.maximum.reduceat(xy, starts, axis=0)
-        counts = np.diff(np.r_[starts, len(lab)])
-        extent = np.hypot(*(hi - lo).T)
-        patch = counts > max_density * np.maximum(extent, 1.0)
-        if patch.any():
-            is_patch = np.zeros(len(lab), bool)
-            is_patch[order] = np.repeat(patch, counts)
+        is_patch = kernels.in_patch(points.xy, labels, float(max_density))
+        if is_patch.any():
             long_line = (sizes >= 5 * min_chain) & ~is_patch
             is_patch &= keep
             if is_patch.any() and long_line.any():

@@ -167,3 +167,23 @@ def test_arc_span_and_order_across_the_wrap() -> None:
     order = F.order_along_arc(pts, np.zeros(2))
     ang = np.degrees(np.unwrap(np.arctan2(pts[order, 1], pts[order, 0])))
     assert np.all(np.diff(ang) > 0) and ang[-1] - ang[0] == pytest.approx(60.0)
+
+
+@pytest.mark.parametrize("prior", [None, 0.001])
+def test_a_fit_without_uncertainty_gets_the_same_one_afterwards(prior: float | None) -> None:
+    """A fit that only starts another skips its covariance; when the other fails, the first
+    gets it afterwards, the same as had it been computed at once."""
+    pts, c = arc_points(20.0, 70, 300, sigma=0.003, seed=4)
+    pts[::37] += 0.05  # a few outliers, so that the rejection's clip counts
+    w = np.random.default_rng(5).uniform(0.3, 1.0, len(pts))
+    if prior is None:
+        full = F.fit_geometric(pts, weights=w)
+        bare = F.fit_geometric(pts, weights=w, uncertainty=False)
+    else:
+        full = F.fit_axis_prior(pts, c, prior, weights=w)
+        bare = F.fit_axis_prior(pts, c, prior, weights=w, uncertainty=False)
+    assert math.isnan(bare.radius_std) and bare.radius == full.radius
+    assert np.array_equal(bare.inliers, full.inliers) and not full.inliers.all()
+    later = F.with_radius_std(bare, pts, w, prior)
+    assert later.radius_std == pytest.approx(full.radius_std, rel=1e-12)
+    assert full.radius_std > 0

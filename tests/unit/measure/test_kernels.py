@@ -176,3 +176,61 @@ def test_a_stripe_that_moved_is_found_by_a_full_search(renderer) -> None:
     moved = extract_stripe(image, params, far)
     assert len(moved) == len(full)
     assert tube_band(far, image.shape, params.track_px) is not None
+
+
+@pytest.mark.parametrize("shape", [(417, 397), (40, 57), (6, 9), (128, 64)])
+def test_background_subtracted_in_one_pass_equals_opencv_s_resize(shape: tuple[int, int]
+                                                                 ) -> None:
+    """``subtract_upsampled`` is the image less ``cv2.resize(small, INTER_LINEAR)`` less the
+    median of the difference over every sixth pixel, plus the level."""
+    rng = np.random.default_rng(shape[0])
+    image = rng.uniform(0, 255, shape).astype(np.float32)
+    small = cv2.GaussianBlur(rng.uniform(0, 60, (shape[0] // 2, shape[1] // 2))
+                             .astype(np.float32), (0, 0), 2.0)
+    full = cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    diff = image - full
+    want = diff - np.float32(np.median(diff[::6, ::6])) + np.float32(7.5)
+    got = sk.subtract_upsampled(image, small, 7.5, 6)
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, want, atol=1e-4)
+
+
+def test_patches_are_chains_denser_than_lines() -> None:
+    """``in_patch``: a chain of 40 points along 40 px is a line, 40 points in a 3 px blob a
+    patch, a lone point (extent 0, counted as 1 px) is neither at density 3."""
+    line = np.column_stack([np.arange(40.0), np.zeros(40)])
+    blob = np.random.default_rng(1).uniform(100, 103, (40, 2))
+    xy = np.vstack([line, blob, [[300.0, 300.0]]])
+    labels = np.r_[np.zeros(40, np.int64), np.full(40, 40), [80]]
+    got = sk.in_patch(xy, labels, 3.0)
+    assert not got[:40].any() and got[40:80].all() and not got[80]
+
+
+def test_inverse3_is_numpy_s_inverse() -> None:
+    rng = np.random.default_rng(2)
+    for _ in range(200):
+        j = rng.normal(size=(50, 3))
+        a = j.T @ j * rng.uniform(1e-6, 1e9)
+        np.testing.assert_allclose(ck.inverse3(a), np.linalg.inv(a), rtol=1e-8)
+    assert np.isinf(ck.inverse3(np.zeros((3, 3)))).all()
+
+
+def test_local_parabolas_are_the_weighted_least_squares_fits() -> None:
+    """``local_parabolas``: each point's ``c`` of ``v = a + b u + c u^2`` in its own tangent
+    frame, Gaussian weights along the stripe, points 2 px or more off the normal left out."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 1.2, 80)
+    xy = np.column_stack([200 * np.cos(t), 200 * np.sin(t)]) + rng.normal(0, 0.05, (80, 2))
+    normal = -np.column_stack([np.cos(t), np.sin(t)])
+    xy[40] += 3.0 * normal[40]  # a stray point, off its neighbours' normals
+    idx = sk.nearest_neighbours(np.ascontiguousarray(xy), 15)
+    got = sk.local_parabolas(xy, normal, idx, 5.0)
+    for i in (3, 20, 39, 41, 70):
+        rel = xy[idx[i]] - xy[i]
+        u = rel @ np.array([-normal[i, 1], normal[i, 0]])
+        v = rel @ normal[i]
+        use = np.abs(v) < 2.0
+        a = np.column_stack([np.ones(use.sum()), u[use], u[use] ** 2])
+        sw = np.sqrt(np.exp(-0.5 * (u[use] / 5.0) ** 2))
+        want = np.linalg.lstsq(a * sw[:, None], v[use] * sw, rcond=None)[0][2]
+        assert got[i] == pytest.approx(want, rel=1e-6, abs=1e-9)
