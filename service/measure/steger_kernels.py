@@ -498,33 +498,33 @@ def subtract_upsampled(image: np.ndarray, small: np.ndarray, level: float, step:
                        ) -> np.ndarray:
     """``image - up(small) - m + level`` (float32), with ``up`` the bilinear resize of
     ``small`` to ``image``'s size as ``cv2.resize(..., INTER_LINEAR)`` makes it and ``m`` the
-    median of ``image - up(small)`` over every ``step``-th pixel each way; in one pass,
-    without the full-size background."""
+    median of ``image - up(small)`` over every ``step``-th pixel each way; without the
+    full-size background (each row of it interpolated once, used at once)."""
     h, w = image.shape
     sh, sw = small.shape
     ry, fy = _linear_taps(h, sh)
     rx, fx = _linear_taps(w, sw)
     rx1 = np.minimum(rx + 1, sw - 1)
-    out = np.empty((h, w), np.float32)
-    for y in range(h):
-        y0 = ry[y]
-        y1 = min(y0 + 1, sh - 1)
-        b = fy[y]
-        for x in range(w):
-            a = fx[x]
-            top = (1.0 - a) * small[y0, rx[x]] + a * small[y0, rx1[x]]
-            bottom = (1.0 - a) * small[y1, rx[x]] + a * small[y1, rx1[x]]
-            out[y, x] = image[y, x] - ((1.0 - b) * top + b * bottom)
     samples = np.empty(((h + step - 1) // step) * ((w + step - 1) // step))
     m = 0
     for y in range(0, h, step):
+        y0, y1, b = ry[y], min(ry[y] + 1, sh - 1), fy[y]
         for x in range(0, w, step):
-            samples[m] = out[y, x]
+            a = fx[x]
+            top = (1.0 - a) * small[y0, rx[x]] + a * small[y0, rx1[x]]
+            bottom = (1.0 - a) * small[y1, rx[x]] + a * small[y1, rx1[x]]
+            samples[m] = image[y, x] - ((1.0 - b) * top + b * bottom)
             m += 1
-    shift = np.float32(level - np.median(samples[:m]))
+    shift = level - np.median(samples[:m])
+    out = np.empty((h, w), np.float32)
+    row = np.empty(sw)
     for y in range(h):
+        y0, y1, b = ry[y], min(ry[y] + 1, sh - 1), fy[y]
+        for j in range(sw):
+            row[j] = (1.0 - b) * small[y0, j] + b * small[y1, j]
         for x in range(w):
-            out[y, x] += shift
+            a = fx[x]
+            out[y, x] = image[y, x] + shift - ((1.0 - a) * row[rx[x]] + a * row[rx1[x]])
     return out
 
 
