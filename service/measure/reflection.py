@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from service.measure.band import full_scale
+from service.measure.robust import median
 
 __all__ = ["Reflection", "ReflectionParams", "cross_profiles", "fit_reflection"]
 
@@ -167,8 +168,15 @@ def cross_profiles(image: np.ndarray, xy: np.ndarray, normal: np.ndarray,
     s = np.asarray(offsets_px, np.float64)[None, :]
     mx = (xy[:, 0:1] + s * normal[:, 0:1]).astype(np.float32)
     my = (xy[:, 1:2] + s * normal[:, 1:2]).astype(np.float32)
-    return cv2.remap(np.asarray(image, np.float32), mx, my, cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
+    # Only the box the samples and their bilinear neighbours lie in is converted (a border
+    # of the box is one of the image, replicated as before; the maps move by whole pixels).
+    h, w = image.shape
+    x0 = min(max(math.floor(float(mx.min())) - 1, 0), w - 1)
+    y0 = min(max(math.floor(float(my.min())) - 1, 0), h - 1)
+    x1 = max(min(math.ceil(float(mx.max())) + 2, w), x0 + 1)
+    y1 = max(min(math.ceil(float(my.max())) + 2, h), y0 + 1)
+    return cv2.remap(np.asarray(image[y0:y1, x0:x1], np.float32), mx - np.float32(x0),
+                     my - np.float32(y0), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _trimmed_mean(a: np.ndarray, cut: float) -> np.ndarray:
@@ -177,6 +185,13 @@ def _trimmed_mean(a: np.ndarray, cut: float) -> np.ndarray:
     n = len(a)
     lo = int(cut * n)
     return np.sort(a, axis=0)[lo:n - lo].mean(axis=0)
+
+
+def _median_of_rows(a: np.ndarray) -> np.ndarray:
+    """``np.median(a, axis=0)`` for a few rows, without its overhead."""
+    k = a.shape[0]
+    b = np.sort(a, axis=0)
+    return b[k // 2] if k % 2 else 0.5 * (b[k // 2 - 1] + b[k // 2])
 
 
 def _gauss(s: np.ndarray, centre: np.ndarray, width: np.ndarray) -> np.ndarray:
@@ -209,10 +224,11 @@ class _Bins:
         # A trimmed mean: a glint or a droplet's rim in a few profiles does not make the bin.
         self.mean = np.array([_trimmed_mean(prof[self.label == j], 0.2)
                               if self.count[j] else np.zeros(self.s.size) for j in range(k)])
-        nb = np.array([self.normal[self.label == j].mean(axis=0) if self.count[j] else ref
-                       for j in range(k)])
+        nb = np.column_stack([np.bincount(self.label, self.normal[:, i], minlength=k)
+                              for i in (0, 1)])
+        nb = np.where(self.count[:, None] > 0, nb / np.maximum(self.count, 1)[:, None], ref)
         self.nbar = nb / np.linalg.norm(nb, axis=1, keepdims=True)
-        self.centre_angle = np.array([np.median(self.angle[self.label == j])
+        self.centre_angle = np.array([median(self.angle[self.label == j])
                                       if self.count[j] else 0.0 for j in range(k)])
         self.weight = np.sqrt(self.count)[:, None]
 
@@ -360,9 +376,10 @@ def _starts(bins: _Bins, centre: np.ndarray, width: np.ndarray, reach: float, co
     ones = np.ones_like(g_main)
     fixed = np.stack([ones, g_main, g_main * a / w**2, g_main * a**2 / w**3, ones * s],
                      axis=-1)  # (K, M, 5)
-    q, _ = np.linalg.qr(fixed)
-    # The line's height from the fixed columns' least squares: row 1 of their pseudo-inverse.
-    height_row = np.linalg.pinv(fixed)[:, 1, :]  # (K, M)
+    q, r = np.linalg.qr(fixed)
+    # The line's height from the fixed columns' least squares: row 1 of their pseudo-inverse,
+    # R^-1 Q^T.
+    height_row = np.linalg.solve(r, q.transpose(0, 2, 1))[:, 1, :]  # (K, M)
     ry = y - np.einsum("kmj,kj->km", q, np.einsum("kmj,km->kj", q, y))
     plain = (ry * ry).sum(axis=1)  # (K,)
     plain_cost = float((plain * bins.count).sum())
@@ -380,7 +397,7 @@ def _starts(bins: _Bins, centre: np.ndarray, width: np.ndarray, reach: float, co
         stripe = (y * height_row).sum(axis=1)[:, None] - coef * (
             g_ghost @ height_row[..., None])[..., 0]
         cost = ((plain[:, None] - coef * gy) * bins.count[:, None]).sum(axis=0)  # (G,)
-        ratio = np.median(coef / np.maximum(stripe, 1e-9), axis=0)
+        ratio = _median_of_rows(coef / np.maximum(stripe, 1e-9))
         cost[(ratio <= 0) | (stripe <= 0).any(axis=0) | (gg < 1e-9).any(axis=0)] = math.inf
         found += [(float(cost[i]), float(dx[i]), float(dy[i]), float(ratio[i]), blur)
                   for i in np.argsort(cost)[:count] if np.isfinite(cost[i])]

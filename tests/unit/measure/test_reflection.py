@@ -251,3 +251,21 @@ def test_the_fit_reaches_the_minimum_scipy_finds() -> None:
     assert ours.success
     assert ours.cost <= ref.cost * (1 + 1e-4), (ours.cost, ref.cost)
     assert np.allclose(ours.x[:2], ref.x[:2], atol=0.02), (ours.x[:4], ref.x[:4])
+
+
+def test_cross_profiles_read_only_the_box_they_need_and_read_it_as_the_whole_image() -> None:
+    """Profiles from the samples' box are those of the whole image, also where the samples
+    leave the image (its border replicated) or lie wholly outside it."""
+    rng = np.random.default_rng(7)
+    img = rng.integers(0, 255, (60, 80)).astype(np.uint8)
+    s = np.arange(-9.0, 9.01, 0.5)
+    for xy in ([[40.3, 30.7], [42.1, 31.2]], [[1.2, 2.5], [78.6, 58.1]], [[-30.0, 5.0]],
+               [[200.0, 300.0]]):
+        xy = np.array(xy)
+        normal = rng.normal(size=xy.shape)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        mx = (xy[:, 0:1] + s * normal[:, 0:1]).astype(np.float32)
+        my = (xy[:, 1:2] + s * normal[:, 1:2]).astype(np.float32)
+        whole = cv2.remap(img.astype(np.float32), mx, my, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+        np.testing.assert_array_equal(rf.cross_profiles(img, xy, normal, s), whole)
