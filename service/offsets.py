@@ -44,7 +44,8 @@ class LogUnavailableError(RuntimeError):
 
 
 class OffsetTransport(Protocol):
-    """What the channel needs of the CNC side (``drivers.plc.client.OffsetWriter``, or a
+    """What the channel needs of the CNC side (``drivers.plc.client.OffsetWriter`` that
+    writes to the CNC, ``drivers.plc.pull.PullCnc`` that posts for a CNC that polls, or a
     fake CNC in tests)."""
 
     async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
@@ -52,6 +53,10 @@ class OffsetTransport(Protocol):
 
     async def read_cnc(self) -> CncReading | None:
         """The CNC's registers, or None when they cannot be read now."""
+
+    # A transport on which the CNC applies an offered offset at most once, however often it
+    # is offered, also has ``async resume(seq, offset_mm, base_mm)``: offer it again after a
+    # restart (``drivers.plc.pull.PullCnc``; the push writer never re-sends).
 
 
 class OffsetChannel:
@@ -144,6 +149,20 @@ class OffsetChannel:
             listener(result)
         return [self._note(self.controller.on_write_outcome(
             order.offset_seq, result.applied, self.clock(), result.message))]
+
+    async def resume(self) -> None:
+        """After a start: offer an offset whose fate was unknown when the gauge stopped
+        again, where the transport can (``resume``): the CNC answers it, once."""
+        async with self._lock:
+            p = self.controller.persisted
+            resume = getattr(self.writer, "resume", None)
+            if self.controller.state is not State.UNCERTAIN or resume is None \
+                    or p.pending_seq is None or p.pending_offset_mm is None \
+                    or p.pending_total_before_mm is None:
+                return
+            await resume(p.pending_seq, p.pending_offset_mm, p.pending_total_before_mm)
+            log.info("offset %d (%+.4f mm) offered to the CNC again after a restart",
+                     p.pending_seq, p.pending_offset_mm)
 
     async def settle(self) -> Decision | None:
         """If an offset's fate is unknown, read the CNC's registers and settle it when they

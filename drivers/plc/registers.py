@@ -4,6 +4,10 @@ One table (``REGISTERS``) defines every register; ``deploy/modbus-register-map.m
 against it by a test. Addresses are 0-based. 32-bit values take two registers; their word
 order is configurable (big-endian words, high word first, by default). Diameters and offsets
 are signed 32-bit integers in 0.1 um; ``NO_VALUE`` (0x80000000) means "no value".
+
+Version 2 adds the pull handshake (``drivers.plc.pull``) for a CNC that can only poll: the
+offset request the gauge posts and the report the CNC writes back, every entry one unsigned
+16-bit register (what mb2hal and many PLCs' Modbus clients can read and write).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from dataclasses import dataclass
 
 NO_VALUE = -0x80000000  # 0x80000000 as a signed 32-bit integer
 TEST_PATTERN = 0x12345678
-MAP_VERSION = 1
+MAP_VERSION = 2
 UM_PER_UNIT = 0.1  # 0.1 um per count
 
 
@@ -61,7 +65,7 @@ U16, I32, U32 = RegisterType.U16, RegisterType.I32, RegisterType.U32
 REGISTERS: tuple[Register, ...] = (
     _r("test_pattern", 0, U32, "-", "always 0x12345678: reads 0x1234, 0x5678 with "
        "big-endian words; check your word order with it"),
-    _r("map_version", 2, U16, "-", "version of this map (1)"),
+    _r("map_version", 2, U16, "-", "version of this map (2)"),
     _r("heartbeat", 3, U16, "count", "counts up once a second while the service is "
        "healthy (wraps at 65535); stands still when it is not"),
     _r("status", 4, U16, "bits", "status bits, see below"),
@@ -86,6 +90,26 @@ REGISTERS: tuple[Register, ...] = (
     _r("offset_ack", 26, U32, "count", "acknowledgement the CNC echoed for it"),
     _r("cumulative_offset", 28, I32, "0.1 um", "sum of the offsets the CNC "
        "acknowledged since the last reset"),
+    # The pull handshake (drivers/plc/pull.py): the gauge posts, the CNC polls and reports.
+    _r("request_seq", 30, U16, "count", "pull: sequence of the offset request posted "
+       "(1-65535, wrapping past 0); 0 none"),
+    _r("request_offset", 31, U16, "0.1 um + 32768", "pull: the offset to the diameter, "
+       "biased: 32768 is 0, 32868 is +10 um"),
+    _r("request_base_hi", 32, U16, "see below", "pull: the CNC total the offset applies "
+       "to, high word (as the CNC reported it)"),
+    _r("request_base_lo", 33, U16, "see below", "pull: ... low word"),
+    _r("request_check", 34, U16, "-", "pull: (request_seq + request_offset + "
+       "request_base_hi + request_base_lo + 0x5A5A) mod 65536"),
+    _r("cnc_ack", 35, U16, "count", "pull, written by the CNC: the request sequence it "
+       "settled last; 0 none", writable=True),
+    _r("cnc_result", 36, U16, "code", "pull, written by the CNC: 1 applied, 2 not "
+       "applied (its total was not the request's base), 3 applying", writable=True),
+    _r("cnc_total_hi", 37, U16, "see below", "pull, written by the CNC: its total, high "
+       "word", writable=True),
+    _r("cnc_total_lo", 38, U16, "see below", "pull, written by the CNC: ... low word",
+       writable=True),
+    _r("cnc_check", 39, U16, "-", "pull, written by the CNC last: (cnc_ack + cnc_result + "
+       "cnc_total_hi + cnc_total_lo + 0xA5A5) mod 65536", writable=True),
 )
 
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}

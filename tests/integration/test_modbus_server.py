@@ -9,7 +9,14 @@ import subprocess
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.plc.registers import RegisterBank, RegisterType, WordOrder, from_words
+from drivers.plc.registers import (
+    MAP_VERSION,
+    SIZE,
+    RegisterBank,
+    RegisterType,
+    WordOrder,
+    from_words,
+)
 from drivers.plc.server import GaugeModbusServer, run_heartbeat
 
 
@@ -47,7 +54,7 @@ async def test_writes_reach_the_bank_and_the_service(served) -> None:
 
 
 @pytest.mark.parametrize(("request_", "code"), [
-    (("read_holding_registers", 29, {"count": 2}), 2),    # beyond the map
+    (("read_holding_registers", SIZE - 1, {"count": 2}), 2),  # beyond the map
     (("write_register", 4, {"value": 1}), 2),             # read-only
     (("write_register", 15, {"value": 1}), 2),            # half of a pair
     (("write_register", 20, {"value": 9}), 3),            # not a command code
@@ -57,10 +64,10 @@ async def test_writes_reach_the_bank_and_the_service(served) -> None:
 async def test_bad_requests_get_modbus_exceptions(served, request_, code) -> None:
     bank, _, client, writes = served
     name, address, kw = request_
-    before = bank.words(0, 30)
+    before = bank.words(0, SIZE)
     rr = await getattr(client, name)(address, device_id=1, **kw)
     assert rr.isError() and rr.exception_code == code
-    assert bank.words(0, 30) == before and writes == []
+    assert bank.words(0, SIZE) == before and writes == []
 
 
 async def test_other_unit_ids_get_the_gateway_exception(served) -> None:
@@ -112,7 +119,7 @@ async def test_mbpoll_sees_the_test_pattern_and_a_moving_heartbeat(served) -> No
         second = await asyncio.to_thread(mbpoll, server.port)
     finally:
         beat.cancel()
-    assert first[:2] == [0x1234, 0x5678] and first[2] == 1  # map version
+    assert first[:2] == [0x1234, 0x5678] and first[2] == MAP_VERSION
     assert second[3] > first[3]                              # heartbeat counts
 
 
