@@ -87,9 +87,11 @@ class CameraSettings(_Section):
 
 
 class PlcSettings(_Section):
-    """The CNC/PLC the offsets are written to."""
+    """The CNC/PLC the offsets go to: ``modbus`` writes them to its registers (``sim``: to
+    the simulated PLC), ``pull`` posts them in the gauge's own registers for a CNC that polls
+    (map version 2; ``deploy/linuxcnc``), ``none`` nowhere."""
 
-    source: Literal["sim", "modbus", "none"] = "sim"
+    source: Literal["sim", "modbus", "pull", "none"] = "sim"
     host: str = "127.0.0.1"
     port: int = Field(5021, ge=1, le=65535)
     unit_id: int = Field(1, ge=0, le=255)

@@ -193,7 +193,12 @@ class OffsetChannel:
     async def run_settler(self, period_s: float = 1.0) -> None:
         """Settle unknown offsets as soon as the CNC's registers tell, and read the CNC every
         ``CNC_REFRESH_S`` (every ``period_s`` while compensation waits for its baseline);
-        runs until cancelled."""
+        runs until cancelled. First, an offset left unsettled by the last run is offered again
+        where the transport can (``resume``)."""
+        try:
+            await self.resume()
+        except Exception:  # settling below still works without it
+            log.exception("offering an unsettled offset again failed")
         while True:
             try:
                 if self.controller.state is State.UNCERTAIN:

@@ -30,7 +30,8 @@ from calib_store.store import CalibrationStore, StoreError
 from drivers.camera.base import Camera, CameraConfig
 from drivers.plc.client import OffsetWriter
 from drivers.plc.offsets import PlcOffsetMap
-from drivers.plc.registers import WordOrder
+from drivers.plc.pull import PullCnc
+from drivers.plc.registers import RegisterBank, WordOrder
 from service.api.app import create_app
 from service.calibrate.session import CalibrationSessions
 from service.config import CameraSettings, Settings
@@ -189,10 +190,17 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
 
 
 def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
-         comp_log: CompensationLog | None, writer: OffsetWriter | None,
+         comp_log: CompensationLog | None, writer: OffsetWriter | PullCnc | None,
          store_error: str = "") -> Gauge:
     """The one place where the gauge's parts are made and connected."""
     ms, ts = settings.measurement, settings.temperature
+    bank = RegisterBank(settings.modbus.word_order)
+    if settings.plc.source == "pull":
+        if not settings.modbus.enabled:
+            raise ValueError("plc.source = 'pull': the CNC polls the gauge's Modbus server, "
+                             "so modbus.enabled must be true")
+        writer = PullCnc(bank, settings.modbus.host, settings.modbus.port,
+                         ack_timeout_s=settings.plc.ack_timeout_s)
     context = CalibrationContext(store, MasterPolicy(ms.master_interval_h, ms.axis_sigma_mm,
                                                      ms.track_axis), store_error)
     compensation = CompensationService(
@@ -206,7 +214,8 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                            axis_sigma_mm=ms.axis_sigma_mm, free_fit=ms.track_axis,
                            sheet_correction=ms.sheet_correction,
                            sheet_sigma_mm=ms.sheet_sigma_mm)
-    modbus = ModbusFacade(settings.modbus, compensation, trigger=camera.software_trigger)
+    modbus = ModbusFacade(settings.modbus, compensation, trigger=camera.software_trigger,
+                          bank=bank)
     sequence = SequenceCounter(comp_log, compensation.controller.persisted
                                .last_measurement_seq + 1)
     publisher = Publisher(sequence, feed, modbus, compensation)

@@ -144,6 +144,8 @@ class PullCnc:
     ----------
     bank : RegisterBank
         The registers the gauge's Modbus server serves (the CNC polls them).
+    host, port : str, int
+        Where that server listens (for the status: the CNC comes to the gauge).
     ack_timeout_s : float
         How long ``write_offset`` waits for the CNC's answer before calling the offset's fate
         unknown (a CNC polls when its program calls for it: a part's cycle can be longer).
@@ -153,12 +155,15 @@ class PullCnc:
         Monotonic seconds.
     """
 
-    def __init__(self, bank: RegisterBank, ack_timeout_s: float = 3.0, poll_s: float = 0.02,
+    def __init__(self, bank: RegisterBank, host: str = "", port: int = 0,
+                 ack_timeout_s: float = 3.0, poll_s: float = 0.02,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.bank, self.ack_timeout_s, self.poll_s, self.clock = bank, ack_timeout_s, poll_s, clock
+        self.bank, self.host, self.port = bank, host, port
+        self.ack_timeout_s, self.poll_s, self.clock = ack_timeout_s, poll_s, clock
         self.posted: Request | None = None
         self._last_total: int | None = None
         self.last_error = ""
+        self.outage_since: float | None = None
 
     @property
     def connected(self) -> bool:
@@ -178,7 +183,10 @@ class PullCnc:
         report = read_report(self.bank)
         if report is None:
             self.last_error = "the CNC has not reported in the pull registers"
+            if self.outage_since is None:
+                self.outage_since = self.clock()
             return None
+        self.outage_since = None
         self._last_total = report.total_units
         posted = self.posted
         answered = posted is not None and report.ack == wire_seq(posted.seq)

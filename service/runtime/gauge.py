@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from calib_store.compensation_log import CompensationLog
 from drivers.camera.base import Camera
 from drivers.plc.client import OffsetWriter
+from drivers.plc.pull import PullCnc
 from service.calibrate.session import CalibrationSessions
 from service.config import Settings
 from service.measure.compiled import compile_kernels
@@ -40,7 +41,7 @@ class Gauge:
     metrics: GaugeMetrics
     spc: SpcService
     studies: GaugeStudies
-    writer: OffsetWriter | None = None
+    writer: OffsetWriter | PullCnc | None = None
     log: CompensationLog | None = None
     plant: list[PlantLink] = field(default_factory=list)
     _tasks: list[asyncio.Task] = field(default_factory=list)

@@ -8,6 +8,7 @@ from typing import Any
 
 from drivers.camera.base import Camera, CameraState
 from drivers.plc.client import OffsetWriter
+from drivers.plc.pull import PullCnc
 from service.compensation import State
 from service.config import Settings
 from service.runtime.calibration import CalibrationContext
@@ -34,7 +35,7 @@ class HealthReport:
 
     def __init__(self, settings: Settings, camera: Camera, context: CalibrationContext,
                  pipeline: FramePipeline, feed: MeasurementFeed,
-                 compensation: CompensationService, writer: OffsetWriter | None,
+                 compensation: CompensationService, writer: OffsetWriter | PullCnc | None,
                  modbus: ModbusFacade) -> None:
         self.settings, self.camera, self.context = settings, camera, context
         self.pipeline, self.feed, self.compensation = pipeline, feed, compensation

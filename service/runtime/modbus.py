@@ -109,14 +109,16 @@ class ModbusFacade:
         Where the CNC's commands and feature go.
     trigger : callable
         ``trigger()``: the camera takes a frame now (the measure-now command).
+    bank : RegisterBank, optional
+        The registers, when made beforehand (the pull handshake's transport shares them).
     """
 
     def __init__(self, settings: ModbusSettings, compensation: CompensationService,
-                 trigger: Callable[[], None]) -> None:
+                 trigger: Callable[[], None], bank: RegisterBank | None = None) -> None:
         self.settings = settings
         self.compensation = compensation
         self.trigger = trigger
-        self.bank = RegisterBank(settings.word_order)
+        self.bank = bank if bank is not None else RegisterBank(settings.word_order)
         self.server = GaugeModbusServer(self.bank, settings.host, settings.port,
                                         settings.unit_id, on_write=self._on_write)
         self._tasks: set[asyncio.Task] = set()

@@ -14,6 +14,7 @@ from typing import Any, Protocol
 from calib_store.outbox import Outbox
 from drivers.camera.base import Camera, CameraError
 from drivers.plc.client import OffsetWriter
+from drivers.plc.pull import PullCnc
 from service.compensation import Decision, Kind
 from service.config import Settings
 from service.runtime.compensating import CompensationService
@@ -59,7 +60,7 @@ class OpcUaValues:
     """The OPC UA server's view of the gauge: values and methods (``GaugeView``)."""
 
     def __init__(self, feed: MeasurementFeed, compensation: CompensationService,
-                 camera: Camera, writer: OffsetWriter | None) -> None:
+                 camera: Camera, writer: OffsetWriter | PullCnc | None) -> None:
         self.feed, self.compensation, self.camera, self.writer = (feed, compensation, camera,
                                                                   writer)
         self.last_offset = LastOffset()
@@ -108,7 +109,8 @@ class OpcUaValues:
 
 def make_plant_links(settings: Settings, feed: MeasurementFeed,
                      compensation: CompensationService, camera: Camera,
-                     writer: OffsetWriter | None, health: HealthReport) -> list[PlantLink]:
+                     writer: OffsetWriter | PullCnc | None, health: HealthReport
+                     ) -> list[PlantLink]:
     """The links the settings ask for, connected to the gauge's parts."""
     links: list[PlantLink] = []
     data_dir = settings.store.path.parent
