@@ -12,6 +12,7 @@ APT_PACKAGES=(
   faketime                                              # wall-clock jumps in the fault suite
   chromium                                              # browser tests (never downloaded)
   mosquitto mosquitto-clients                           # the plant's MQTT broker in tests
+  linuxcnc-uspace                                       # a real CNC (simulated lathe, mb2hal)
 )
 
 missing=()

@@ -54,7 +54,6 @@ class Result(enum.IntEnum):
     NONE = 0
     APPLIED = 1
     NOT_APPLIED = 2   # the CNC's total was not the request's base
-    APPLYING = 3      # read and being applied: the answer follows
 
 
 def wire_seq(seq: int) -> int:
@@ -222,7 +221,7 @@ class PullCnc:
         while self.clock() - t0 < self.ack_timeout_s:
             await asyncio.sleep(self.poll_s)
             report = read_report(self.bank)
-            if report is None or report.ack != wire or report.result is Result.APPLYING:
+            if report is None or report.ack != wire:
                 continue
             self.post(None)
             if report.result is Result.APPLIED:

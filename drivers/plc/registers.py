@@ -103,7 +103,7 @@ REGISTERS: tuple[Register, ...] = (
     _r("cnc_ack", 35, U16, "count", "pull, written by the CNC: the request sequence it "
        "settled last; 0 none", writable=True),
     _r("cnc_result", 36, U16, "code", "pull, written by the CNC: 1 applied, 2 not "
-       "applied (its total was not the request's base), 3 applying", writable=True),
+       "applied (its total was not the request's base)", writable=True),
     _r("cnc_total_hi", 37, U16, "see below", "pull, written by the CNC: its total, high "
        "word", writable=True),
     _r("cnc_total_lo", 38, U16, "see below", "pull, written by the CNC: ... low word",

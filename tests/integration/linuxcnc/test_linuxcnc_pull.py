@@ -1,0 +1,254 @@
+"""A real CNC on the other end: LinuxCNC's simulated lathe (Debian's linuxcnc-uspace, headless,
+started by deploy/linuxcnc/run-sim.sh) polls the gauge's Modbus server with mb2hal and applies
+its offsets through the shipped subroutine deploy/linuxcnc/nc/shaftgauge_comp.ngc, which the
+test calls as a part program would, before each finishing pass.
+
+The gauge's side is the service's own: ``GaugeModbusServer`` on its ``RegisterBank``, the
+heartbeat, ``PullCnc``. One LinuxCNC per machine: these tests run one at a time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from drivers.plc.client import Outcome
+from drivers.plc.pull import PullCnc, read_report
+from drivers.plc.registers import RegisterBank, StatusBit
+from drivers.plc.server import GaugeModbusServer, run_heartbeat
+
+ROOT = Path(__file__).resolve().parents[3]
+RUN_SIM = ROOT / "deploy" / "linuxcnc" / "run-sim.sh"
+DRIVER = Path(__file__).with_name("lcnc_driver.py")
+
+
+class Gauge:
+    """The gauge's Modbus side on a loop of its own thread (the tests talk to LinuxCNC's
+    driver synchronously)."""
+
+    def __init__(self) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.bank = RegisterBank()
+        self.server = GaugeModbusServer(self.bank, port=0)
+        self.set_healthy(True)
+        self.port = self.run(self.server.start())
+        self._beat = self.loop.create_task(run_heartbeat(self.bank, lambda: self.healthy,
+                                                         period_s=0.25))
+        self.transport = PullCnc(self.bank, ack_timeout_s=0.2)
+        self._thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self._thread.start()
+
+    def set_healthy(self, healthy: bool) -> None:
+        """As the service: healthy in the status bits, and the heartbeat counts only then."""
+        self.healthy = healthy
+        self.bank.set("status", int(StatusBit.HEALTHY) if healthy else 0)
+
+    def run(self, coro):
+        if self.loop.is_running():
+            return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout=30)
+        return self.loop.run_until_complete(coro)
+
+    def close(self) -> None:
+        self.loop.call_soon_threadsafe(self._beat.cancel)
+        self.run(self.server.stop())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(timeout=5)
+
+
+class LinuxCnc:
+    """LinuxCNC's simulated lathe in ``run_dir`` and the driver that talks to it."""
+
+    def __init__(self, run_dir: Path, port: int) -> None:
+        self.run_dir, self.port = run_dir, port
+        self.proc: subprocess.Popen | None = None
+        self.driver: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        self.log = open(self.run_dir.with_suffix(".log"), "a")  # noqa: SIM115
+        self.proc = subprocess.Popen([str(RUN_SIM), str(self.run_dir), "127.0.0.1",
+                                      str(self.port)], stdout=self.log,
+                                     stderr=subprocess.STDOUT, start_new_session=True)
+        # Up when the task answers: the driver retries until LinuxCNC's NML channels exist.
+        deadline = time.monotonic() + 60
+        while True:
+            self.driver = subprocess.Popen(["/usr/bin/python3", str(DRIVER)],
+                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                           stderr=subprocess.PIPE, text=True,
+                                           env=dict(os.environ, HOME=str(self.run_dir)))
+            answer = self.ask(do="ready")
+            if answer.get("ok"):
+                return
+            self.driver.kill()
+            self.driver.wait()
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                raise RuntimeError(f"LinuxCNC did not come up: {answer}; see {self.log.name}")
+            time.sleep(1.0)
+
+    def ask(self, **request: object) -> dict:
+        assert self.driver is not None and self.driver.stdin and self.driver.stdout
+        try:
+            self.driver.stdin.write(json.dumps(request) + "\n")
+            self.driver.stdin.flush()
+            line = self.driver.stdout.readline()
+        except (BrokenPipeError, OSError) as err:
+            return {"ok": False, "error": str(err)}
+        return json.loads(line) if line else {"ok": False, "error": "driver ended: "
+                                                + (self.driver.stderr.read() or "")[-500:]}
+
+    def call(self) -> int:
+        """The shipped subroutine, as a part program calls it; its return value."""
+        answer = self.ask(do="call", tool=1)
+        assert answer["ok"] and not answer["errors"], answer
+        return round(answer["value"])
+
+    def tool_x_mm(self) -> float:
+        return self.ask(do="tool", number=1)["x"]
+
+    def stop(self) -> None:
+        if self.driver is not None:
+            self.driver.stdin.close()
+            self.driver.wait(timeout=10)
+        if self.proc is not None and self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGTERM)
+            self.proc.wait(timeout=60)
+        self.log.close()
+
+
+@pytest.fixture(scope="module")
+def lathe(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Gauge, LinuxCnc]]:
+    gauge = Gauge()
+    cnc = LinuxCnc(tmp_path_factory.mktemp("linuxcnc") / "run", gauge.port)
+    cnc.start()
+    try:
+        yield gauge, cnc
+    finally:
+        cnc.stop()
+        gauge.close()
+
+
+def reported(gauge: Gauge, timeout_s: float = 5.0) -> None:
+    """Until the CNC's report (mb2hal writes it every cycle) is whole in the registers."""
+    deadline = time.monotonic() + timeout_s
+    while read_report(gauge.bank) is None:
+        assert time.monotonic() < deadline, "no report from the CNC"
+        time.sleep(0.05)
+
+
+def offset_once(gauge: Gauge, cnc: LinuxCnc, offset_mm: float, seq: int) -> Outcome:
+    """Post an offset while the part program calls the subroutine; what the gauge made of
+    it, settled."""
+    gauge.run(gauge.transport.read_cnc())
+    pending = asyncio.run_coroutine_threadsafe(gauge.transport.write_offset(offset_mm, seq),
+                                               gauge.loop)
+    time.sleep(0.05)
+    cnc.call()
+    result = pending.result(timeout=30)
+    if result.outcome is Outcome.UNKNOWN:  # answered after the wait: read the report
+        time.sleep(0.3)
+        reading = gauge.run(gauge.transport.read_cnc())
+        return Outcome.APPLIED if reading.ack_seq == seq else Outcome.NOT_APPLIED
+    return result.outcome
+
+
+def test_the_shipped_subroutine_applies_each_offset_once(lathe) -> None:
+    gauge, cnc = lathe
+    cnc.call()  # the first look reports the tool's total
+    reported(gauge)
+    start_x = cnc.tool_x_mm()
+    applied = []
+    for seq, offset_um in enumerate((-1.2, -0.8, 2.4, -3.1), start=1):
+        assert offset_once(gauge, cnc, offset_um / 1000.0, seq) is Outcome.APPLIED
+        applied.append(offset_um)
+        for _ in range(2):  # later calls find the request settled: nothing more
+            cnc.call()
+        # The tool table holds a radius: half the diameter's offset, exactly.
+        assert cnc.tool_x_mm() == pytest.approx(start_x + sum(applied) / 2000.0, abs=1e-9)
+        reading = gauge.run(gauge.transport.read_cnc())
+        assert reading.total_mm == pytest.approx(2 * cnc.tool_x_mm(), abs=1e-9)
+
+
+def test_a_request_for_another_base_is_refused_and_changes_nothing(lathe) -> None:
+    """Someone set the tool's offset by hand after the gauge read it: the CNC does not apply
+    an offset meant for the old value, and says so."""
+    gauge, cnc = lathe
+    cnc.call()
+    reported(gauge)
+    gauge.run(gauge.transport.read_cnc())
+    pending = asyncio.run_coroutine_threadsafe(gauge.transport.write_offset(0.002, 100),
+                                               gauge.loop)
+    hand = cnc.tool_x_mm() + 0.01
+    cnc.ask(do="mdi", lines=["G8 G21", f"G10 L1 P1 X{hand:.6f}", "G43"])
+    assert cnc.call() == 2
+    assert pending.result(timeout=30).outcome in (Outcome.NOT_APPLIED, Outcome.UNKNOWN)
+    time.sleep(0.3)
+    reading = gauge.run(gauge.transport.read_cnc())
+    assert (reading.ack_seq, reading.request_seq) == (0, 0)  # refused: certainly not applied
+    assert cnc.tool_x_mm() == pytest.approx(hand, abs=1e-9)
+
+
+def test_an_unhealthy_gauge_is_not_trusted(lathe) -> None:
+    """Its status says so, its heartbeat stands still: the request it posted is not applied
+    until it is healthy again, then once."""
+    gauge, cnc = lathe
+    cnc.call()
+    reported(gauge)
+    gauge.run(gauge.transport.read_cnc())
+    before = cnc.tool_x_mm()
+    gauge.set_healthy(False)
+    time.sleep(0.6)  # the heartbeat stops
+    pending = asyncio.run_coroutine_threadsafe(gauge.transport.write_offset(0.001, 200),
+                                               gauge.loop)
+    assert cnc.call() == -1
+    assert pending.result(timeout=30).outcome is Outcome.UNKNOWN
+    assert cnc.tool_x_mm() == before
+    gauge.set_healthy(True)
+    time.sleep(0.6)
+    assert cnc.call() == 1  # trusted again: the request, still posted, applies once
+    assert cnc.tool_x_mm() == pytest.approx(before + 0.0005, abs=1e-9)
+    assert cnc.call() == 0
+
+
+def test_linuxcnc_restarted_before_the_gauge_heard_applies_nothing_twice(lathe) -> None:
+    """LinuxCNC applied an offset, then restarted (its memory of what it settled gone, its
+    tool table kept); the gauge posts the offset again, as after its own restart: the CNC
+    finds its total already at base + offset and answers APPLIED without applying it."""
+    gauge, cnc = lathe
+    cnc.call()
+    reported(gauge)
+    assert offset_once(gauge, cnc, -0.0016, 300) is Outcome.APPLIED
+    after = cnc.tool_x_mm()
+    base_mm = round(2 * (after + 0.0008) * 1e4) / 1e4
+    cnc.stop()
+    cnc.start()
+    gauge.run(gauge.transport.resume(300, -0.0016, base_mm))
+    assert cnc.call() == 1
+    assert cnc.tool_x_mm() == pytest.approx(after, abs=1e-9)
+    time.sleep(0.3)
+    assert gauge.run(gauge.transport.read_cnc()).ack_seq == 300
+
+
+def test_the_sample_part_program_takes_the_offset_before_its_finishing_pass(lathe) -> None:
+    gauge, cnc = lathe
+    cnc.call()
+    reported(gauge)
+    gauge.run(gauge.transport.read_cnc())
+    before = cnc.tool_x_mm()
+    pending = asyncio.run_coroutine_threadsafe(gauge.transport.write_offset(-0.002, 400),
+                                               gauge.loop)
+    time.sleep(0.1)
+    part = ROOT / "deploy" / "linuxcnc" / "nc" / "shaftgauge_part.ngc"
+    answer = cnc.ask(do="run", path=str(cnc.run_dir / "nc" / part.name))
+    assert answer["ok"] and not answer["errors"], answer
+    pending.result(timeout=30)
+    assert cnc.tool_x_mm() == pytest.approx(before - 0.001, abs=1e-9)
+    time.sleep(0.3)
+    assert gauge.run(gauge.transport.read_cnc()).ack_seq == 400
