@@ -35,6 +35,7 @@ bench: setup
 	$(PY) -m tests.bench.camera_throughput
 	$(PY) -m tests.bench.service_throughput
 	$(PY) -m tests.bench.plant_publish
+	$(PY) -m tests.bench.closed_loop
 	$(PY) -m tests.bench.guard --write
 	@git status --short bench-results
 

@@ -21,6 +21,12 @@ Per measurement, in this order (each step records a ``Decision`` with its reason
    so the cumulative offset stays within ``max_total_mm`` (refused when already there). In
    shadow mode the offset is *proposed* and nothing is written.
 
+With ``law = "predictive"`` steps 3-6 use every measurement that counts instead: the process
+without compensation is estimated from it and the offsets in force when it was cut
+(``service.control_law``), an alarm is raised when the measured part is out of tolerance, and
+the correction sets the total offset to cancel the forecast (within the deadband, the step and
+the cumulative limit as above).
+
 The cumulative limit is checked against the CNC's own total wear offset (its ``total``
 register), not against the gauge's bookkeeping: ``baseline_mm`` is the CNC's total when
 compensation was enabled or reset by a person, and no offset is written that would take the
@@ -37,12 +43,12 @@ moved by exactly the offset (applied). It is never sent again.
 
 from __future__ import annotations
 
-import collections
 import enum
 import math
-import statistics
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
+
+from service.control_law import Predictor, WindowLaw
 
 
 class Kind(enum.StrEnum):
@@ -94,16 +100,30 @@ class CompensationSettings:
     filter : {'median', 'mean'}
         How the window is combined: the median, or the mean weighted by 1 / uncertainty^2.
     deadband_mm : float
-        No correction while the filtered deviation is within +-deadband.
+        No correction while the filtered deviation (``predictive``: the correction wanted)
+        is within +-deadband.
     gain : float
-        Fraction (0-1] of the filtered deviation corrected at once.
+        Fraction (0-1] of the filtered deviation corrected at once: the feedback
+        percentage of a measuring cycle (``predictive``: the share of each measurement in
+        the process estimate, an EWMA's lambda).
+    law : {'window', 'predictive'}
+        ``window``: wait out the dead time after a correction, fill the window, correct
+        ``gain`` of its median or mean. ``predictive`` (``service.control_law``): every
+        measurement counts, tagged with the offsets in force when its surface was cut; the
+        process without compensation is followed by a double EWMA and the total offset set
+        to cancel its forecast where the next correction will show. The dead time then says
+        when an applied offset becomes visible, not how long to wait.
+    trend_gain : float
+        ``predictive``: the share of each change of the process estimate taken into its
+        trend (0: a single EWMA, which lags behind linear wear).
     max_step_mm : float
         Largest single offset, in offset units as sent (see ``programming``).
     max_total_mm : float
         Largest cumulative offset, in offset units.
     dead_time_measurements, dead_time_s : int, float
-        After a correction, the next measurements within both limits are ignored (the cut
-        has to pass under the gauge first).
+        After a correction, the next measurements within both limits were cut before it
+        (the cut has to pass under the gauge first): ``window`` ignores them, ``predictive``
+        counts the correction as in flight for them.
     safe_area_mm : float
         A deviation beyond this stops the controller.
     max_uncertainty_fraction : float
@@ -140,6 +160,8 @@ class CompensationSettings:
     offset_sign: int = 1
     shadow: bool = True
     offset_resolution_mm: float = 0.0001
+    law: Literal["window", "predictive"] = "window"
+    trend_gain: float = 0.2
 
     def problems(self) -> list[str]:
         """What is inconsistent, each naming the setting (empty when fine)."""
@@ -180,6 +202,10 @@ class CompensationSettings:
             p.append("offset_resolution_mm must be > 0 and <= max_step_mm")
         if self.offset_sign not in (1, -1):
             p.append("offset_sign must be +1 or -1")
+        if self.law not in ("window", "predictive"):
+            p.append("law must be 'window' or 'predictive'")
+        if not 0 <= self.trend_gain < 1:
+            p.append("trend_gain must be within [0, 1)")
         return p
 
 
@@ -292,11 +318,8 @@ class CompensationController:
         problems = self.settings.problems()
         if problems:
             raise ValueError("; ".join(problems))
-        # (deviation, uncertainty) of the good measurements since the last correction
-        self._window: collections.deque[tuple[float, float]] = collections.deque(
-            maxlen=self.settings.window)
-        self._since_correction = self.settings.dead_time_measurements  # no dead time at start
-        self._correction_time = -math.inf
+        self._window = WindowLaw.of(self.settings)
+        self._predictor = Predictor.of(self.settings)
         # A write handed out but never reported (the service died) is uncertain on restart.
         if self.persisted.state == State.PENDING.value:
             self.persisted.state = State.UNCERTAIN.value
@@ -343,7 +366,10 @@ class CompensationController:
             raise ValueError(f"offset {self.persisted.pending_seq} is unsettled: enable "
                              "compensation once the CNC's registers settle it")
         self.settings = settings
-        self._window = collections.deque(maxlen=settings.window)
+        self._window = self._window.retuned(settings)
+        keep = (old.law, old.nominal_mm, old.programming, old.offset_sign) == (
+            settings.law, settings.nominal_mm, settings.programming, settings.offset_sign)
+        self._predictor = self._predictor.retuned(settings) if keep else Predictor.of(settings)
         enabled = old.shadow and not settings.shadow
         if enabled:
             self.persisted.baseline_mm = None
@@ -388,30 +414,33 @@ class CompensationController:
         gate = _gate(self.state, self.persisted.pending_seq)
         if gate:
             return self._decision(Kind.HELD, f"gate_{self.state.value}", gate, now, **kw)
-        self._since_correction += 1
-        if (self._since_correction <= s.dead_time_measurements
-                or now - self._correction_time < s.dead_time_s):
-            return self._decision(Kind.HELD, "dead_time", "dead time after a correction", now,
-                                  **kw)
-        self._window.append((deviation, max(float(m.uncertainty_mm), 1e-6)))
-        if len(self._window) < s.window:
-            return self._decision(Kind.HELD, "filling_window", f"filling the window "
-                                  f"({len(self._window)} of {s.window})", now, **kw)
-        filtered = filtered_deviation(list(self._window), s.filter)
+        if s.law == "predictive":
+            applied = effect_mm(s, self.persisted.cumulative_mm)
+            # Where the coming parts will stand with the offsets applied (in flight too).
+            filtered = self._predictor.observe(deviation, applied, now) + applied
+            judged, label, gain = deviation, "deviation", 1.0
+        else:
+            got = self._window.observe(deviation, float(m.uncertainty_mm), now)
+            if isinstance(got, tuple):
+                return self._decision(Kind.HELD, *got, now, **kw)
+            judged = filtered = got
+            label, gain = "filtered deviation", s.gain
         kw["filtered_mm"] = filtered
-        if not s.tol_lower_mm <= filtered <= s.tol_upper_mm:
+        if not s.tol_lower_mm <= judged <= s.tol_upper_mm:
             return self._enter(
                 State.ALARM, Kind.ALARM, "out_of_tolerance",
-                f"filtered deviation {filtered * 1000:+.1f} um is outside the tolerance "
+                f"{label} {judged * 1000:+.1f} um is outside the tolerance "
                 f"{s.tol_lower_mm * 1000:+.1f}/{s.tol_upper_mm * 1000:+.1f} um: "
                 "out of tolerance, nothing written; acknowledge to go on", now, **kw)
         if abs(filtered) <= s.deadband_mm:
             return self._decision(Kind.HELD, "deadband", f"filtered deviation "
                                   f"{filtered * 1000:+.1f} um inside the deadband of "
                                   f"{s.deadband_mm * 1000:.1f} um", now, **kw)
-        return self._correct(filtered, now, kw)
+        return self._correct(-gain * filtered / effect_mm(s, 1.0), now, kw)
 
-    def _correct(self, filtered: float, now: float, kw: dict[str, Any]) -> Decision:
+    def _correct(self, wanted: float, now: float, kw: dict[str, Any]) -> Decision:
+        """Write (or propose) ``wanted`` (offset units), within the step and cumulative
+        limits and the CNC's resolution."""
         s = self.settings
         writing = not (s.shadow or self.writes_blocked)
         # Writing, the limit is on the CNC's own total; proposing, on our bookkeeping.
@@ -422,7 +451,7 @@ class CompensationController:
                                   "has not been read yet: no offset until it is (the "
                                   "cumulative limit is checked against it)", now, **kw)
         cum = cnc if writing else self.persisted.cumulative_mm
-        step, wanted, limited = offset_step(s, filtered, cum)
+        step, limited = clip_step(s, wanted, cum)
         self._window.clear()
         if step == 0.0:
             if limited:  # already at the cumulative limit in this direction
@@ -503,8 +532,10 @@ class CompensationController:
             p.cumulative_mm = before + step
             if p.cnc_total_mm is not None:  # until the next reading says otherwise
                 p.cnc_total_mm += step
-            self._since_correction = 0
-            self._correction_time = now
+            self._window.corrected(now)
+            self._predictor.applied(effect_mm(self.settings, step),
+                                    self.settings.dead_time_measurements,
+                                    now + self.settings.dead_time_s)
             return self._decision(Kind.APPLIED, "applied", f"{what} acknowledged by the "
                                   f"CNC{_colon(detail)}", now, before_mm=before,
                                   after_mm=p.cumulative_mm, **kw)
@@ -554,6 +585,7 @@ class CompensationController:
         self.persisted.state = State.ACTIVE.value
         self.persisted.baseline_mm = None
         self._window.clear()
+        self._predictor.reset()
         return self._decision(Kind.RESET, "reset", "compensation reset: cumulative offset "
                               "back to 0; the CNC's total at the next reading is the new "
                               "baseline", now, before_mm=before, after_mm=0.0, who=who)
@@ -630,30 +662,21 @@ def limit_veto(s: CompensationSettings, p: ControllerState, total_mm: float | No
     return "", ""
 
 
-def filtered_deviation(window: list[tuple[float, float]], how: str) -> float:
-    """The window of (deviation, uncertainty) as one deviation: the median, or the mean
-    weighted by 1 / uncertainty^2."""
-    devs = [d for d, _ in window]
-    if how == "median":
-        return float(statistics.median(devs))
-    weights = [1.0 / u**2 for _, u in window]
-    return float(sum(w * d for w, d in zip(weights, devs, strict=True)) / sum(weights))
+def effect_mm(s: CompensationSettings, offset_mm: float) -> float:
+    """What an offset (offset units) does to the diameter, mm."""
+    return offset_mm * s.offset_sign * (2.0 if s.programming == "radius" else 1.0)
 
 
-def offset_step(s: CompensationSettings, filtered_mm: float, cum_mm: float
-                ) -> tuple[float, float, bool]:
-    """(step, wanted, limited): the offset that corrects ``gain`` of the filtered deviation
-    (offset units, clipped to ``max_step_mm``, and to ``max_total_mm`` around ``cum_mm``,
-    in the CNC's resolution rounded toward zero), what was wanted before clipping, and
+def clip_step(s: CompensationSettings, wanted: float, cum_mm: float) -> tuple[float, bool]:
+    """(step, limited): the offset ``wanted`` (offset units) clipped to ``max_step_mm``, and
+    to ``max_total_mm`` around ``cum_mm``, in the CNC's resolution rounded toward zero; and
     whether the cumulative limit clipped it."""
-    factor = 0.5 if s.programming == "radius" else 1.0
-    wanted = -s.gain * filtered_mm * factor * s.offset_sign
     step = max(-s.max_step_mm, min(s.max_step_mm, wanted))
     target = max(-s.max_total_mm, min(s.max_total_mm, cum_mm + step))
     limited = abs(target - (cum_mm + step)) > 1e-12
     # In the CNC's resolution, rounded toward zero: what is logged is what is applied, and
     # rounding never takes the total past the limit.
-    return _toward_zero(target - cum_mm, s.offset_resolution_mm), wanted, limited
+    return _toward_zero(target - cum_mm, s.offset_resolution_mm), limited
 
 
 def cnc_verdict(p: ControllerState, cnc: CncReading) -> tuple[bool | None, str]:

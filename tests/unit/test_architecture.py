@@ -11,11 +11,13 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 # The pure core: numerics and state machines, no I/O, nothing of the adapters or the app.
 CORE = ["service/measure", "service/quality", "service/compensation.py",
+        "service/control_law.py",
         "service/calibrate/board.py",
         "service/calibrate/intrinsics.py", "service/calibrate/plane.py",
         "service/calibrate/axis.py", "service/calibrate/report.py",
         "service/calibrate/master.py"]
 CORE_MODULES = ("service.measure", "service.quality", "service.compensation",
+                "service.control_law",
                 "service.calibrate.board",
                 "service.calibrate.intrinsics", "service.calibrate.plane",
                 "service.calibrate.axis", "service.calibrate.report",

@@ -1,0 +1,163 @@
+"""A virtual lathe: the diameter a finishing pass cuts follows from the CNC's state, never from
+the gauge's bookkeeping.
+
+The diameter cut is the programmed one plus what moves the tool's tip away from where the
+CNC believes it is: the insert's wear (a rate per part or per minute, an insert change that
+resets it, random chipping steps), the machine's thermal growth (a warm-up curve over the
+first hour) and part-to-part scatter; less the wear offset the CNC applies (its total, read
+from the CNC: LinuxCNC's tool table, or the push CNC's applied total). Pure: time passes in
+calls, chance comes from its own seeded generator, and every part's true diameter is logged.
+
+Two ways of working share the model:
+
+- **part to part**: ``cut_part`` at each part's finishing pass; the gauge measures it when it
+  passes (``measured_after`` parts later: the dead time in parts);
+- **continuous**: one long shaft, the laser a distance behind the tool; ``cut_at`` gives the
+  diameter cut at a time, and the surface under the laser at time t was cut at
+  ``t - laser_distance / feed`` (the dead time in seconds).
+
+All diameters and offsets are mm of diameter; an offset's sign is the diameter's (a
+positive total makes parts larger, as the gauge's ``offset_sign = +1`` with diameter
+programming).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LatheConfig:
+    """What the virtual lathe does to the diameter (mm of diameter unless named otherwise).
+
+    Attributes
+    ----------
+    nominal_mm : float
+        The diameter the program cuts with a new insert on a cold machine and no offset.
+    wear_per_part_mm, wear_per_min_mm : float
+        The insert's wear: the part grows by this much per part cut, or per minute of
+        cutting (continuous work).
+    insert_changes : tuple of int
+        Parts (part to part) or whole minutes (continuous) at which a new insert goes in:
+        its wear starts from 0 again.
+    chip_probability : float
+        Chance that the edge chips during a part (per part) or a minute (continuous).
+    chip_mm : tuple of float
+        A chip's step in the diameter, drawn uniformly (low, high).
+    thermal_mm, thermal_tau_min : float
+        The machine's warm-up: the diameter moves by ``thermal_mm (1 - exp(-t / tau))``.
+    part_sigma_mm : float
+        Part-to-part scatter (1 sigma), from material, clamping, temperature of the part.
+    cycle_min : float
+        Time a part takes (part to part), minutes.
+    feed_mm_per_min, laser_distance_mm : float
+        Continuous work: the feed along the shaft and how far behind the tool the laser
+        line is: the dead time is ``laser_distance_mm / feed_mm_per_min``.
+    """
+
+    nominal_mm: float = 30.0
+    wear_per_part_mm: float = 0.0
+    wear_per_min_mm: float = 0.0
+    insert_changes: tuple[int, ...] = ()
+    chip_probability: float = 0.0
+    chip_mm: tuple[float, float] = (0.002, 0.006)
+    thermal_mm: float = 0.0
+    thermal_tau_min: float = 20.0
+    part_sigma_mm: float = 0.002
+    cycle_min: float = 1.0
+    feed_mm_per_min: float = 100.0
+    laser_distance_mm: float = 50.0
+
+    @property
+    def dead_time_min(self) -> float:
+        """Continuous work: from the cut to the laser, minutes."""
+        return self.laser_distance_mm / self.feed_mm_per_min
+
+
+@dataclass
+class CutPart:
+    """One part (or one sample of a continuous cut) as it came off the lathe."""
+
+    index: int
+    time_min: float
+    diameter_mm: float        # the true diameter cut
+    offset_mm: float          # the CNC's total wear offset in force when it was cut
+    wear_mm: float            # the insert's wear then (chips included)
+    thermal_mm: float
+
+
+@dataclass
+class VirtualLathe:
+    """The lathe. ``cut_part(offset_mm)`` / ``cut_at(t, offset_mm)`` with the CNC's total
+    wear offset as the CNC holds it; ``log`` keeps every part."""
+
+    config: LatheConfig = field(default_factory=LatheConfig)
+    seed: int = 0
+    log: list[CutPart] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._rng = np.random.default_rng(self.seed)
+        self._wear = 0.0
+        self._chips = 0.0
+        self._part = 0
+        self._minute = 0
+
+    def thermal_at(self, time_min: float) -> float:
+        """The machine's thermal growth at a time, mm of diameter."""
+        c = self.config
+        return c.thermal_mm * (1.0 - math.exp(-time_min / c.thermal_tau_min)) \
+            if c.thermal_tau_min > 0 else c.thermal_mm
+
+    def _new_insert(self) -> None:
+        self._wear = 0.0
+        self._chips = 0.0
+
+    def _chip(self) -> None:
+        c = self.config
+        if c.chip_probability > 0 and self._rng.random() < c.chip_probability:
+            self._chips += self._rng.uniform(*c.chip_mm)
+
+    def _diameter(self, time_min: float, offset_mm: float) -> tuple[float, float, float]:
+        c = self.config
+        wear = self._wear + self._chips
+        thermal = self.thermal_at(time_min)
+        noise = self._rng.normal(0.0, c.part_sigma_mm) if c.part_sigma_mm > 0 else 0.0
+        return c.nominal_mm + wear + thermal + noise + offset_mm, wear, thermal
+
+    def cut_part(self, offset_mm: float) -> CutPart:
+        """The next part's finishing pass with the CNC's total wear offset ``offset_mm``."""
+        c = self.config
+        k = self._part
+        if k in c.insert_changes:
+            self._new_insert()
+        time_min = k * c.cycle_min
+        d, wear, thermal = self._diameter(time_min, offset_mm)
+        part = CutPart(k, time_min, d, offset_mm, wear, thermal)
+        self.log.append(part)
+        self._wear += c.wear_per_part_mm
+        self._chip()
+        self._part += 1
+        return part
+
+    def cut_at(self, time_min: float, offset_mm: float) -> CutPart:
+        """Continuous work: the diameter cut at ``time_min`` (non-decreasing from call to
+        call) with the CNC's total ``offset_mm``."""
+        c = self.config
+        while self._minute <= time_min:  # whole minutes passed: inserts, chips
+            if self._minute in c.insert_changes:
+                self._new_insert()
+            if self._minute > 0:
+                self._chip()
+            self._minute += 1
+        self._wear = c.wear_per_min_mm * (time_min - self._last_change(time_min))
+        d, wear, thermal = self._diameter(time_min, offset_mm)
+        part = CutPart(len(self.log), time_min, d, offset_mm, wear, thermal)
+        self.log.append(part)
+        return part
+
+    def _last_change(self, time_min: float) -> float:
+        changes = [m for m in self.config.insert_changes if m <= time_min]
+        return float(max(changes)) if changes else 0.0
