@@ -50,6 +50,8 @@ class CompensationIn(_Strict):
     max_age_s: float | None = Field(None, gt=0)
     programming: Literal["diameter", "radius"] | None = None
     offset_sign: Literal[1, -1] | None = None
+    law: Literal["window", "predictive"] | None = None
+    trend_gain: float | None = Field(None, ge=0, lt=1)
 
 
 class ShadowIn(_Strict):

@@ -216,3 +216,13 @@ def test_a_record_with_non_finite_figures_is_still_json() -> None:
     assert d["latency_ms"] == 3.0
     json.loads(json.dumps(d, allow_nan=False))
 
+
+
+def test_the_predictive_law_is_chosen_over_the_api(client) -> None:
+    r = client.put("/api/v1/compensation", headers={H: ADMIN},
+                   json={"law": "predictive", "gain": 0.4, "trend_gain": 0.2})
+    assert r.status_code == 200, r.text
+    s = client.gauge.compensation.controller.settings
+    assert (s.law, s.gain, s.trend_gain) == ("predictive", 0.4, 0.2)
+    bad = client.put("/api/v1/compensation", headers={H: ADMIN}, json={"law": "pid"})
+    assert bad.status_code == 422 and "law" in bad.text
