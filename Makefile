@@ -4,7 +4,7 @@ VENV  := .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.shaftgauge-installed
 
-.PHONY: setup run test bench soak lint clean
+.PHONY: setup run test bench soak lint clean linuxcnc-demo
 
 setup: $(STAMP)
 
@@ -15,6 +15,12 @@ $(STAMP): pyproject.toml deploy/bootstrap.sh
 run: setup
 	$(PY) -m service.measure.compiled
 	$(VENV)/bin/shaftgauge serve
+
+## make linuxcnc-demo: the gauge with LinuxCNC's simulated lathe taking its offsets (pull
+## handshake, deploy/linuxcnc/); Ctrl-C ends it.
+linuxcnc-demo: setup
+	$(PY) -m service.measure.compiled
+	bash deploy/linuxcnc/demo.sh
 
 ## make test: lint, then the whole suite (short fault runs included, long soak runs left out).
 test: setup

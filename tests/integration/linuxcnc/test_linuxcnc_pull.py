@@ -28,7 +28,7 @@ from drivers.plc.server import GaugeModbusServer, run_heartbeat
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN_SIM = ROOT / "deploy" / "linuxcnc" / "run-sim.sh"
-DRIVER = Path(__file__).with_name("lcnc_driver.py")
+DRIVER = ROOT / "deploy" / "linuxcnc" / "drive.py"
 
 
 class Gauge:

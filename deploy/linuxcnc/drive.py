@@ -1,7 +1,9 @@
-"""Drives a running LinuxCNC for the tests: one JSON command a line on stdin, one JSON answer a
-line on stdout. Runs in Debian's /usr/bin/python3 (the only interpreter its ``linuxcnc`` and
-``hal`` modules import in), with LinuxCNC's HOME (its tool table is shared through
-$HOME/.tool.mmap).
+"""Drives a running LinuxCNC (the tests, the demo): one JSON command a line on stdin, one JSON
+answer a line on stdout. Runs in Debian's /usr/bin/python3 (the only interpreter its
+``linuxcnc`` and ``hal`` modules import in), with LinuxCNC's HOME (its tool table is shared
+through $HOME/.tool.mmap).
+
+``drive.py --demo PROGRAM`` runs PROGRAM part after part, a line each (the demo).
 
 Commands: {"do": "ready"} (estop reset, machine on, homed, MDI mode, tool 1 loaded with G43);
 {"do": "mdi", "lines": [...]}; {"do": "run", "path": ...} (a program, to its end);
@@ -88,9 +90,32 @@ def handle(req):
     return {"ok": False, "error": f"unknown command {what!r}"}
 
 
-for raw in sys.stdin:
-    try:
-        answer = handle(json.loads(raw))
-    except Exception as err:  # the test reads the error; the driver goes on
-        answer = {"ok": False, "error": f"{type(err).__name__}: {err}"}
-    print(json.dumps(answer), flush=True)
+SAID = {1: "offset applied", 2: "offset refused (the tool's offset changed meanwhile)",
+        0: "nothing to do", -1: "the gauge is not trusted now", -2: "T1 is not in the spindle"}
+
+
+def demo(program):
+    """Part after part: the subroutine (as the program would call it), the program, a line."""
+    handle({"do": "ready"})
+    part = 0
+    while True:
+        part += 1
+        value = round(handle({"do": "call", "tool": 1})["value"])
+        done = handle({"do": "run", "path": program})
+        x = handle({"do": "tool", "number": 1})["x"]
+        print(f"part {part}: {SAID.get(value, value)}; T1's X offset {x * 1000:+.4f} um "
+              f"(radius){'' if done['ok'] else '; the program did not finish'}", flush=True)
+        time.sleep(1.0)
+
+
+try:
+    if len(sys.argv) == 3 and sys.argv[1] == "--demo":
+        demo(sys.argv[2])
+    for raw in sys.stdin:
+        try:
+            answer = handle(json.loads(raw))
+        except Exception as err:  # the test reads the error; the driver goes on
+            answer = {"ok": False, "error": f"{type(err).__name__}: {err}"}
+        print(json.dumps(answer), flush=True)
+except KeyboardInterrupt:
+    pass
