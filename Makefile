@@ -42,7 +42,7 @@ bench: setup
 	$(PY) -m tests.bench.service_throughput
 	$(PY) -m tests.bench.plant_publish
 	$(PY) -m tests.bench.closed_loop
-	$(PY) -m tests.bench.guard --write
+	$(PY) -m tests.bench.guard --runs 3 --write
 	@git status --short bench-results
 
 ## make soak: the long soak and fault runs (an hour; SHAFTGAUGE_SOAK_S=600 for ten minutes).
