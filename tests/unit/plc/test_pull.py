@@ -26,7 +26,7 @@ from service.compensation import (
     State,
 )
 from service.offsets import OffsetChannel
-from tests.unit.test_cnc_loop import LIVE
+from tests.unit.test_cnc_loop import LIVE, Loop
 
 
 @dataclass
@@ -168,13 +168,7 @@ class PullLoop:
         self.channel = OffsetChannel(c, self.transport, None,
                                      on_decision=self.decisions.append, clock=lambda: self.now)
 
-    async def tick(self) -> None:
-        """What ``run_settler`` does once."""
-        self.now += 1.0
-        if self.channel.controller.state is State.UNCERTAIN:
-            await self.channel.settle()
-        else:
-            await self.channel.refresh()
+    tick = Loop.settler_tick  # what ``run_settler`` does once, as for the push handshake
 
 
 pull_events = st.lists(st.one_of(
