@@ -20,8 +20,9 @@ cp "$here"/nc/*.ngc "$run/nc/"
 sed -e "s/^TCP_IP=.*/TCP_IP=$host/" -e "s/^TCP_PORT=.*/TCP_PORT=$port/" \
     "$here/shaftgauge-mb2hal.ini" > "$run/shaftgauge-mb2hal.ini"
 # The realtime part's socket, where its user can reach it (RUN_DIR may lie below a folder
-# only root can enter).
-fifo_dir=$(mktemp -d /tmp/shaftgauge-rtapi.XXXXXX)
+# only root can enter); one place, as one LinuxCNC runs on a machine.
+fifo_dir=/tmp/shaftgauge-rtapi
+mkdir -p "$fifo_dir"
 if [ "$(id -u)" -eq 0 ]; then
   id -u shaftgauge-cnc >/dev/null 2>&1 || \
     useradd --system --no-create-home --shell /usr/sbin/nologin shaftgauge-cnc
