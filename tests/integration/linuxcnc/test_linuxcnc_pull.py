@@ -52,6 +52,30 @@ class Gauge:
         self.healthy = healthy
         self.bank.set("status", int(StatusBit.HEALTHY) if healthy else 0)
 
+    def restart_server(self, away_s: float) -> None:
+        """The gauge's Modbus server gone for ``away_s``, then back on its port."""
+        self.run(self.server.stop())
+        time.sleep(away_s)
+        self.server = GaugeModbusServer(self.bank, port=self.port)
+        self.run(self.server.start())
+
+    def killed_and_restarted(self, away_s: float) -> None:
+        """The gauge killed (-9) and started again after ``away_s``: its registers start
+        empty, a new transport over them (the service offers its unsettled offset again)."""
+        self.run(self.server.stop())
+        self.loop.call_soon_threadsafe(self._beat.cancel)
+        time.sleep(away_s)
+        self.bank = RegisterBank()
+        self.set_healthy(True)
+        self.server = GaugeModbusServer(self.bank, port=self.port)
+        self.run(self.server.start())
+        self._beat = asyncio.run_coroutine_threadsafe(self._start_beat(), self.loop).result()
+        self.transport = PullCnc(self.bank, ack_timeout_s=0.2)
+
+    async def _start_beat(self) -> asyncio.Task:
+        return asyncio.get_running_loop().create_task(
+            run_heartbeat(self.bank, lambda: self.healthy, period_s=0.25))
+
     def run(self, coro):
         if self.loop.is_running():
             return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout=30)
@@ -252,3 +276,61 @@ def test_the_sample_part_program_takes_the_offset_before_its_finishing_pass(lath
     assert cnc.tool_x_mm() == pytest.approx(before - 0.001, abs=1e-9)
     time.sleep(0.3)
     assert gauge.run(gauge.transport.read_cnc()).ack_seq == 400
+
+
+def test_the_gauge_away_for_ten_seconds_then_back(lathe) -> None:
+    """mb2hal never reconnects by itself: while the gauge is away the subroutine trusts
+    nothing; once it is back, shaftgauge_link.py loads mb2hal anew and the offset still
+    posted applies, once."""
+    gauge, cnc = lathe
+    cnc.call()
+    reported(gauge)
+    gauge.run(gauge.transport.read_cnc())
+    before = cnc.tool_x_mm()
+    pending = asyncio.run_coroutine_threadsafe(gauge.transport.write_offset(0.0014, 500),
+                                               gauge.loop)
+    assert pending.result(timeout=30).outcome is Outcome.UNKNOWN  # the NC has not looked
+    reloads = cnc.ask(do="pin", name="shaftgauge-link.reloads")["value"]
+    away = threading.Thread(target=gauge.restart_server, args=(10.0,))
+    away.start()
+    time.sleep(3.0)
+    assert cnc.call() == -1  # errors counting, heartbeat frozen: not trusted
+    assert cnc.tool_x_mm() == before
+    away.join()
+    deadline = time.monotonic() + 20
+    while cnc.ask(do="pin", name="shaftgauge-link.reloads")["value"] == reloads:
+        assert time.monotonic() < deadline, "mb2hal was not loaded again"
+        time.sleep(0.5)
+    assert cnc.call() == 1
+    assert cnc.tool_x_mm() == pytest.approx(before + 0.0007, abs=1e-9)
+    assert cnc.call() == 0
+    time.sleep(0.3)
+    assert gauge.run(gauge.transport.read_cnc()).ack_seq == 500
+
+
+def test_the_gauge_killed_after_the_cnc_applied_and_before_it_heard(lathe) -> None:
+    """The CNC applied the offset; the gauge died before its report arrived and came back
+    with empty registers, offering the offset again (its log says unsettled): the CNC
+    answers applied and applies nothing twice."""
+    gauge, cnc = lathe
+    cnc.call()
+    reported(gauge)
+    reading = gauge.run(gauge.transport.read_cnc())
+    before = cnc.tool_x_mm()
+    pending = asyncio.run_coroutine_threadsafe(gauge.transport.write_offset(-0.0022, 600),
+                                               gauge.loop)
+    assert pending.result(timeout=30).outcome is Outcome.UNKNOWN
+    assert cnc.call() == 1  # applied; the gauge dies before it reads the report
+    applied_x = cnc.tool_x_mm()
+    assert applied_x == pytest.approx(before - 0.0011, abs=1e-9)
+    reloads = cnc.ask(do="pin", name="shaftgauge-link.reloads")["value"]
+    gauge.killed_and_restarted(3.0)
+    deadline = time.monotonic() + 20
+    while cnc.ask(do="pin", name="shaftgauge-link.reloads")["value"] == reloads:
+        assert time.monotonic() < deadline, "mb2hal was not loaded again"
+        time.sleep(0.5)
+    gauge.run(gauge.transport.resume(600, -0.0022, reading.total_mm))
+    assert cnc.call() in (0, 1)  # settled already (0) or found applied (1): never applied
+    assert cnc.tool_x_mm() == pytest.approx(applied_x, abs=1e-9)
+    time.sleep(0.3)
+    assert gauge.run(gauge.transport.read_cnc()).ack_seq == 600
