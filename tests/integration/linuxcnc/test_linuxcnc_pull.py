@@ -19,12 +19,23 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from drivers.plc.client import Outcome
 from drivers.plc.pull import PullCnc, read_report
 from drivers.plc.registers import RegisterBank, StatusBit
 from drivers.plc.server import GaugeModbusServer, run_heartbeat
+from drivers.sim.lathe import LatheConfig, VirtualLathe
+from service.compensation import (
+    CompensationController,
+    CompensationSettings,
+    ControllerState,
+    Decision,
+    Kind,
+    MeasurementIn,
+)
+from service.offsets import OffsetChannel
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN_SIM = ROOT / "deploy" / "linuxcnc" / "run-sim.sh"
@@ -334,3 +345,79 @@ def test_the_gauge_killed_after_the_cnc_applied_and_before_it_heard(lathe) -> No
     assert cnc.tool_x_mm() == pytest.approx(applied_x, abs=1e-9)
     time.sleep(0.3)
     assert gauge.run(gauge.transport.read_cnc()).ack_seq == 600
+
+
+FAST_PART = """; a part whose finishing pass takes well under a second (the test's part program)
+G7 G18 G21 G90 G94
+T1 M6 G43
+o<shaftgauge_comp> call [1]
+G0 X40 Z2
+G1 Z-5 F3000
+G0 X44
+G0 Z2
+M2
+"""
+
+
+def make_parts(gauge: Gauge, cnc: LinuxCnc, shadow: bool, parts: int = 20) -> tuple[
+        list[float], list[Decision], float]:
+    """Parts cut by the virtual lathe with LinuxCNC's tool offset, each measured by the
+    gauge's compensation (its controller, channel and pull transport) with the gauge's noise
+    after its finishing pass, the offsets taken by the shipped subroutine at the next part's.
+    Returns each part's deviation (um), the decisions and the tool's X change (mm)."""
+    program = cnc.run_dir / "nc" / "fast_part.ngc"
+    program.write_text(FAST_PART)
+    cnc.call()
+    reported(gauge)
+    settings = CompensationSettings(nominal_mm=30.0, tol_upper_mm=0.02, tol_lower_mm=-0.02,
+                                    shadow=shadow, law="predictive", gain=0.4,
+                                    trend_gain=0.2, deadband_mm=0.002,
+                                    dead_time_measurements=0, dead_time_s=0.0)
+    decisions: list[Decision] = []
+    channel = OffsetChannel(CompensationController(settings, ControllerState()),
+                            gauge.transport, None, on_decision=decisions.append)
+    gauge.run(channel.refresh())  # the CNC's total: the baseline of the cumulative limit
+    lathe = VirtualLathe(LatheConfig(nominal_mm=30.0, wear_per_part_mm=0.0025,
+                                     part_sigma_mm=0.001), seed=7)
+    rng = np.random.default_rng(8)
+    x0 = cnc.tool_x_mm()
+    deviations = []
+    for k in range(parts):
+        answer = cnc.ask(do="run", path=str(program))
+        assert answer["ok"] and not answer["errors"], answer
+        time.sleep(0.15)  # the report through mb2hal
+        gauge.run(channel.settle())  # as the settler: the CNC's answer to the last offer
+        part = lathe.cut_part(2.0 * (cnc.tool_x_mm() - x0))  # the tool table's X is a radius
+        deviations.append((part.diameter_mm - 30.0) * 1000.0)
+        measured = part.diameter_mm + rng.normal(0.0, 0.0015)
+        gauge.run(channel.on_measurement(MeasurementIn(k + 1, time.monotonic(), "ok",
+                                                       measured, 0.0015)))
+    cnc.call()  # the last offer taken, as the next part would
+    time.sleep(0.3)
+    gauge.run(channel.settle())
+    return deviations, decisions, cnc.tool_x_mm() - x0
+
+
+def test_twenty_parts_in_tolerance_under_compensation(lathe) -> None:
+    """2.5 um of wear a part takes the uncompensated process out of +-20 um by part 9;
+    compensated every part is in tolerance, and the tool table's change is the gauge's log of
+    applied offsets, each once."""
+    gauge, cnc = lathe
+    deviations, decisions, x_change = make_parts(gauge, cnc, shadow=False)
+    applied = [d for d in decisions if d.kind is Kind.APPLIED]
+    print(f"\nFIGURES compensated: deviations {[round(d, 1) for d in deviations]} um, "
+          f"{len(applied)} offsets applied, tool X {x_change * 1000:+.4f} um")
+    assert max(abs(d) for d in deviations) < 20.0, deviations
+    assert applied and len({d.offset_seq for d in applied}) == len(applied)
+    assert sum(d.offset_mm for d in applied) == pytest.approx(2.0 * x_change, abs=1e-9)
+    assert not [d for d in decisions if d.kind in (Kind.NOT_APPLIED, Kind.ALARM)]
+
+
+def test_twenty_parts_in_shadow_mode_leave_the_tolerance(lathe) -> None:
+    gauge, cnc = lathe
+    deviations, decisions, x_change = make_parts(gauge, cnc, shadow=True)
+    print(f"\nFIGURES shadow: deviations {[round(d, 1) for d in deviations]} um")
+    assert x_change == 0.0
+    assert any(d.kind is Kind.PROPOSED for d in decisions)
+    out = [k for k, d in enumerate(deviations) if abs(d) > 20.0]
+    assert out and out[0] <= 10, deviations
