@@ -40,6 +40,7 @@ from service.offsets import OffsetChannel
 ROOT = Path(__file__).resolve().parents[3]
 RUN_SIM = ROOT / "deploy" / "linuxcnc" / "run-sim.sh"
 DRIVER = ROOT / "deploy" / "linuxcnc" / "drive.py"
+LINUXCNC_PARTS = "rtapi_app|milltask|linuxcncsvr|/usr/bin/io |mb2hal|shaftgauge_link"
 
 
 class Gauge:
@@ -155,6 +156,14 @@ class LinuxCnc:
         if self.proc is not None and self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGTERM)
             self.proc.wait(timeout=60)
+        # Its realtime part and components end after it: wait for them (one LinuxCNC a
+        # machine, and the next tests' timing).
+        deadline = time.monotonic() + 30
+        while subprocess.run(["pgrep", "-f", LINUXCNC_PARTS], capture_output=True,
+                             check=False).returncode == 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"LinuxCNC's processes did not end; see {self.log.name}")
+            time.sleep(0.2)
         self.log.close()
 
 
