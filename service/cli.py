@@ -10,10 +10,14 @@ import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from calib_store.model import CalibrationError, load_calibration
 from service.measure.diameter import DEFAULT_METHOD, MeasureParams
 from service.measure.result import Method
+
+if TYPE_CHECKING:
+    from drivers.sim.lathe import LatheConfig
 
 # The shafts of the reference paper's Tables 3-6 (mm).
 PAPER_DIAMETERS_MM = (47.062, 39.76, 34.924, 29.8,
@@ -158,6 +162,33 @@ def cmd_serve(args: argparse.Namespace) -> int:
         return _fail(str(err))
 
 
+def lathe_config(spec: str, diameter_mm: float) -> LatheConfig:
+    """A virtual lathe's settings from JSON (``LatheConfig``'s fields; the nominal is the
+    camera's diameter unless given, no scatter between samples unless asked: the camera's
+    speckle is the gauge's noise); ValueError names what is wrong."""
+    from drivers.sim.lathe import LatheConfig
+
+    try:
+        fields = json.loads(spec)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"not JSON: {err}") from None
+    if not isinstance(fields, dict):
+        raise ValueError("an object of LatheConfig's fields, e.g. "
+                         '\'{"wear_per_min_mm": 0.03, "laser_distance_mm": 2}\'')
+    known = set(LatheConfig.__dataclass_fields__)
+    unknown = set(fields) - known
+    if unknown:
+        raise ValueError(f"unknown fields {sorted(unknown)}; known: {sorted(known)}")
+    fields = {"nominal_mm": diameter_mm, "part_sigma_mm": 0.0, **fields}
+    for name in ("insert_changes", "chip_mm"):
+        if name in fields:
+            fields[name] = tuple(fields[name])
+    try:
+        return LatheConfig(**fields)
+    except TypeError as err:
+        raise ValueError(str(err)) from None
+
+
 def cmd_sim_camera(args: argparse.Namespace) -> int:
     """Serve a simulated GigE Vision camera until interrupted."""
     import os
@@ -175,16 +206,34 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
             else Disturbances()
     except (ValueError, TypeError, AttributeError) as err:
         return _fail(f"--disturbances: {err}")
+    try:
+        lathe = lathe_config(args.lathe, args.diameter) if args.lathe else None
+    except ValueError as err:
+        return _fail(f"--lathe: {err}")
     settings = SimCameraSettings(
         serial=args.serial, address=args.address, diameter_mm=args.diameter,
         drift_um_per_min=args.drift_um_per_min, drift_period_min=args.drift_period_min,
         fps=args.fps, lost_ratio=args.lost_ratio,
-        seed=args.seed, replay_frames=args.replay, rig=RigConfig(disturbances=spec))
+        seed=args.seed, replay_frames=args.replay, rig=RigConfig(disturbances=spec),
+        lathe=lathe)
     camera = SimGigECamera(settings)
     try:
         camera.start()
     except (RuntimeError, ValueError) as err:
         return _fail(str(err))
+    if args.cnc:
+        if lathe is None:
+            return _fail("--cnc: the CNC's total moves a virtual lathe: give --lathe too")
+        from drivers.plc.client import CncTotalReader
+        from drivers.plc.offsets import PlcOffsetMap
+        from drivers.plc.registers import WordOrder
+
+        host, _, port = args.cnc.rpartition(":")
+        if not host or not port.isdigit():
+            return _fail(f"--cnc: write HOST:PORT, got {args.cnc!r}")
+        camera.follow_cnc(CncTotalReader(host, int(port), PlcOffsetMap(
+            total_address=args.cnc_total_address, unit_id=args.cnc_unit_id,
+            word_order=WordOrder(args.cnc_word_order))))
     if args.calibration_out:
         save_calibration(camera.renderer.calibration, args.calibration_out)
     server = serve_control(camera, args.control_port)
@@ -463,6 +512,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="loopback TCP port of the JSON-lines control (0: any free port)")
     p.add_argument("--calibration-out", metavar="FILE",
                    help="write the simulated rig's exact calibration here")
+    p.add_argument("--lathe", metavar="JSON",
+                   help="a virtual lathe decides the diameter shown (continuous turning, "
+                   "drivers/sim/lathe.py), e.g. '{\"wear_per_min_mm\": 0.03, "
+                   "\"laser_distance_mm\": 2, \"feed_mm_per_min\": 60}'; the CNC's total "
+                   "offset comes from --cnc or the control port's cnc_total_mm")
+    p.add_argument("--cnc", metavar="HOST:PORT",
+                   help="with --lathe: the push CNC (sim-plc) whose applied total the lathe "
+                   "follows, read over Modbus TCP")
+    p.add_argument("--cnc-total-address", type=int, default=106)
+    p.add_argument("--cnc-unit-id", type=int, default=1)
+    p.add_argument("--cnc-word-order", choices=("big", "little"), default="big")
     p.set_defaults(func=cmd_sim_camera)
 
     p = sub.add_parser("sim-plc", help="serve a simulated CNC's offset registers over "

@@ -74,6 +74,15 @@ class CameraSettings(_Section):
     feature is the simulated shaft (its diameter, the compensation's tolerance, +-0.020 mm by
     default) and the tool wears slowly, so a newcomer sees a trend in its band, offsets
     proposed in shadow mode, the SPC view filling and a gauge study that passes."""
+    sim_lathe: bool = False
+    """The simulated camera shows what a virtual lathe cuts (``drivers/sim/lathe.py``,
+    continuous turning): the tool wears at the drift's rate (a new insert every
+    ``sim_drift_period_min``) and the CNC's wear offset moves the diameter, seen
+    ``sim_lathe_dead_time_s`` after it was applied; the CNC is the simulated PLC (its applied
+    total, read over Modbus) or, with ``plc.source = "pull"``, whoever sets it on the
+    camera's control port (the LinuxCNC demo sets LinuxCNC's tool offset)."""
+    sim_lathe_dead_time_s: float = Field(1.2, ge=0, le=600)
+    """From the cut to the laser line: laser distance over feed (2 mm at 100 mm/min)."""
     sim_seed: int = 0
     sim_replay_frames: int = Field(32, ge=0, le=1000)
     """The simulated GigE camera renders a ring of this many frames at start and then only

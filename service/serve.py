@@ -106,6 +106,31 @@ def sim_drift_um_per_min(cam: CameraSettings) -> float:
     return SIM_WEAR_UM_PER_MIN if cam.sim_feature else 0.0
 
 
+SIM_FEED_MM_PER_MIN = 100.0
+"""The simulated lathe's feed along the shaft: the laser's distance behind the tool follows
+from it and the dead time asked."""
+
+
+def sim_lathe_args(settings: Settings) -> list[str]:
+    """The simulated camera's virtual lathe (``camera.sim_lathe``): its wear and dead time,
+    and the CNC whose total it follows (the simulated PLC's, over Modbus)."""
+    cam, plc = settings.camera, settings.plc
+    if not cam.sim_lathe:
+        return []
+    period = cam.sim_drift_period_min
+    lathe = {"wear_per_min_mm": sim_drift_um_per_min(cam) / 1000.0,
+             "feed_mm_per_min": SIM_FEED_MM_PER_MIN,
+             "laser_distance_mm": cam.sim_lathe_dead_time_s / 60.0 * SIM_FEED_MM_PER_MIN,
+             "insert_changes": [round(period * k) for k in range(1, 10_000)
+                                if period * k <= 7 * 24 * 60] if period > 0 else []}
+    args = ["--lathe", json.dumps(lathe)]
+    if plc.source == "sim":
+        args += ["--cnc", f"{plc.host}:{plc.port}", "--cnc-total-address",
+                 str(plc.total_address), "--cnc-unit-id", str(plc.unit_id),
+                 "--cnc-word-order", plc.word_order]
+    return args
+
+
 def embedded_feature(settings: Settings) -> Settings:
     """With the simulated camera, ``sim_feature`` on and no nominal set: the feature is the
     simulated shaft (``camera.sim_feature``)."""
@@ -158,7 +183,7 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
                  "--drift-um-per-min", str(sim_drift_um_per_min(cam_cfg)),
                  "--drift-period-min", str(cam_cfg.sim_drift_period_min), "--seed",
                  str(cam_cfg.sim_seed), "--replay", str(cam_cfg.sim_replay_frames),
-                 "--calibration-out", str(cal_path)], "camera")
+                 "--calibration-out", str(cal_path), *sim_lathe_args(settings)], "camera")
             device_id = ready["device_id"]
             extras["sim_camera_control_port"] = ready["control_port"]
             sim_cal = load_calibration(cal_path)

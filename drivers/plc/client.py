@@ -228,3 +228,37 @@ class OffsetWriter:
                 return result(Outcome.APPLIED, "acknowledged, but the read-back differs "
                               f"({getattr(rr, 'registers', rr)} != {words}): check the CNC")
             return result(Outcome.APPLIED, "acknowledged and verified")
+
+
+class CncTotalReader:
+    """Reads the CNC's total wear offset (``total_address``, int32, 0.1 um) over Modbus TCP,
+    synchronously: for a simulator in its own thread (the virtual lathe follows the push
+    CNC's applied total), never for the gauge's event loop. Calling it gives the total in mm;
+    it raises OSError when the CNC cannot be read (and connects again on the next call)."""
+
+    def __init__(self, host: str, port: int, offsets: PlcOffsetMap | None = None,
+                 timeout_s: float = 1.0) -> None:
+        from pymodbus.client import ModbusTcpClient
+
+        self.map = offsets or PlcOffsetMap()
+        self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
+
+    def __call__(self) -> float:
+        m = self.map
+        try:
+            if not self._client.connected and not self._client.connect():
+                raise OSError(f"cannot connect to the CNC at {self._client.comm_params.host}:"
+                              f"{self._client.comm_params.port}")
+            rr = self._client.read_holding_registers(m.total_address, count=2,
+                                                     device_id=m.unit_id)
+        except ModbusException as err:
+            self._client.close()
+            raise OSError(f"reading the CNC's total failed: {err}") from None
+        if rr.isError():
+            raise OSError(f"the CNC refused the read of its total ({m.total_address}): {rr}")
+        units = from_words(rr.registers, RegisterType.I32, m.word_order)
+        return units * UM_PER_UNIT / 1000.0
+
+    def close(self) -> None:
+        """Close the connection."""
+        self._client.close()

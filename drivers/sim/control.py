@@ -3,6 +3,8 @@
 Requests, one JSON object per line: ``{"set": {"diameter_mm": 30.0, "drift_um_per_min": 5,
 "lost_ratio": 0.001, "fps": 10}}``, ``{"set": {"disturbances": {"ghost": {"gain": 0.3}}}}``
 (the shop floor's disturbances, ``drivers.sim.disturb``; ``{}`` for none),
+``{"set": {"cnc_total_mm": -0.004}}`` (a camera with a virtual lathe: the CNC's total wear
+offset, which the lathe's cut follows),
 ``{"get": "stats"}``, or ``{"show": ...}`` for what the camera looks at: ``"shaft"``, a shot
 of the simulated calibration session by name (``{"show": {"shot": "view_00"}}``;
 ``{"get": "shots"}`` lists them), or a board set up by hand
@@ -23,7 +25,7 @@ from drivers.sim.board import Board, Shot, session_shots
 from drivers.sim.disturb import Disturbances
 from drivers.sim.gige import SimGigECamera
 
-_SETTERS = ("diameter_mm", "drift_um_per_min", "lost_ratio", "fps")
+_SETTERS = ("diameter_mm", "drift_um_per_min", "lost_ratio", "fps", "cnc_total_mm")
 _SHOT_FIELDS = ("tilt_x_deg", "tilt_y_deg", "distance_mm", "shift_mm", "rotation_deg", "laser")
 
 
@@ -83,6 +85,8 @@ def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
             if "diameter_mm" in values or "drift_um_per_min" in values:
                 camera.set_diameter(values.get("diameter_mm", camera.current_diameter()),
                                     values.get("drift_um_per_min"))
+            if "cnc_total_mm" in values:
+                camera.set_cnc_total(values["cnc_total_mm"])
             if "lost_ratio" in values:
                 camera.set_lost_ratio(values["lost_ratio"])
             if "fps" in values:

@@ -28,6 +28,7 @@ import logging
 import threading
 import time
 import zlib
+from collections.abc import Callable
 from ctypes import CFUNCTYPE, POINTER, byref, c_char_p, c_double, c_size_t, c_uint32, c_void_p
 from dataclasses import dataclass, field
 
@@ -35,6 +36,7 @@ import numpy as np
 
 from drivers.sim.board import Board, BoardRenderer, Shot
 from drivers.sim.disturb import Disturbances
+from drivers.sim.lathe import LaserView, LatheConfig, VirtualLathe
 from drivers.sim.replay import FrameRing, crop, min_frame_period_us
 from drivers.sim.rig import RigConfig, ShaftRenderer
 
@@ -102,6 +104,10 @@ class SimCameraSettings:
     rig: RigConfig = field(default_factory=RigConfig)
     replay_frames: int = 0
     """0: render every frame; N: render a ring of N frames and send them in turn."""
+    lathe: LatheConfig | None = None
+    """A virtual lathe decides the diameter shown (continuous turning, the laser a dead time
+    behind the tool; ``set_cnc_total`` or ``follow_cnc`` tell it the CNC's wear offset);
+    ``diameter_mm`` and the drift are then not used."""
 
 
 class SimGigECamera:
@@ -121,6 +127,9 @@ class SimGigECamera:
         self._repeats = 0
         self._t0 = time.monotonic()
         self._d0 = settings.diameter_mm
+        self._view = LaserView(VirtualLathe(settings.lathe, seed=settings.seed)) \
+            if settings.lathe is not None else None
+        self._cnc_error = ""
         self._scene: tuple[Shot, Board] | None = None   # None: the shaft
         self._scene_image: tuple[tuple[Shot, Board], np.ndarray] | None = None
         self._gv: int | None = None
@@ -174,6 +183,9 @@ class SimGigECamera:
 
     def set_diameter(self, diameter_mm: float, drift_um_per_min: float | None = None) -> None:
         """Jump to a diameter (and optionally change the wear drift) from now on."""
+        if self._view is not None:
+            raise ValueError("the virtual lathe decides the diameter shown: tell it the "
+                             "CNC's offset ('cnc_total_mm'), not a diameter")
         with self._lock:
             self._d0, self._t0 = float(diameter_mm), time.monotonic()
             if drift_um_per_min is not None:
@@ -190,9 +202,46 @@ class SimGigECamera:
         if self._ring is not None:
             self._ring.set_renderer(renderer)
 
-    def current_diameter(self) -> float:
-        """The diameter being rendered now, mm (with the drift so far)."""
+    def set_cnc_total(self, total_mm: float) -> None:
+        """The virtual lathe's CNC holds a total wear offset of ``total_mm`` (mm of diameter)
+        from now on: what is cut from now on, and seen a dead time later, moves by it."""
+        if self._view is None:
+            raise ValueError("no virtual lathe: start the camera with one (--lathe) to give "
+                             "it the CNC's offset")
         with self._lock:
+            self._view.cnc_total(time.monotonic() - self._t0, float(total_mm))
+
+    def follow_cnc(self, read_total_mm: Callable[[], float], period_s: float = 0.2) -> None:
+        """Read the CNC's total wear offset every ``period_s`` (``read_total_mm`` raises
+        OSError or ValueError when it cannot: the last total stays, the error shows in the
+        stats) and give it to the virtual lathe, in a thread of its own."""
+        def follow() -> None:
+            while not self._stop.wait(period_s):
+                try:
+                    self.set_cnc_total(read_total_mm())
+                    self._cnc_error = ""
+                except (OSError, ValueError) as err:
+                    self._cnc_error = str(err) or type(err).__name__
+        threading.Thread(target=follow, name="sim-lathe-cnc", daemon=True).start()
+
+    def lathe_stats(self) -> dict[str, float | str] | None:
+        """The virtual lathe's sample under the laser now, and the CNC's total it knows."""
+        if self._view is None:
+            return None
+        with self._lock:
+            now = time.monotonic() - self._t0
+            cut = self._view.cut_under_laser(now)
+            total = self._view.total_at(now)
+        return {"cut_diameter_mm": round(cut.diameter_mm, 7), "wear_mm": round(cut.wear_mm, 7),
+                "offset_in_cut_mm": round(cut.offset_mm, 7), "cnc_total_mm": round(total, 7),
+                "dead_time_s": self._view.dead_time_s, "cnc_error": self._cnc_error}
+
+    def current_diameter(self) -> float:
+        """The diameter being rendered now, mm (with the drift so far, or as the virtual
+        lathe cut it)."""
+        with self._lock:
+            if self._view is not None:
+                return self._view.diameter_mm(time.monotonic() - self._t0)
             minutes = (time.monotonic() - self._t0) / 60.0
             if self.settings.drift_period_min > 0:
                 minutes %= self.settings.drift_period_min
@@ -241,7 +290,8 @@ class SimGigECamera:
                 "frame_period_us": self._written_period_us,
                 "replay_frames": self.settings.replay_frames,
                 "disturbances": bool(self.settings.rig.disturbances),
-                "rerendered": self._ring.rerendered if self._ring else 0}
+                "rerendered": self._ring.rerendered if self._ring else 0,
+                "lathe": self.lathe_stats()}
 
     # ---- sensor -------------------------------------------------------------------------
 

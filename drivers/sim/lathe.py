@@ -161,3 +161,49 @@ class VirtualLathe:
     def _last_change(self, time_min: float) -> float:
         changes = [m for m in self.config.insert_changes if m <= time_min]
         return float(max(changes)) if changes else 0.0
+
+
+@dataclass
+class LaserView:
+    """What the camera sees of a continuous cut: the surface under the laser line at time t
+    was cut at ``t - dead_time`` with the CNC's total wear offset in force then.
+
+    The CNC's totals come in as it reports them (``cnc_total``); ``diameter_mm(now_s)`` is
+    the diameter under the laser, one sample of the lathe per ``sample_s`` (the surface's
+    scatter changes from sample to sample, not from frame to frame). Pure: time is passed in
+    (seconds from the start of the cut), and every sample lands in the lathe's log.
+    """
+
+    lathe: VirtualLathe
+    sample_s: float = 0.5
+    _totals: list[tuple[float, float]] = field(default_factory=lambda: [(-math.inf, 0.0)])
+    _sample: tuple[int, CutPart] | None = None
+
+    @property
+    def dead_time_s(self) -> float:
+        """From the cut to the laser line, s."""
+        return self.lathe.config.dead_time_min * 60.0
+
+    def cnc_total(self, now_s: float, total_mm: float) -> None:
+        """The CNC's total wear offset (mm of diameter) is ``total_mm`` from ``now_s`` on."""
+        if total_mm != self._totals[-1][1]:
+            self._totals.append((max(now_s, self._totals[-1][0]), float(total_mm)))
+
+    def total_at(self, time_s: float) -> float:
+        """The CNC's total in force at ``time_s``."""
+        for t, total in reversed(self._totals):
+            if t <= time_s:
+                return total
+        return self._totals[0][1]
+
+    def cut_under_laser(self, now_s: float) -> CutPart:
+        """The sample of the surface under the laser at ``now_s`` (non-decreasing)."""
+        k = math.floor(max(now_s, 0.0) / self.sample_s)
+        if self._sample is None or self._sample[0] < k:
+            cut_s = max(k * self.sample_s - self.dead_time_s, 0.0)
+            self._sample = (k, self.lathe.cut_at(cut_s / 60.0, self.total_at(cut_s)))
+        return self._sample[1]
+
+    def diameter_mm(self, now_s: float) -> float:
+        """The diameter under the laser at ``now_s``, mm."""
+        return self.cut_under_laser(now_s).diameter_mm

@@ -61,7 +61,8 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   plc_port: int | None = None, data: Path | None = None,
                   env: dict[str, str] | None = None, nominal: float | None = 30.0,
                   opcua_port: int | None = None, embedded: bool = False,
-                  processes: bool = False) -> Service:
+                  processes: bool = False, camera_toml: str = "",
+                  compensation_toml: str | None = None) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
     ``nominal`` None leaves the feature unset; the OPC UA server only on ``opcua_port`` or
@@ -69,14 +70,16 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     dozens of times); ``embedded``: the embedded default's feature, tool wear and OPC UA
     server (``camera.sim_feature``), no nominal of the test's; ``processes``: measured in
     worker processes as an installation does (a spawned worker costs about 3 s of CPU at
-    start, and the suites start the service dozens of times: threads unless asked)."""
+    start, and the suites start the service dozens of times: threads unless asked);
+    ``camera_toml`` more lines of the ``[camera]`` table, ``compensation_toml`` the whole
+    ``[compensation]`` table in place of the tests' own."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
     cfg = tmp_path / "gauge.toml"
     camera = (f'source = "gige"\ndevice_id = "{camera_device}"' if camera_device else
               f'source = "sim"\nsim_serial = "E2E001"\nsim_diameter_mm = {diameter}\n'
-              f'sim_feature = {"true" if embedded else "false"}')
+              f'sim_feature = {"true" if embedded else "false"}\n{camera_toml}')
     if embedded:
         nominal = None
     cfg.write_text(f"""
@@ -97,8 +100,8 @@ path = "{data / 'gauge.db'}"
 [opcua]
 {f"port = {opcua_port}" if opcua_port else ""}
 {"" if opcua_port or embedded else "enabled = false"}
-{"" if embedded else TEST_COMPENSATION.format(
-    nominal="" if nominal is None else f"nominal_mm = {nominal}")}
+{compensation_toml if compensation_toml is not None else "" if embedded else
+ TEST_COMPENSATION.format(nominal="" if nominal is None else f"nominal_mm = {nominal}")}
 {extra_toml}
 """)
     # Its log to a file: a pipe nobody reads would fill (64 KiB) with a long outage's

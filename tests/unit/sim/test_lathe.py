@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.sim.lathe import LatheConfig, VirtualLathe
+from drivers.sim.lathe import LaserView, LatheConfig, VirtualLathe
 
 
 def test_wear_inserts_and_offsets_part_to_part() -> None:
@@ -38,3 +38,20 @@ def test_continuous_work_has_its_dead_time_from_distance_and_feed() -> None:
     lathe = VirtualLathe(config)
     assert lathe.cut_at(4.5, 0.0).diameter_mm == pytest.approx(30.0045)
     assert lathe.cut_at(10.5, 0.0).diameter_mm == pytest.approx(30.0005)  # new insert at 10
+
+
+def test_the_laser_sees_an_offset_one_dead_time_after_the_cnc_applied_it() -> None:
+    """The surface under the laser was cut a dead time ago (laser distance / feed) with the
+    total the CNC held then: an offset changes what the camera sees only that much later."""
+    config = LatheConfig(nominal_mm=30.0, wear_per_min_mm=0.006, part_sigma_mm=0.0,
+                         feed_mm_per_min=60.0, laser_distance_mm=2.0)  # 2 s dead time
+    view = LaserView(VirtualLathe(config), sample_s=0.5)
+    assert view.dead_time_s == pytest.approx(2.0)
+    assert view.diameter_mm(0.0) == pytest.approx(30.0)
+    assert view.diameter_mm(0.2) == view.diameter_mm(0.0)  # one sample per 0.5 s
+    assert view.diameter_mm(12.0) == pytest.approx(30.0 + 0.006 * 10.0 / 60.0)
+    view.cnc_total(12.0, -0.001)
+    assert view.diameter_mm(13.5) == pytest.approx(30.0 + 0.006 * 11.5 / 60.0)  # in flight
+    assert view.diameter_mm(14.0) == pytest.approx(30.0 + 0.006 * 12.0 / 60.0 - 0.001)
+    assert view.total_at(11.9) == 0.0 and view.total_at(12.0) == -0.001
+    assert [p.offset_mm for p in view.lathe.log][-1] == -0.001
