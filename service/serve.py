@@ -121,8 +121,7 @@ def sim_lathe_args(settings: Settings) -> list[str]:
     lathe = {"wear_per_min_mm": sim_drift_um_per_min(cam) / 1000.0,
              "feed_mm_per_min": SIM_FEED_MM_PER_MIN,
              "laser_distance_mm": cam.sim_lathe_dead_time_s / 60.0 * SIM_FEED_MM_PER_MIN,
-             "insert_changes": [round(period * k) for k in range(1, 10_000)
-                                if period * k <= 7 * 24 * 60] if period > 0 else []}
+             "insert_every": max(1, round(period)) if period > 0 else 0}
     args = ["--lathe", json.dumps(lathe)]
     if plc.source == "sim":
         args += ["--cnc", f"{plc.host}:{plc.port}", "--cnc-total-address",

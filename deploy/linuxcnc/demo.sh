@@ -1,31 +1,37 @@
 #!/usr/bin/env bash
-# The LinuxCNC demo (`make linuxcnc-demo`): the gauge on its embedded default (simulated
-# camera, its tool wearing 6 um a minute) with its offsets posted for LinuxCNC (plc.source = "pull", shadow
-# mode off), LinuxCNC's simulated lathe polling it with mb2hal and running the sample part
-# program part after part; each part prints what the subroutine did and the tool's offset.
+# The LinuxCNC demo (`make linuxcnc-demo`): the gauge on its embedded default with its offsets
+# posted for LinuxCNC (plc.source = "pull", shadow mode off), LinuxCNC's simulated lathe
+# polling it with mb2hal and running the sample part program part after part; each part
+# prints what the subroutine did and the tool's offset. The simulated camera shows what a
+# virtual lathe cuts (camera.sim_lathe): its tool wears 6 um a minute and LinuxCNC's tool
+# offset, told to it after each part, moves the diameter back.
 # The dashboard is at http://127.0.0.1:8000/ui/. Ctrl-C ends it all.
-#
-# The simulated camera does not see LinuxCNC's offsets: it shows the gauge's wear drift
-# whatever the tool does, so the offsets add up until the cumulative limit holds them.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 run=${SHAFTGAUGE_DEMO_DIR:-/tmp/shaftgauge-linuxcnc-demo}
 mkdir -p "$run"
 pids=()
-stop() { kill "${pids[@]}" 2>/dev/null || true; wait 2>/dev/null || true; }
+# LinuxCNC runs in a session of its own: all of it ends with the demo, however it is ended.
+stop() {
+  [ -n "${cnc:-}" ] && kill -TERM -- "-$cnc" 2>/dev/null
+  kill "${pids[@]}" 2>/dev/null || true
+  wait 2>/dev/null || true
+}
 trap stop EXIT INT TERM
 
-SHAFTGAUGE_PLC__SOURCE=pull SHAFTGAUGE_COMPENSATION__SHADOW=false SHAFTGAUGE_CAMERA__SIM_DRIFT_UM_PER_MIN=6 \
-  .venv/bin/shaftgauge serve > "$run/gauge.log" 2>&1 &
+SHAFTGAUGE_PLC__SOURCE=pull SHAFTGAUGE_COMPENSATION__SHADOW=false \
+  SHAFTGAUGE_CAMERA__SIM_DRIFT_UM_PER_MIN=6 SHAFTGAUGE_CAMERA__SIM_LATHE=true \
+  .venv/bin/shaftgauge serve > "$run/gauge.out" 2> "$run/gauge.log" &
 pids+=($!)
-for _ in $(seq 120); do
-  (echo > /dev/tcp/127.0.0.1/5020) 2>/dev/null && break
+for _ in $(seq 120); do  # its ready line comes once the API and Modbus serve
+  grep -q '"event": "ready"' "$run/gauge.out" 2>/dev/null && break
   sleep 1
 done
+camera_port=$(sed -n 's/.*"sim_camera_control_port": *\([0-9]*\).*/\1/p' "$run/gauge.out" | head -n 1)
 echo "demo: the gauge serves Modbus on 127.0.0.1:5020 (log: $run/gauge.log)"
 
-deploy/linuxcnc/run-sim.sh "$run/linuxcnc" 127.0.0.1 5020 > "$run/linuxcnc.log" 2>&1 &
-pids+=($!)
+setsid deploy/linuxcnc/run-sim.sh "$run/linuxcnc" 127.0.0.1 5020 > "$run/linuxcnc.log" 2>&1 &
+cnc=$!
 part=$run/linuxcnc/nc/shaftgauge_part.ngc
 for _ in $(seq 60); do  # LinuxCNC answers once its task runs
   if echo '{"do": "ready"}' | HOME="$run/linuxcnc" /usr/bin/python3 deploy/linuxcnc/drive.py \
@@ -35,4 +41,7 @@ for _ in $(seq 60); do  # LinuxCNC answers once its task runs
   sleep 1
 done
 echo "demo: LinuxCNC's simulated lathe is on (log: $run/linuxcnc.log); parts follow"
-HOME="$run/linuxcnc" /usr/bin/python3 deploy/linuxcnc/drive.py --demo "$part"
+# In the background and waited for: a signal to this script then ends everything at once.
+HOME="$run/linuxcnc" /usr/bin/python3 deploy/linuxcnc/drive.py --demo "$part" $camera_port &
+pids+=($!)
+wait "$!"

@@ -3,7 +3,9 @@ answer a line on stdout. Runs in Debian's /usr/bin/python3 (the only interpreter
 ``linuxcnc`` and ``hal`` modules import in), with LinuxCNC's HOME (its tool table is shared
 through $HOME/.tool.mmap).
 
-``drive.py --demo PROGRAM`` runs PROGRAM part after part, a line each (the demo).
+``drive.py --demo PROGRAM [CAMERA_PORT]`` runs PROGRAM part after part, a line each (the demo);
+with the simulated camera's control port it tells the camera's virtual lathe the tool's offset
+after each part (what the lathe cuts follows LinuxCNC's tool table).
 
 Commands: {"do": "ready"} (estop reset, machine on, homed, MDI mode, tool 1 loaded with G43);
 {"do": "mdi", "lines": [...]}; {"do": "run", "path": ...} (a program, to its end);
@@ -12,6 +14,7 @@ its #<_value>); {"do": "tool", "number": 1} (its X offset); {"do": "pin", "name"
 """
 
 import json
+import socket
 import sys
 import time
 
@@ -94,23 +97,37 @@ SAID = {1: "offset applied", 2: "offset refused (the tool's offset changed meanw
         0: "nothing to do", -1: "the gauge is not trusted now", -2: "T1 is not in the spindle"}
 
 
-def demo(program):
-    """Part after part: the subroutine (as the program would call it), the program, a line."""
+def tell_lathe(port, total_mm):
+    """The simulated camera's virtual lathe: the CNC's total wear offset, mm of diameter."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+        sock.sendall((json.dumps({"set": {"cnc_total_mm": total_mm}}) + "\n").encode())
+        reply = json.loads(sock.makefile().readline())
+    if not reply.get("ok"):
+        print(f"the simulated camera did not take the offset: {reply.get('error')}",
+              flush=True)
+
+
+def demo(program, camera_port=None):
+    """Part after part: the subroutine (as the program would call it), the program, a line;
+    the tool's offset (a radius: twice on the diameter) to the camera's lathe."""
     handle({"do": "ready"})
+    x0 = handle({"do": "tool", "number": 1})["x"]
     part = 0
     while True:
         part += 1
         value = round(handle({"do": "call", "tool": 1})["value"])
         done = handle({"do": "run", "path": program})
         x = handle({"do": "tool", "number": 1})["x"]
+        if camera_port:
+            tell_lathe(camera_port, 2.0 * (x - x0))
         print(f"part {part}: {SAID.get(value, value)}; T1's X offset {x * 1000:+.4f} um "
               f"(radius){'' if done['ok'] else '; the program did not finish'}", flush=True)
         time.sleep(1.0)
 
 
 try:
-    if len(sys.argv) == 3 and sys.argv[1] == "--demo":
-        demo(sys.argv[2])
+    if len(sys.argv) in (3, 4) and sys.argv[1] == "--demo":
+        demo(sys.argv[2], int(sys.argv[3]) if len(sys.argv) == 4 else None)
     for raw in sys.stdin:
         try:
             answer = handle(json.loads(raw))

@@ -43,6 +43,8 @@ class LatheConfig:
     insert_changes : tuple of int
         Parts (part to part) or whole minutes (continuous) at which a new insert goes in:
         its wear starts from 0 again.
+    insert_every : int
+        ... and a new insert every this many parts or whole minutes (0: only those listed).
     chip_probability : float
         Chance that the edge chips during a part (per part) or a minute (continuous).
     chip_mm : tuple of float
@@ -62,6 +64,7 @@ class LatheConfig:
     wear_per_part_mm: float = 0.0
     wear_per_min_mm: float = 0.0
     insert_changes: tuple[int, ...] = ()
+    insert_every: int = 0
     chip_probability: float = 0.0
     chip_mm: tuple[float, float] = (0.002, 0.006)
     thermal_mm: float = 0.0
@@ -131,7 +134,7 @@ class VirtualLathe:
         """The next part's finishing pass with the CNC's total wear offset ``offset_mm``."""
         c = self.config
         k = self._part
-        if k in c.insert_changes:
+        if self._insert_at(k):
             self._new_insert()
         time_min = k * c.cycle_min
         d, wear, thermal = self._diameter(time_min, offset_mm)
@@ -147,7 +150,7 @@ class VirtualLathe:
         call) with the CNC's total ``offset_mm``."""
         c = self.config
         while self._minute <= time_min:  # whole minutes passed: inserts, chips
-            if self._minute in c.insert_changes:
+            if self._insert_at(self._minute):
                 self._new_insert()
             if self._minute > 0:
                 self._chip()
@@ -158,8 +161,17 @@ class VirtualLathe:
         self.log.append(part)
         return part
 
+    def _insert_at(self, index: int) -> bool:
+        """Whether a new insert goes in at this part or whole minute."""
+        every = self.config.insert_every
+        return index in self.config.insert_changes or (every > 0 and index > 0
+                                                      and index % every == 0)
+
     def _last_change(self, time_min: float) -> float:
+        every = self.config.insert_every
         changes = [m for m in self.config.insert_changes if m <= time_min]
+        if every > 0 and time_min >= every:
+            changes.append(math.floor(time_min / every) * every)
         return float(max(changes)) if changes else 0.0
 
 

@@ -55,3 +55,14 @@ def test_the_laser_sees_an_offset_one_dead_time_after_the_cnc_applied_it() -> No
     assert view.diameter_mm(14.0) == pytest.approx(30.0 + 0.006 * 12.0 / 60.0 - 0.001)
     assert view.total_at(11.9) == 0.0 and view.total_at(12.0) == -0.001
     assert [p.offset_mm for p in view.lathe.log][-1] == -0.001
+
+
+def test_an_insert_every_so_many_parts_or_minutes() -> None:
+    parts = VirtualLathe(LatheConfig(wear_per_part_mm=0.001, insert_every=3, part_sigma_mm=0.0))
+    assert [round((parts.cut_part(0.0).diameter_mm - 30.0) * 1e3, 6) for _ in range(7)] == \
+        [0.0, 1.0, 2.0, 0.0, 1.0, 2.0, 0.0]
+    minutes = VirtualLathe(LatheConfig(wear_per_min_mm=0.001, insert_every=10,
+                                       part_sigma_mm=0.0))
+    assert minutes.cut_at(9.5, 0.0).diameter_mm == pytest.approx(30.0095)
+    assert minutes.cut_at(12.0, 0.0).diameter_mm == pytest.approx(30.002)
+    assert minutes.cut_at(25.0, 0.0).diameter_mm == pytest.approx(30.005)
