@@ -9,13 +9,14 @@ function fit(canvas) {
   return { ctx, w, h };
 }
 
-// points: [{seq, d}] (mm); band: {lo, hi, nominal} (mm) or null; marks: [seq]
-export function drawTrend(canvas, points, band, marks) {
+// points: [{seq, d}] (mm); band: {lo, hi, nominal} (mm) or null; marks: [seq];
+// process: [{seq, d}] (mm), the uncompensated process, dashed (none when no offset applied)
+export function drawTrend(canvas, points, band, marks, process = []) {
   const { ctx, w, h } = fit(canvas);
   const pad = { l: 64, r: 8, t: 8, b: 18 };
   ctx.font = "12px system-ui"; ctx.fillStyle = "#9aa5b1";
   if (!points.length) { ctx.fillText("no measurements yet", pad.l, h / 2); return; }
-  const ds = points.map((p) => p.d);
+  const ds = [...points, ...process].map((p) => p.d);
   let lo = Math.min(...ds), hi = Math.max(...ds);
   if (band) { lo = Math.min(lo, band.lo); hi = Math.max(hi, band.hi); }
   const span = Math.max(hi - lo, 0.002); lo -= span * 0.1; hi += span * 0.1;
@@ -37,6 +38,11 @@ export function drawTrend(canvas, points, band, marks) {
   for (const s of marks) {
     if (s < s0) continue;
     ctx.beginPath(); ctx.moveTo(x(s), pad.t); ctx.lineTo(x(s), h - pad.b); ctx.stroke();
+  }
+  if (process.length) {
+    ctx.strokeStyle = "#c58af9"; ctx.setLineDash([5, 3]); ctx.beginPath();
+    process.forEach((p, i) => (i ? ctx.lineTo(x(p.seq), y(p.d)) : ctx.moveTo(x(p.seq), y(p.d))));
+    ctx.stroke(); ctx.setLineDash([]);
   }
   ctx.strokeStyle = "#6fb3ff"; ctx.lineWidth = 1.5; ctx.beginPath();
   points.forEach((p, i) => (i ? ctx.lineTo(x(p.seq), y(p.d)) : ctx.moveTo(x(p.seq), y(p.d))));

@@ -27,8 +27,22 @@ function row(d) {
   return tr;
 }
 
+// The offset exchange with the CNC: an offset on its way, or the last one settled.
+function handshake(c) {
+  if (c.pending_seq != null) return `offset #${c.pending_seq} sent: waiting for the CNC's answer`;
+  if (!c.offset_seq) return "no offset sent yet";
+  return `settled: offset #${c.offset_seq} answered by the CNC`;
+}
+
+function showCnc(c) {
+  $("comp-cnc-total").textContent = c.cnc_total_mm == null ? "not read yet"
+    : um(c.cnc_total_mm);
+  $("comp-handshake").textContent = handshake(c);
+}
+
 export async function loadCompensation() {
   const c = await api("/compensation");
+  showCnc(c);
   $("comp-state").textContent = c.state;
   $("comp-cumulative").textContent = um(c.cumulative_offset_mm);
   $("comp-cnc").textContent = c.cnc_total_mm == null || c.baseline_mm == null ? "not read yet"
@@ -61,6 +75,7 @@ export function onStatus(st) {
   $("comp-held").textContent = held ? "held: " + held
     : st.compensation.shadow ? "proposed only (shadow mode)" : "written to the CNC";
   $("comp-state").textContent = st.compensation.state;
+  showCnc(st.compensation);
   if (!switching) $("shadow").checked = st.compensation.shadow;  // the service's word counts
 }
 

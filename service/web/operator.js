@@ -5,6 +5,8 @@ import { drawTrend } from "./chart.js";
 const MAX_POINTS = 600;
 const points = [];      // {seq, d}
 const marks = [];       // seq of measurements after which an offset was applied
+const applied = [];     // {seq, offset_mm} of those offsets, oldest first
+let deadTime = 0;       // measurements from an offset applied to the first that shows it
 let feature = null;     // {nominal_mm, tol_upper_mm, tol_lower_mm}
 let lastSeq = 0;
 
@@ -22,13 +24,32 @@ export async function loadOperator() {
   const hist = await api("/measurements?limit=" + MAX_POINTS + "&ok_only=true");
   points.length = 0;
   for (const m of hist.items.reverse()) points.push({ seq: m.seq, d: m.diameter_mm });
-  const applied = await api("/compensation/log?limit=200&kinds=applied");
-  marks.length = 0;
-  for (const d of applied.items) if (d.measurement_seq != null) marks.push(d.measurement_seq);
+  const log = await api("/compensation/log?limit=200&kinds=applied");
+  deadTime = (await api("/compensation")).settings.dead_time_measurements ?? 0;
+  marks.length = 0; applied.length = 0;
+  for (const d of log.items.reverse()) {
+    if (d.measurement_seq == null) continue;
+    marks.push(d.measurement_seq);
+    applied.push({ seq: d.measurement_seq, offset_mm: d.offset_mm ?? 0 });
+  }
   redraw();
 }
 
-export function redraw() { drawTrend($("trend"), points, band(), marks); }
+// The measured diameter less the offsets in force when its surface was cut (an offset
+// applied after measurement s shows from s + the dead time on): what the process would have
+// done uncompensated, the tool's wear and the machine's growth as the gauge sees them.
+export function uncompensated(pts, offsets, dead) {
+  if (!offsets.length) return [];
+  let k = 0, inForce = 0;
+  return pts.map((p) => {
+    while (k < offsets.length && offsets[k].seq + dead < p.seq) inForce += offsets[k++].offset_mm;
+    return { seq: p.seq, d: p.d - inForce };
+  });
+}
+
+export function redraw() {
+  drawTrend($("trend"), points, band(), marks, uncompensated(points, applied, deadTime));
+}
 
 export function onMeasurement(m) {
   lastSeq = m.seq;
@@ -55,7 +76,11 @@ export function onMeasurement(m) {
 }
 
 export function onDecision(d) {
-  if (d.kind === "applied") { marks.push(d.measurement_seq ?? lastSeq); redraw(); }
+  if (d.kind !== "applied") return;
+  const seq = d.measurement_seq ?? lastSeq;
+  marks.push(seq);
+  applied.push({ seq, offset_mm: d.offset_mm ?? 0 });
+  redraw();
 }
 
 function pill(el, text, state) { el.textContent = text; el.className = "pill " + state; }

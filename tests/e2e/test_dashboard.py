@@ -7,6 +7,7 @@ Screenshots land in test-artifacts/screenshots/."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import time
 from pathlib import Path
@@ -80,10 +81,29 @@ def test_operator_view_is_live(service, browser) -> None:
     assert phone.evaluate("document.documentElement.scrollWidth") <= 391
 
 
+def test_the_trend_shows_the_uncompensated_process(service, browser) -> None:
+    """Measured less the offsets in force when the surface was cut: an offset applied after
+    measurement 2 shows from measurement 2 + the dead time on."""
+    page = open_page(browser, service.url + "/ui/#operator")
+    got = page.evaluate("""async () => {
+        const m = await import("./operator.js");
+        const pts = [1, 3, 4, 5, 9].map((seq) => ({ seq, d: 30.0 }));
+        return [m.uncompensated(pts, [], 2),
+                m.uncompensated(pts, [{ seq: 2, offset_mm: -0.01 }, { seq: 4, offset_mm: 0.004 }],
+                                2).map((p) => Math.round(p.d * 1e4) / 1e4)];
+    }""")
+    assert got == [[], [30.0, 30.0, 30.0, 30.01, 30.006]]
+
+
 def test_compensation_view_and_shadow_switch(service, browser) -> None:
     page = open_page(browser, service.url + "/ui/#compensation")
     expect(page.locator("#decisions tr").first).to_be_visible(timeout=15000)
     expect(page.locator("#comp-cumulative")).to_contain_text("µm")
+    # The CNC's side of the loop: its acknowledged total (read from the simulated PLC at
+    # start) and where the offset exchange stands.
+    expect(page.locator("#comp-cnc-total")).to_contain_text("µm", timeout=10000)
+    expect(page.locator("#comp-handshake")).to_have_text(
+        re.compile(r"no offset sent yet|settled: offset #\d+|offset #\d+ sent"))
     box = page.locator("#shadow")
     expect(box).not_to_be_checked()
     box.click()  # no key yet: refused, said, and the switch goes back
