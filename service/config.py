@@ -125,6 +125,30 @@ class ModbusSettings(_Section):
     reset from the register is refused and logged; a technician resets over the API. On, the
     CNC's program takes that authority: its reset moves the reference of the cumulative limit
     as a technician's does."""
+    acknowledge_command: bool = False
+    """Whether the CNC may acknowledge an out-of-tolerance alarm through the ``command``
+    register (3). Off, it is refused and logged (an alarm stops offsets until a person has
+    looked); a technician acknowledges over the API."""
+    allowed_clients: list[str] = ["127.0.0.0/8", "::1"]
+    """Addresses or networks that may connect (others are disconnected at once, counted and
+    logged): loopback by default; on an installation the CNC's address and whoever reads the
+    registers."""
+    writers: list[str] = ["127.0.0.1", "::1"]
+    """Those of ``allowed_clients`` that may write nominal, tolerances and commands (the
+    CNC's address on an installation); the others read, and their writes get exception 0x01
+    and change nothing."""
+    max_connections: int = Field(16, ge=1, le=1000)
+    """Clients connected at once; one more is disconnected."""
+
+    @field_validator("allowed_clients", "writers")
+    @classmethod
+    def _addresses(cls, v: list[str]) -> list[str]:
+        for item in v:
+            try:
+                ipaddress.ip_network(item, strict=False)
+            except ValueError:
+                raise ValueError(f"{item!r} is not an address or a network") from None
+        return v
 
 
 class ApiSettings(_Section):

@@ -4,19 +4,30 @@ The register bank is the source of truth: pymodbus checks framing, the unit id, 
 ranges and read-only registers; a ``SimDevice`` action copies the bank into the requested
 range before every read, and validates every write (whole entries only, values in range,
 known command codes) before it reaches the bank. Bad requests get Modbus exception replies:
-illegal function (coil access), illegal data address (unmapped, read-only, or half of a 32-bit
-pair), illegal data value (out of range), gateway target failed to respond (another unit id).
+illegal function (coil access, or a write from a client that may not write), illegal data
+address (unmapped, read-only, or half of a 32-bit pair), illegal data value (out of range, or a
+feature that would not hold together: nothing of the write is applied), gateway target failed
+to respond (another unit id).
+
+Who may connect and who may write is ``ModbusAccess``: a client from elsewhere is disconnected
+at once, one past the connection limit too, both counted and logged with its address; every
+accepted write is logged with its peer.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextvars
+import ipaddress
 import logging
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
 from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
 
@@ -30,6 +41,109 @@ from drivers.plc.registers import (
 )
 
 log = logging.getLogger("shaftgauge.modbus")
+# Refusals come as fast as a client sends: their own logger, rate-limited (RateLimited).
+refused_log = logging.getLogger("shaftgauge.modbus.refused")
+
+Network = ipaddress.IPv4Network | ipaddress.IPv6Network
+LOOPBACK = ("127.0.0.0/8", "::1")
+# The client whose request is being answered (set by its connection's handler, read by the
+# register action within the same task).
+_PEER: contextvars.ContextVar[str] = contextvars.ContextVar("modbus_peer", default="")
+
+
+def networks(spec: Iterable[str]) -> tuple[Network, ...]:
+    """Addresses or networks (``10.0.0.5``, ``10.0.0.0/24``, ``::1``); ValueError names a bad
+    one."""
+    out = []
+    for item in spec:
+        try:
+            out.append(ipaddress.ip_network(str(item).strip(), strict=False))
+        except ValueError:
+            raise ValueError(f"{item!r} is not an address or a network") from None
+    return tuple(out)
+
+
+def _within(host: str, nets: tuple[Network, ...]) -> bool:
+    try:
+        addr = ipaddress.ip_address(host.split("%", 1)[0])
+    except ValueError:
+        return False
+    if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
+        addr = addr.ipv4_mapped
+    return any(addr in n for n in nets)
+
+
+@dataclass(frozen=True)
+class ModbusAccess:
+    """Who may use the gauge's Modbus server.
+
+    Attributes
+    ----------
+    allowed : tuple of networks
+        Clients that may connect (others are disconnected at once).
+    writers : tuple of networks
+        Clients that may write (nominal, tolerances, command); others read, and their writes
+        are answered with exception 0x01 and change nothing.
+    max_connections : int
+        Connections at once; one more is disconnected.
+    """
+
+    allowed: tuple[Network, ...] = field(default_factory=lambda: networks(LOOPBACK))
+    writers: tuple[Network, ...] = field(default_factory=lambda: networks(("127.0.0.1",
+                                                                          "::1")))
+    max_connections: int = 16
+
+    @classmethod
+    def of(cls, allowed: Iterable[str], writers: Iterable[str],
+           max_connections: int = 16) -> ModbusAccess:
+        """From addresses and networks as written in the settings."""
+        return cls(networks(allowed), networks(writers), max_connections)
+
+    def may_connect(self, host: str) -> bool:
+        """Whether a client at ``host`` may connect."""
+        return _within(host, self.allowed)
+
+    def may_write(self, host: str) -> bool:
+        """Whether a client at ``host`` may write."""
+        return _within(host, self.allowed) and _within(host, self.writers)
+
+
+class RateLimited(logging.Filter):
+    """A logger's lines cut to ``max_chars`` and at most ``per_minute`` a minute, the rest
+    counted and said with the next line let through: pymodbus logs a frame it cannot decode
+    as a hex dump, a line per frame (30 MB of garbage made 10 MB of log), and a client
+    refused again and again would fill the log as fast."""
+
+    def __init__(self, max_chars: int = 200, per_minute: int = 20) -> None:
+        super().__init__()
+        self.max_chars, self.per_minute = max_chars, per_minute
+        self._minute, self._count, self.suppressed = 0, 0, 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        minute = int(time.monotonic() // 60)
+        if minute != self._minute:
+            self._minute, self._count = minute, 0
+        self._count += 1
+        if self._count > self.per_minute:
+            self.suppressed += 1
+            return False
+        text = record.getMessage()
+        if len(text) > self.max_chars:
+            text = text[:self.max_chars] + f"... ({len(text)} characters)"
+        if self.suppressed:
+            text += f" [{self.suppressed} more pymodbus lines left out]"
+            self.suppressed = 0
+        record.msg, record.args = text, None
+        return True
+
+
+def quiet_logs() -> None:
+    """Keep pymodbus's frame dumps and a flood of refusals out of the log (once per
+    process; pymodbus logs through ``pymodbus.logging``)."""
+    for name in ("pymodbus.logging", refused_log.name):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, RateLimited) for f in logger.filters):
+            logger.addFilter(RateLimited())
 
 _READ_FCS = {3, 4}
 _WRITE_FCS = {6, 16}
@@ -88,6 +202,34 @@ def _value_problem(name: str, value: int) -> str:
     return ""
 
 
+class _Handler(ServerRequestHandler):
+    """One client's connection: refused at once when its address may not connect or the
+    connections are full; its address set for the requests it sends."""
+
+    def callback_connected(self) -> None:
+        super().callback_connected()
+        owner: _TcpServer = self.server
+        peer = self.transport.get_extra_info("peername") if self.transport else None
+        self.peer = str(peer[0]) if peer else ""
+        gauge = owner.gauge
+        if not gauge.access.may_connect(self.peer):
+            gauge.refuse(self, f"{self.peer} may not connect (not in modbus.allowed_clients)")
+        elif len(owner.active_connections) > gauge.access.max_connections:  # this one in
+            gauge.refuse(self, f"{self.peer}: {gauge.access.max_connections} connections "
+                         "already (modbus.max_connections)")
+
+    async def handle_request(self) -> None:
+        _PEER.set(getattr(self, "peer", ""))
+        await super().handle_request()
+
+
+class _TcpServer(ModbusTcpServer):
+    gauge: GaugeModbusServer
+
+    def callback_new_connection(self) -> _Handler:
+        return _Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+
 class GaugeModbusServer:
     """Serves a ``RegisterBank`` over Modbus TCP.
 
@@ -100,17 +242,30 @@ class GaugeModbusServer:
     unit_id : int
         The unit (slave) id it answers to.
     on_write : callable, optional
-        Called as ``on_write(name, value)`` for every accepted write of a writable register
-        (nominal, tolerances, command), after the bank holds it.
+        Called as ``on_write(entries, peer)`` for every accepted write of writable registers
+        (nominal, tolerances, command), after the bank holds it: the write's (name, value)
+        pairs, whole, and the client's address.
+    check : callable, optional
+        ``check(entries)`` says why a write that is well-formed register by register cannot
+        be taken as a whole ("" when it can): the feature it would make does not hold
+        together. Such a write gets exception 0x03 and changes nothing.
+    access : ModbusAccess, optional
+        Who may connect and write (loopback by default).
     """
 
     def __init__(self, bank: RegisterBank, host: str = "127.0.0.1", port: int = 5020,
                  unit_id: int = 1,
-                 on_write: Callable[[str, int], None] | None = None) -> None:
+                 on_write: Callable[[list[tuple[str, int]], str], None] | None = None,
+                 check: Callable[[list[tuple[str, int]]], str] | None = None,
+                 access: ModbusAccess | None = None) -> None:
         self.bank, self.host, self.port, self.unit_id = bank, host, port, unit_id
-        self.on_write = on_write
+        self.on_write, self.check = on_write, check
+        self.access = access or ModbusAccess()
         self.requests = 0
         self.exceptions = 0
+        self.refused_connections = 0
+        self.refused_writes = 0
+        self.last_refused = ""
         self._server: ModbusTcpServer | None = None
 
     def _device(self) -> SimDevice:
@@ -132,24 +287,52 @@ class GaugeModbusServer:
         if fc not in _WRITE_FCS:
             self.exceptions += 1
             return ExcCodes.ILLEGAL_FUNCTION
+        peer = _PEER.get()
+        if not self.access.may_write(peer):
+            self.exceptions += 1
+            self.refused_writes += 1
+            self.last_refused = f"a write from {peer or 'an unknown peer'} (not in " \
+                "modbus.writers)"
+            refused_log.warning("modbus write to %d refused: %s may not write (not in "
+                                "modbus.writers)", address, peer or "an unknown peer")
+            return ExcCodes.ILLEGAL_FUNCTION
         entries, reason = check_write(address, [int(v) for v in values], self.bank.order)
+        named = [(reg.name, value) for reg, value in entries]
+        if not reason and self.check is not None:
+            problem = self.check(named)
+            reason = f"value: {problem}" if problem else ""
         if reason:
             self.exceptions += 1
-            log.info("modbus write refused: %s", reason)
+            refused_log.warning("modbus write from %s refused: %s", peer, reason)
             return ExcCodes.ILLEGAL_ADDRESS if reason.startswith("address") \
                 else ExcCodes.ILLEGAL_VALUE
         self.bank.write_words(address, [int(v) for v in values])
-        for reg, value in entries:
-            if self.on_write:
-                try:
-                    self.on_write(reg.name, value)
-                except Exception:  # a consumer's fault must not take the server down
-                    log.exception("on_write(%s) failed", reg.name)
+        log.info("modbus write from %s: %s", peer,
+                 ", ".join(f"{name} = {value}" for name, value in named))
+        if self.on_write:
+            try:
+                self.on_write(named, peer)
+            except Exception:  # a consumer's fault must not take the server down
+                log.exception("on_write(%s) failed", named)
         return None
+
+    @property
+    def connections(self) -> int:
+        """Clients connected now."""
+        return len(self._server.active_connections) if self._server is not None else 0
+
+    def refuse(self, handler: ServerRequestHandler, why: str) -> None:
+        """Disconnect a client at once, counted and logged."""
+        self.refused_connections += 1
+        self.last_refused = why
+        refused_log.warning("modbus connection refused: %s", why)
+        handler.close()
 
     async def start(self) -> int:
         """Listen in the background on the running event loop; return the bound port."""
-        server = ModbusTcpServer(self._device(), address=(self.host, self.port))
+        quiet_logs()
+        server = _TcpServer(self._device(), address=(self.host, self.port))
+        server.gauge = self
         server.context = _OneUnit(self._device())
         await server.serve_forever(background=True)
         self._server = server

@@ -77,6 +77,11 @@ class StatusCollector(Collector):
         yield from counter("camera_reconnects", "Camera reconnections", cam["reconnects"])
         yield from counter("modbus_requests", "Modbus requests served",
                            st["modbus"]["requests"])
+        yield from counter("modbus_refused_connections",
+                           "Modbus clients disconnected (not allowed, or too many)",
+                           st["modbus"]["refused_connections"])
+        yield from counter("modbus_refused_writes", "Modbus writes from clients that may not "
+                           "write", st["modbus"]["refused_writes"])
         mqtt = st["plant"].get("mqtt")
         if mqtt is not None:
             yield from gauge("mqtt_connected", "1 while the MQTT broker is connected",

@@ -8,7 +8,7 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from drivers.plc.registers import (
     Command,
@@ -18,7 +18,7 @@ from drivers.plc.registers import (
     mm_to_units,
     units_to_mm,
 )
-from drivers.plc.server import GaugeModbusServer, run_heartbeat
+from drivers.plc.server import GaugeModbusServer, ModbusAccess, run_heartbeat
 from service.compensation import CompensationSettings, Decision, State
 from service.config import ModbusSettings
 from service.runtime.compensating import CompensationService
@@ -27,6 +27,7 @@ from service.runtime.record import MeasurementRecord
 log = logging.getLogger("shaftgauge.modbus")
 
 REFRESH_S = 0.2
+_FEATURE = {"nominal": "nominal_mm", "tol_upper": "tol_upper_mm", "tol_lower": "tol_lower_mm"}
 
 
 @dataclass(frozen=True)
@@ -119,8 +120,10 @@ class ModbusFacade:
         self.compensation = compensation
         self.trigger = trigger
         self.bank = bank if bank is not None else RegisterBank(settings.word_order)
-        self.server = GaugeModbusServer(self.bank, settings.host, settings.port,
-                                        settings.unit_id, on_write=self._on_write)
+        self.server = GaugeModbusServer(
+            self.bank, settings.host, settings.port, settings.unit_id, on_write=self._on_write,
+            check=self._check_feature, access=ModbusAccess.of(
+                settings.allowed_clients, settings.writers, settings.max_connections))
         self._tasks: set[asyncio.Task] = set()
         compensation.on_decision(self.decided)
         compensation.on_settings(self.set_feature)
@@ -187,25 +190,43 @@ class ModbusFacade:
 
     # ---- what the CNC writes -----------------------------------------------------------
 
-    def _on_write(self, name: str, value: int) -> None:
-        """A CNC wrote a register (called inside the Modbus server, on the event loop)."""
-        if name == "command":
-            self._spawn(self.run_command(Command(value), source="modbus"))
-        elif name in ("nominal", "tol_upper", "tol_lower"):
-            self._spawn(self._feature_from_cnc(name, value))
+    def _feature_changes(self, entries: list[tuple[str, int]]) -> dict[str, float | None]:
+        return {_FEATURE[name]: units_to_mm(value) for name, value in entries
+                if name in _FEATURE}
+
+    def _check_feature(self, entries: list[tuple[str, int]]) -> str:
+        """Why the feature a write would make does not hold together ("" when it does): a
+        write is taken whole or not at all."""
+        changes = self._feature_changes(entries)
+        if not changes:
+            return ""
+        try:
+            problems = replace(self.compensation.settings, **changes).problems()
+        except (TypeError, ValueError) as err:
+            return str(err)
+        return "; ".join(problems)
+
+    def _on_write(self, entries: list[tuple[str, int]], peer: str) -> None:
+        """A CNC wrote registers, the whole write at once (called inside the Modbus server, on
+        the event loop)."""
+        who = f"modbus:{peer}" if peer else "modbus"
+        changes = self._feature_changes(entries)
+        if changes:
+            self._spawn(self._feature_from_cnc(changes, who))
+        for name, value in entries:
+            if name == "command":
+                self._spawn(self.run_command(Command(value), source="modbus", who=who))
 
     def _spawn(self, coro: Awaitable[object]) -> None:
         task = asyncio.get_running_loop().create_task(coro)  # type: ignore[arg-type]
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
-    async def _feature_from_cnc(self, name: str, value: int) -> None:
-        key = {"nominal": "nominal_mm", "tol_upper": "tol_upper_mm",
-               "tol_lower": "tol_lower_mm"}[name]
+    async def _feature_from_cnc(self, changes: dict[str, float | None], who: str) -> None:
         try:
-            await self.compensation.update_feature("modbus", **{key: units_to_mm(value)})
-        except ValueError as err:  # consistent only once all three are written
-            log.info("feature from the CNC not taken yet: %s", err)
+            await self.compensation.update_feature(who, **changes)
+        except ValueError as err:  # checked before the write was taken: changed meanwhile
+            log.warning("feature from %s not taken: %s", who, err)
 
     async def run_command(self, command: Command, source: str,
                           who: str | None = None) -> Decision | None:
@@ -216,11 +237,16 @@ class ModbusFacade:
         if command is Command.RESET_COMPENSATION:
             decision = await self.compensation.reset(source, who)
         elif command is Command.ACKNOWLEDGE_ALARM:
-            decision = await self.compensation.acknowledge(who)
+            if source == "modbus" and not self.settings.acknowledge_command:
+                log.warning("alarm acknowledgement from %s refused: acknowledgements from the "
+                            "CNC's command register are off (modbus.acknowledge_command); a "
+                            "technician acknowledges over the API", who)
+            else:
+                decision = await self.compensation.acknowledge(who)
         elif command is Command.MEASURE_NOW:
             with contextlib.suppress(Exception):  # a free-running camera measures anyway
                 self.trigger()
         seq = (self.bank.get("command_seq") + 1) & 0xFFFF
         self.bank.set_many({"command": 0, "last_command": int(command), "command_seq": seq})
-        log.info("command %s from %s", command.name.lower(), source)
+        log.info("command %s from %s", command.name.lower(), who)
         return decision

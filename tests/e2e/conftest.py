@@ -61,7 +61,7 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   plc_port: int | None = None, data: Path | None = None,
                   env: dict[str, str] | None = None, nominal: float | None = 30.0,
                   opcua_port: int | None = None, embedded: bool = False,
-                  processes: bool = False, camera_toml: str = "",
+                  processes: bool = False, camera_toml: str = "", modbus_toml: str = "",
                   compensation_toml: str | None = None) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
@@ -71,7 +71,7 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     server (``camera.sim_feature``), no nominal of the test's; ``processes``: measured in
     worker processes as an installation does (a spawned worker costs about 3 s of CPU at
     start, and the suites start the service dozens of times: threads unless asked);
-    ``camera_toml`` more lines of the ``[camera]`` table, ``compensation_toml`` the whole
+    ``camera_toml`` and ``modbus_toml`` more lines of those tables, ``compensation_toml`` the whole
     ``[compensation]`` table in place of the tests' own."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
@@ -92,6 +92,7 @@ port = {plc}
 sim_ack_delay_s = 0.05
 [modbus]
 port = {modbus}
+{modbus_toml}
 [api]
 port = {api}
 keys = {{ "{TECH_KEY}" = "technician", "{ADMIN_KEY}" = "admin" }}

@@ -265,7 +265,7 @@ def test_resets_from_the_cnc_register(tmp_path, sim_plc_factory, allowed: bool) 
               "the reset recorded")
         row = next(r for r in log_items(svc.url) if r["code"] == code)
         after = httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()
-        assert row["who"] == "modbus"
+        assert row["who"] == "modbus:127.0.0.1"  # the audit names the peer
         if allowed:
             assert after["cumulative_offset_mm"] == 0.0
             until(lambda: httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()[

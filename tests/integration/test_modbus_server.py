@@ -24,7 +24,7 @@ from drivers.plc.server import GaugeModbusServer, run_heartbeat
 async def served():
     bank = RegisterBank()
     writes: list = []
-    server = GaugeModbusServer(bank, port=0, on_write=lambda n, v: writes.append((n, v)))
+    server = GaugeModbusServer(bank, port=0, on_write=lambda entries, _peer: writes.extend(entries))
     await server.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=server.port, retries=0)
     await client.connect()
