@@ -13,6 +13,9 @@ The model, in the *lathe frame* (spindle axis = X, through the origin):
   light on the shaft body; ray casting per pixel (the first hit on the cylinder);
 - laser speckle (a multiplicative, spatially correlated field of given contrast and grain that
   changes from frame to frame as the shaft turns), optical blur, shot and read noise;
+- optionally a turned surface that is not concentric with the spindle or not round
+  (``Turning``: eccentricity and its phase, lobes), carried round by the spindle: a frame is
+  rendered at a spindle angle;
 - optionally the shop floor's disturbances (``drivers.sim.disturb``: glints, a ghost stripe,
   coolant droplets, stray light, over-exposure, feed marks), drawn from their own generator so
   that a disturbed frame has the same speckle and noise as its clean twin.
@@ -42,6 +45,48 @@ def _rotation(rx_deg: float, ry_deg: float, rz_deg: float) -> np.ndarray:
     my = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     mz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
     return mz @ my @ mx
+
+
+@dataclass(frozen=True)
+class Turning:
+    """The surface under the laser as the spindle carries it round.
+
+    Angles count right-handed about the spindle axis (the calibration's ``axis.direction``,
+    the lathe's +X) from the lathe's +Y toward +Z; at spindle angle ``theta`` the material has
+    turned by ``theta`` that way.
+
+    Attributes
+    ----------
+    eccentricity_mm : float
+        How far the surface's own axis lies from the spindle's (raw stock, a second clamping):
+        the dial indicator's TIR is twice it.
+    eccentricity_deg : float
+        The direction of that offset at spindle angle 0.
+    lobes : tuple of (int, float, float)
+        The radius's harmonics over the material's angle: (order, amplitude_mm, phase_deg),
+        ``r(beta) = R + sum a cos(k beta - phase)``.
+    """
+
+    eccentricity_mm: float = 0.0
+    eccentricity_deg: float = 0.0
+    lobes: tuple[tuple[int, float, float], ...] = ()
+
+    def __bool__(self) -> bool:
+        return bool(self.eccentricity_mm) or any(a for _, a, _ in self.lobes)
+
+    def center_offset_mm(self, spindle_deg: float) -> tuple[float, float]:
+        """The surface's centre off the spindle axis at a spindle angle, (Y, Z) mm."""
+        a = math.radians(self.eccentricity_deg + spindle_deg)
+        return self.eccentricity_mm * math.cos(a), self.eccentricity_mm * math.sin(a)
+
+    def radius_shift_mm(self, section_rad: np.ndarray, spindle_deg: float) -> np.ndarray:
+        """The radius less the mean radius at section angles (about the surface's centre,
+        rad) at a spindle angle, mm."""
+        beta = section_rad - math.radians(spindle_deg)  # the material's angle
+        out = np.zeros_like(section_rad)
+        for order, amplitude, phase in self.lobes:
+            out += amplitude * np.cos(order * beta - math.radians(phase))
+        return out
 
 
 @dataclass(frozen=True)
@@ -75,6 +120,9 @@ class RigConfig:
     spindle axis: zero for a part turned on this lathe."""
     disturbances: Disturbances = field(default_factory=Disturbances)
     """The shop floor's disturbances (none by default)."""
+    turning: Turning = field(default_factory=Turning)
+    """A surface not concentric with the spindle or not round (none by default: a surface
+    turned on this lathe)."""
 
     @property
     def focal_px(self) -> float:
@@ -197,22 +245,27 @@ class ShaftRenderer:
         return _ray_grid(tuple(cfg.image_size), tuple(cfg.camera_matrix().ravel()),
                          tuple(cfg.dist_coeffs), step)
 
-    def _hit(self, rays_xy: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray,
-                                                                  np.ndarray]:
-        """First intersection of camera rays with the shaft: (hit mask, points, normals)."""
-        p = self._pose
-        off = np.array([0.0, *self.config.axis_offset_mm])
-        a = p.axis_direction
-        a0 = p.R @ (off - p.C)  # a point on the shaft's axis, camera frame
-        return first_hit_on_cylinder(rays_xy, a0, a, radius)
+    def _axis_point(self, spindle_deg: float = 0.0) -> np.ndarray:
+        """A point on the surface's own axis at a spindle angle, camera frame, mm."""
+        cfg, p = self.config, self._pose
+        dy, dz = cfg.turning.center_offset_mm(spindle_deg)
+        off = np.array([0.0, cfg.axis_offset_mm[0] + dy, cfg.axis_offset_mm[1] + dz])
+        return p.R @ (off - p.C)
 
-    def _stripe_roi(self, radius: float) -> tuple[int, int, int, int]:
+    def _hit(self, rays_xy: np.ndarray, radius: float, spindle_deg: float = 0.0
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First intersection of camera rays with the shaft: (hit mask, points, normals)."""
+        return first_hit_on_cylinder(rays_xy, self._axis_point(spindle_deg),
+                                     self._pose.axis_direction, radius)
+
+    def _stripe_roi(self, radius: float, spindle_deg: float = 0.0
+                    ) -> tuple[int, int, int, int]:
         """Pixel bounding box (x0, y0, x1, y1) of the lit section, with a margin."""
         p = self._pose
         cfg = self.config
         t = np.linspace(0, 2 * math.pi, 721)
         e1, e2 = orthonormal_basis(p.axis_direction)
-        a0 = p.R @ (np.array([0.0, *cfg.axis_offset_mm]) - p.C)
+        a0 = self._axis_point(spindle_deg)
         ring = a0 + radius * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
         # Slide each ring point along the axis onto the light plane.
         k = (p.plane_d - ring @ p.plane_normal) / (p.axis_direction @ p.plane_normal)
@@ -221,7 +274,8 @@ class ShaftRenderer:
         img, _ = cv2.projectPoints(on_plane, np.zeros(3), np.zeros(3), cfg.camera_matrix(),
                                    np.array(cfg.dist_coeffs))
         img = img.reshape(-1, 2)
-        margin = 4.0 * cfg.sheet_sigma_mm * cfg.focal_px / cfg.standoff_mm + 12
+        lobes = sum(abs(a) for _, a, _ in cfg.turning.lobes)
+        margin = (4.0 * cfg.sheet_sigma_mm + 2.0 * lobes) * cfg.focal_px / cfg.standoff_mm + 12
         w, h = cfg.image_size
         x0 = int(max(0, math.floor(img[:, 0].min() - margin)))
         x1 = int(min(w, math.ceil(img[:, 0].max() + margin)))
@@ -229,26 +283,35 @@ class ShaftRenderer:
         y1 = int(min(h, math.ceil(img[:, 1].max() + margin)))
         return x0, y0, max(x0, x1), max(y0, y1)
 
-    def _stripe_radiance(self, diameter_mm: float, phase: float = 0.0
+    def _stripe_radiance(self, diameter_mm: float, phase: float = 0.0,
+                         spindle_deg: float = 0.0
                          ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-        """Noise-free stripe radiance in DN over its ROI (cached per diameter and feed-mark
-        phase, rad)."""
-        key = (round(float(diameter_mm), 9), round(phase, 6))
+        """Noise-free stripe radiance in DN over its ROI (cached per diameter, feed-mark
+        phase, rad, and spindle angle)."""
+        cfg, p = self.config, self._pose
+        if not cfg.turning:
+            spindle_deg = 0.0
+        key = (round(float(diameter_mm), 9), round(phase, 6), round(spindle_deg % 360.0, 6))
         if key in self._base_cache:
             return self._base_cache[key]
-        cfg, p = self.config, self._pose
         radius = diameter_mm / 2.0
-        x0, y0, x1, y1 = self._stripe_roi(radius)
+        x0, y0, x1, y1 = self._stripe_roi(radius, spindle_deg)
         rays = self._rays(1)[y0:y1, x0:x1]
-        hit, pts, nrm = self._hit(rays, radius)
+        hit, pts, nrm = self._hit(rays, radius, spindle_deg)
         marks = cfg.disturbances.feed_marks
+        a0 = self._axis_point(spindle_deg)
+        dr = np.zeros(pts.shape[:-1])
         if marks.amplitude_um:
+            dr = dr + feed_mark_shift_mm((pts - a0) @ p.axis_direction, marks, phase)
+        if cfg.turning.lobes:
+            rel = pts - a0
+            ey, ez = p.R @ np.array([0.0, 1.0, 0.0]), p.R @ np.array([0.0, 0.0, 1.0])
+            dr = dr + cfg.turning.radius_shift_mm(np.arctan2(rel @ ez, rel @ ey), spindle_deg)
+        if marks.amplitude_um or cfg.turning.lobes:
             # The surface lies dr further out: a ray meets it dr / cos(view angle) earlier.
-            a0 = p.R @ (np.array([0.0, *cfg.axis_offset_mm]) - p.C)
-            dr = feed_mark_shift_mm((pts - a0) @ p.axis_direction, marks, phase)
             ray = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
             cos_view = np.maximum(-np.sum(nrm * ray, axis=-1), 0.05)
-            pts = pts - ray * (dr / cos_view)[..., None]
+            pts = pts - ray * (np.nan_to_num(dr) / cos_view)[..., None]
         dist = pts @ p.plane_normal - p.plane_d
         to_src = p.laser_source - pts
         to_src /= np.linalg.norm(to_src, axis=-1, keepdims=True)
@@ -275,15 +338,18 @@ class ShaftRenderer:
             self._ambient_cache[key] = full + np.float32(cfg.background_dn)
         return self._ambient_cache[key]
 
-    def render(self, diameter_mm: float, frame_index: int = 0) -> np.ndarray:
+    def render(self, diameter_mm: float, frame_index: int = 0,
+               spindle_deg: float = 0.0) -> np.ndarray:
         """One 8-bit stripe image of a shaft of ``diameter_mm``.
 
         Parameters
         ----------
         diameter_mm : float
-            Shaft diameter, mm.
+            Shaft diameter, mm (twice the mean radius).
         frame_index : int
             Frame number; speckle and noise change with it (the shaft turns).
+        spindle_deg : float
+            The spindle's angle (``Turning``): where an eccentric or lobed surface stands.
 
         Returns
         -------
@@ -294,7 +360,7 @@ class ShaftRenderer:
         rng = np.random.default_rng([self.seed, int(frame_index)])
         # The feed marks' helix turns with the shaft: one of 8 phases per frame.
         phase = 2 * math.pi * (int(frame_index) % 8) / 8 if spec.feed_marks.amplitude_um else 0.0
-        rad, (x0, y0, x1, y1) = self._stripe_radiance(diameter_mm, phase)
+        rad, (x0, y0, x1, y1) = self._stripe_radiance(diameter_mm, phase, spindle_deg)
         rng_shop = np.random.default_rng([self.seed, int(frame_index), 1])
         img = self._ambient(diameter_mm).copy()
         if rad.size:

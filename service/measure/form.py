@@ -1,0 +1,409 @@
+"""Form and position of the turning surface from many frames: run-out (the surface's centre
+going round the spindle axis) and roundness (its radius over the material's angle).
+
+Conventions. Section coordinates are the measurement's (``section.orthonormal_basis`` of the
+calibration's ``axis.direction``: ``e1 x e2`` along the axis). Spindle angles count
+right-handed about ``axis.direction``: at a larger angle the material has turned further that
+way, so a point fixed in the material at angle ``beta`` (from ``e1`` toward ``e2``) stands at
+``beta + theta`` at spindle angle ``theta``. A surface whose own axis lies ``e`` off the
+spindle's, in the material's direction ``phi``, has its centre at
+
+    c(theta) = axis + e (cos(phi + theta), sin(phi + theta))
+
+and the dial indicator's total indicated run-out is ``2 e``. Its radius at the material's
+angle ``beta`` is ``R + sum_k a_k cos(k beta - phase_k)`` (harmonic ``k``: ``k`` lobes).
+
+Everything here is pure numerics: centres, covariances, points and angles in; figures with
+their uncertainties out. Failures are values (``ok`` False, ``reason``), never exceptions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def rotation(theta_rad: float) -> np.ndarray:
+    """The 2x2 rotation by ``theta_rad`` (from ``e1`` toward ``e2``)."""
+    c, s = math.cos(theta_rad), math.sin(theta_rad)
+    return np.array([[c, -s], [s, c]])
+
+
+@dataclass(frozen=True)
+class Runout:
+    """The surface's position relative to the spindle axis.
+
+    Attributes
+    ----------
+    ok : bool
+        Whether the fit was possible.
+    eccentricity_mm, eccentricity_deg : float
+        How far the surface's axis lies off the spindle's and in which material direction.
+    tir_mm : float
+        Total indicated run-out, ``2 e``.
+    eccentricity_uncertainty_mm, eccentricity_deg_uncertainty, tir_uncertainty_mm : float
+        Standard uncertainties.
+    axis_shift_mm : tuple of float
+        Where the frames say the spindle axis lies relative to the axis given (the calibrated
+        or tracked one), section mm; with ``axis_shift_cov``.
+    chi2_per_dof : float
+        How well the model explains the centres (about 1 when their covariances are right).
+    frames : int
+        Frames used.
+    reason : str
+        Why not, when ``ok`` is False.
+    """
+
+    ok: bool
+    eccentricity_mm: float = math.nan
+    eccentricity_deg: float = math.nan
+    tir_mm: float = math.nan
+    eccentricity_uncertainty_mm: float = math.nan
+    eccentricity_deg_uncertainty: float = math.nan
+    tir_uncertainty_mm: float = math.nan
+    axis_shift_mm: tuple[float, float] = (math.nan, math.nan)
+    axis_shift_cov: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    chi2_per_dof: float = math.nan
+    frames: int = 0
+    reason: str = ""
+
+    def center_at(self, axis: np.ndarray, spindle_deg: float) -> np.ndarray:
+        """The surface's centre at a spindle angle (section mm), given the spindle axis."""
+        phi = math.radians(self.eccentricity_deg + spindle_deg)
+        return np.asarray(axis, np.float64) + np.asarray(self.axis_shift_mm) + \
+            self.eccentricity_mm * np.array([math.cos(phi), math.sin(phi)])
+
+
+def fit_runout(centres_mm: np.ndarray, covs_mm2: np.ndarray, spindle_deg: np.ndarray,
+               axis_mm: np.ndarray, fit_axis: bool = True, min_span_deg: float = 180.0
+               ) -> Runout:
+    """The surface's eccentricity (and the spindle axis) from free-fit centres at known
+    spindle angles, by weighted least squares.
+
+    Parameters
+    ----------
+    centres_mm : ndarray, shape (N, 2)
+        Each frame's free-fit centre, section mm.
+    covs_mm2 : ndarray, shape (N, 2, 2)
+        Their covariances: large along each arc's bisector, where centre and radius trade
+        off; the weights use all of it.
+    spindle_deg : ndarray, shape (N,)
+        Each frame's spindle angle.
+    axis_mm : ndarray, shape (2,)
+        The spindle axis as calibrated (or tracked), section mm.
+    fit_axis : bool
+        Also estimate where the spindle axis lies (needs angles that go round: a fixed
+        offset and a rotating one are otherwise the same thing); False keeps ``axis_mm``.
+    min_span_deg : float
+        With ``fit_axis``, the angles must cover at least this much of a revolution.
+
+    Returns
+    -------
+    Runout
+    """
+    c = np.asarray(centres_mm, np.float64).reshape(-1, 2)
+    cov = np.asarray(covs_mm2, np.float64).reshape(-1, 2, 2)
+    th = np.radians(np.asarray(spindle_deg, np.float64).ravel())
+    n = len(c)
+    if n < (3 if fit_axis else 2) or len(cov) != n or len(th) != n:
+        return Runout(False, frames=n, reason=f"{n} frames with a free fit, need "
+                      f"{3 if fit_axis else 2} (and a covariance and an angle each)")
+    if fit_axis and _span_deg(th) < min_span_deg:
+        return Runout(False, frames=n, reason=f"the spindle angles cover {_span_deg(th):.0f}"
+                      f" degrees, need {min_span_deg:.0f} to tell run-out from the axis")
+    try:
+        weights = np.linalg.inv(cov)
+    except np.linalg.LinAlgError:
+        return Runout(False, frames=n, reason="a frame's centre covariance is singular")
+    k = 4 if fit_axis else 2
+    normal = np.zeros((k, k))
+    rhs = np.zeros(k)
+    d = c - np.asarray(axis_mm, np.float64)
+    design = []
+    for i in range(n):
+        a = rotation(th[i])
+        row = np.hstack([a, np.eye(2)]) if fit_axis else a
+        design.append(row)
+        normal += row.T @ weights[i] @ row
+        rhs += row.T @ weights[i] @ d[i]
+    try:
+        p_cov = np.linalg.inv(normal)
+    except np.linalg.LinAlgError:
+        return Runout(False, frames=n, reason="the frames do not determine the run-out "
+                      "(their angles and arcs leave it open)")
+    p = p_cov @ rhs
+    chi2 = float(sum((d[i] - design[i] @ p) @ weights[i] @ (d[i] - design[i] @ p)
+                     for i in range(n)))
+    dof = max(2 * n - k, 1)
+    ex, ey = p[0], p[1]
+    e = math.hypot(ex, ey)
+    e_cov = p_cov[:2, :2]
+    if e > 0:
+        u = np.array([ex, ey]) / e
+        v = np.array([-ey, ex]) / e
+        e_std = math.sqrt(max(float(u @ e_cov @ u), 0.0))
+        phase_std = math.degrees(math.sqrt(max(float(v @ e_cov @ v), 0.0)) / e)
+    else:
+        e_std = math.sqrt(max(float(np.trace(e_cov)) / 2.0, 0.0))
+        phase_std = 180.0
+    shift = (float(p[2]), float(p[3])) if fit_axis else (0.0, 0.0)
+    shift_cov = (float(p_cov[2, 2]), float(p_cov[2, 3]), float(p_cov[3, 3])) if fit_axis \
+        else (0.0, 0.0, 0.0)
+    return Runout(True, e, math.degrees(math.atan2(ey, ex)) % 360.0, 2.0 * e, e_std,
+                  min(phase_std, 180.0), 2.0 * e_std, shift, shift_cov, chi2 / dof, n)
+
+
+def _span_deg(theta_rad: np.ndarray) -> float:
+    """How much of a revolution the angles cover: 360 less the largest gap between them."""
+    a = np.sort(np.mod(np.degrees(theta_rad), 360.0))
+    if len(a) < 2:
+        return 0.0
+    gaps = np.diff(np.concatenate([a, [a[0] + 360.0]]))
+    return float(360.0 - gaps.max())
+
+
+@dataclass(frozen=True)
+class Harmonic:
+    """One harmonic of the radius over the material's angle."""
+
+    order: int
+    amplitude_mm: float
+    phase_deg: float
+    amplitude_uncertainty_mm: float
+
+
+@dataclass(frozen=True)
+class Roundness:
+    """The surface's form over a revolution.
+
+    Attributes
+    ----------
+    ok : bool
+        Whether the material's angles were covered well enough.
+    radius_mm : float
+        The least-squares reference circle's radius.
+    ront_mm : float
+        Peak-to-valley of the filtered profile about the reference circle (ISO 12181 RONt).
+    ront_uncertainty_mm : float
+        Its standard uncertainty (the noise left in the filtered profile).
+    harmonics : list of Harmonic
+        Orders 2 .. ``max_order`` (1 is the centre, 0 the radius).
+    profile_deg, profile_mm : ndarray
+        The filtered profile: the radius less the reference circle's at each material angle.
+    dominant_order : int
+        The order with the largest amplitude (0 when none stands above its noise).
+    reason : str
+        Why not, when ``ok`` is False.
+    """
+
+    ok: bool
+    radius_mm: float = math.nan
+    ront_mm: float = math.nan
+    ront_uncertainty_mm: float = math.nan
+    harmonics: list[Harmonic] = field(default_factory=list)
+    profile_deg: np.ndarray = field(default_factory=lambda: np.empty(0), repr=False)
+    profile_mm: np.ndarray = field(default_factory=lambda: np.empty(0), repr=False)
+    dominant_order: int = 0
+    reason: str = ""
+
+    @property
+    def odd_lobing(self) -> bool:
+        """A dominant odd lobing (3, 5, 7 lobes): what a two-point measurement, and so a laser
+        micrometer's peak-to-peak, cannot see."""
+        return self.dominant_order % 2 == 1 and self.dominant_order >= 3
+
+
+def roundness(material_deg: np.ndarray, radius_mm: np.ndarray, noise_mm: float | None = None,
+              upr: int = 50, max_order: int = 15, bins: int = 360,
+              min_coverage: float = 0.8) -> Roundness:
+    """The radius as a function of the material's angle, assembled from many frames' points
+    (each point's distance from the surface's centre at its frame, at its material angle),
+    its least-squares reference circle, a Gaussian filter of ``upr`` undulations per
+    revolution (ISO 12181's 50 % transmission at ``upr``), RONt and the harmonics.
+
+    Parameters
+    ----------
+    material_deg, radius_mm : ndarray, shape (M,)
+        Every point's material angle and radius.
+    noise_mm : float, optional
+        A point's radius noise (1 sigma); estimated from the points about the model when not
+        given.
+    upr : int
+        The filter's cut-off, undulations per revolution (15 or 50).
+    max_order : int
+        Highest harmonic reported.
+    bins : int
+        The profile's samples per revolution.
+    min_coverage : float
+        Share of the profile's bins that must hold points.
+    """
+    beta = np.radians(np.mod(np.asarray(material_deg, np.float64).ravel(), 360.0))
+    r = np.asarray(radius_mm, np.float64).ravel()
+    keep = np.isfinite(beta) & np.isfinite(r)
+    beta, r = beta[keep], r[keep]
+    order = max(1, min(int(max_order), int(upr)))
+    if len(r) < 2 * order + 1:
+        return Roundness(False, reason=f"{len(r)} points, need {2 * order + 1}")
+    idx = np.minimum((beta / (2 * math.pi) * bins).astype(int), bins - 1)
+    counts = np.bincount(idx, minlength=bins)
+    coverage = float(np.mean(counts > 0))
+    if coverage < min_coverage:
+        return Roundness(False, reason=f"the points cover {coverage:.0%} of the material's "
+                         f"angles, need {min_coverage:.0%}: more of a revolution")
+    # Least squares over the points: mean radius, the centre's offset (order 1: the
+    # reference circle's own centre) and the harmonics up to the filter's cut-off.
+    top = max(order, int(upr))
+    cols = [np.ones_like(beta)]
+    for k in range(1, top + 1):
+        cols += [np.cos(k * beta), np.sin(k * beta)]
+    a = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(a, r, rcond=None)
+    resid = r - a @ coef
+    dof = max(len(r) - a.shape[1], 1)
+    sigma = float(noise_mm) if noise_mm is not None else float(np.sqrt(resid @ resid / dof))
+    try:
+        coef_cov = sigma**2 * np.linalg.inv(a.T @ a)
+    except np.linalg.LinAlgError:
+        return Roundness(False, reason="the material's angles do not determine the form")
+    # ISO 16610-21's Gaussian filter for a closed profile: harmonic k passes with
+    # exp(-pi (alpha k / upr)^2), alpha = sqrt(ln 2 / pi) (50 % at upr).
+    alpha = math.sqrt(math.log(2.0) / math.pi)
+    grid = np.radians((np.arange(bins) + 0.5) * 360.0 / bins)
+    profile = np.zeros(bins)
+    var_profile = 0.0
+    harmonics = []
+    for k in range(2, top + 1):
+        c_, s_ = coef[2 * k - 1], coef[2 * k]
+        gain = math.exp(-math.pi * (alpha * k / upr) ** 2)
+        profile += gain * (c_ * np.cos(k * grid) + s_ * np.sin(k * grid))
+        cov2 = coef_cov[2 * k - 1:2 * k + 1, 2 * k - 1:2 * k + 1]
+        var_profile += gain**2 * float(np.trace(cov2)) / 2.0
+        if k <= max_order:
+            amp = math.hypot(c_, s_)
+            harmonics.append(Harmonic(k, amp, math.degrees(math.atan2(s_, c_)) % 360.0,
+                                      math.sqrt(max(float(np.trace(cov2)) / 2.0, 0.0))))
+    ront = float(profile.max() - profile.min())
+    # The noise left in the filtered profile widens its peak-to-valley by about 2 sigma each
+    # way at the extremes: taken as RONt's uncertainty.
+    ront_std = 2.0 * math.sqrt(var_profile)
+    significant = [h for h in harmonics if h.amplitude_mm > 3.0 * h.amplitude_uncertainty_mm]
+    dominant = max(significant, key=lambda h: h.amplitude_mm).order if significant else 0
+    return Roundness(True, float(coef[0]), ront, ront_std, harmonics,
+                     np.degrees(grid), profile, dominant)
+
+
+@dataclass(frozen=True)
+class Concentricity:
+    """Whether the frames' surface is concentric with the spindle axis, as far as the free
+    fits of the last frames tell without the spindle's angle.
+
+    Attributes
+    ----------
+    concentric : bool
+        False when the free fits' centres stand off the axis, or move about it, beyond what
+        their covariances allow.
+    spread : float
+        The frames' mean squared Mahalanobis distance of the free centre from the axis,
+        halved (about 1 for a concentric surface: each is chi-square with 2 degrees of
+        freedom).
+    offset_sigmas : float
+        The Mahalanobis distance of the frames' weighted mean centre from the axis: a surface
+        off the axis at a frame rate locked to the spindle shows the same angle every frame.
+    eccentricity_mm : float
+        The surface's centre's RMS distance from the axis beyond the fits' own scatter: the
+        eccentricity of a surface going round, or the offset of one seen at a locked angle.
+    frames : int
+        Free fits in the window.
+    reason : str
+        What it says, in words.
+    """
+
+    concentric: bool
+    spread: float = 0.0
+    offset_sigmas: float = 0.0
+    eccentricity_mm: float = 0.0
+    frames: int = 0
+    reason: str = ""
+
+
+@dataclass
+class ConcentricityWatch:
+    """The last ``window`` frames' free-fit centres against the (tracked) spindle axis.
+
+    The ``axis`` method's accuracy rests on the surface being concentric with the spindle
+    axis; raw stock, a second clamping or a bent part is not, and one frame cannot tell an
+    offset along its arc's bisector from a change of diameter. Over a window it can: under
+    concentricity each centre's squared Mahalanobis distance from the axis is chi-square with
+    2 degrees of freedom, their mean about 2 and the weighted mean centre within a few sigmas
+    of the axis. Either beyond its limit says the surface is not concentric: the weighted
+    mean's at 1e-4 chance for a concentric surface (4.3 sigma); the spread's at 2, where a
+    concentric surface in the simulator stays at 0.8-0.9 and 40 frames' chance would be 1e-8,
+    room for covariances that are not quite right. It catches an eccentricity of 10 um on a
+    turning surface and at a fixed angle; 5 um at a fixed angle along the arc's bisector it
+    cannot tell from a change of diameter (that needs the spindle's angle: ``fit_runout``).
+    Pure: centres in, a verdict out.
+    """
+
+    window: int = 40
+    min_frames: int = 10
+    spread_limit: float = 2.0
+    offset_limit: float = 4.3
+    _d: list[np.ndarray] = field(default_factory=list)
+    _w: list[np.ndarray] = field(default_factory=list)
+    _var: list[float] = field(default_factory=list)
+    _verdict: Concentricity | None = None
+
+    def update(self, offset_mm: np.ndarray, cov_mm2: np.ndarray) -> None:
+        """One frame's free-fit centre less the axis (section mm) and its covariance."""
+        d = np.asarray(offset_mm, np.float64).reshape(2)
+        cov = np.asarray(cov_mm2, np.float64).reshape(2, 2)
+        try:
+            w = np.linalg.inv(cov)
+        except np.linalg.LinAlgError:
+            return
+        if not (np.isfinite(d).all() and np.isfinite(w).all()):
+            return
+        self._d.append(d)
+        self._w.append(w)
+        self._var.append(float(np.trace(cov)))
+        del self._d[:-self.window], self._w[:-self.window], self._var[:-self.window]
+        self._verdict = None
+
+    def clear(self) -> None:
+        """Forget the frames (a new part, a new calibration)."""
+        self._d.clear()
+        self._w.clear()
+        self._var.clear()
+        self._verdict = None
+
+    def verdict(self) -> Concentricity:
+        """What the window says (worked out once per new frame)."""
+        if self._verdict is None:
+            self._verdict = self._judge()
+        return self._verdict
+
+    def _judge(self) -> Concentricity:
+        n = len(self._d)
+        if n < self.min_frames:
+            return Concentricity(True, frames=n, reason=f"{n} free fits, judged from "
+                                 f"{self.min_frames}")
+        d, w = np.array(self._d), np.array(self._w)
+        m2 = np.einsum("ni,nij,nj->n", d, w, d)
+        spread = float(m2.mean()) / 2.0
+        info = w.sum(axis=0)
+        mean = np.linalg.solve(info, np.einsum("nij,nj->i", w, d))
+        offset = math.sqrt(max(float(mean @ info @ mean), 0.0))
+        ecc = math.sqrt(max(float(np.mean(np.sum(d * d, axis=1)) - np.mean(self._var)), 0.0))
+        ecc = max(ecc, math.hypot(*mean))
+        if spread > self.spread_limit or offset > self.offset_limit:
+            return Concentricity(
+                False, spread, offset, ecc, n,
+                f"the surface is not concentric with the spindle axis: the free fits' "
+                f"centres lie {ecc * 1000:.0f} um from it (spread {spread:.1f}, limit "
+                f"{self.spread_limit:.1f}; mean {offset:.1f} sigma, limit "
+                f"{self.offset_limit:.1f}): raw stock, a second clamping, a badly seated or "
+                "bent part")
+        return Concentricity(True, spread, offset, ecc, n, "concentric within the free "
+                             "fits' uncertainty")

@@ -1,0 +1,123 @@
+"""Run-out and roundness (service/measure/form.py) against analytic truth: an eccentric, lobed
+circle sampled on the short arc a line laser sees, at known spindle angles, with seeded
+noise; each frame fitted freely as the measurement does."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from service.measure import fit as fits
+from service.measure.form import fit_runout, rotation, roundness
+
+AXIS = np.array([0.4, -0.3])
+R = 15.0
+
+
+def frames(e_mm: float, phi_deg: float, lobes: list[tuple[int, float, float]],
+           angles_deg: np.ndarray, noise_mm: float = 0.0015, seed: int = 5,
+           arc_deg: tuple[float, float] = (200.0, 310.0), n: int = 400):
+    """Each frame's points on the section and its surface's true centre."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for theta in angles_deg:
+        th = math.radians(theta)
+        centre = AXIS + rotation(th) @ (e_mm * np.array([math.cos(math.radians(phi_deg)),
+                                                          math.sin(math.radians(phi_deg))]))
+        alpha = np.radians(np.linspace(*arc_deg, n))
+        r = R + sum(a * np.cos(k * (alpha - th) - math.radians(p)) for k, a, p in lobes)
+        r = r + rng.normal(0.0, noise_mm, n)
+        pts = centre + r[:, None] * np.column_stack([np.cos(alpha), np.sin(alpha)])
+        out.append((pts, centre))
+    return out
+
+
+def free_fits(data):
+    centres, covs = [], []
+    for pts, _ in data:
+        f = fits.fit_geometric(pts)
+        cov = fits.circle_covariance(pts, f.center, f.radius, inliers=f.inliers)
+        centres.append(f.center)
+        covs.append(cov[:2, :2])
+    return np.array(centres), np.array(covs)
+
+
+@pytest.mark.parametrize(("e_um", "phi"), [(0.0, 0.0), (10.0, 40.0), (60.0, 250.0),
+                                           (100.0, 130.0)])
+def test_runout_recovers_eccentricity_and_phase(e_um: float, phi: float) -> None:
+    angles = np.arange(0.0, 720.0, 15.0)  # two revolutions
+    data = frames(e_um / 1000.0, phi, [], angles)
+    centres, covs = free_fits(data)
+    ro = fit_runout(centres, covs, angles, AXIS)
+    assert ro.ok, ro.reason
+    assert ro.eccentricity_mm == pytest.approx(e_um / 1000.0, abs=max(
+        3.0 * ro.eccentricity_uncertainty_mm, 0.0005))
+    assert ro.tir_mm == pytest.approx(2.0 * ro.eccentricity_mm)
+    if e_um >= 10.0:
+        gap = (ro.eccentricity_deg - phi + 180.0) % 360.0 - 180.0
+        assert abs(gap) <= max(3.0 * ro.eccentricity_deg_uncertainty, 1.0)
+    assert np.hypot(*ro.axis_shift_mm) < 0.001  # the calibrated axis stands
+    assert 0.2 < ro.chi2_per_dof < 5.0
+
+
+def test_runout_finds_a_calibrated_axis_that_is_off() -> None:
+    """A surface just turned is concentric: its centres over a revolution are the spindle
+    axis itself, 57 um off the calibrated one here."""
+    angles = np.arange(0.0, 360.0, 10.0)
+    data = frames(0.0, 0.0, [], angles)
+    centres, covs = free_fits(data)
+    wrong = AXIS + np.array([0.040, -0.0405])
+    ro = fit_runout(centres, covs, angles, wrong)
+    assert ro.ok
+    assert np.allclose(ro.axis_shift_mm, AXIS - wrong, atol=0.002)
+    assert ro.eccentricity_mm < 0.002
+
+
+def test_runout_says_why_not() -> None:
+    centres, covs = free_fits(frames(0.05, 0.0, [], np.array([0.0, 10.0, 20.0])))
+    ro = fit_runout(centres, covs, np.array([0.0, 10.0, 20.0]), AXIS)
+    assert not ro.ok and "cover 20 degrees" in ro.reason
+    assert not fit_runout(centres[:1], covs[:1], np.array([0.0]), AXIS).ok
+
+
+@pytest.mark.parametrize("lobes", [[(3, 0.008, 30.0)], [(2, 0.004, 0.0), (5, 0.003, 200.0)],
+                                   [(7, 0.002, 90.0)]])
+def test_roundness_recovers_the_lobes(lobes) -> None:
+    angles = np.arange(0.0, 1080.0, 7.5)  # three revolutions, the arcs overlap
+    e, phi = 0.03, 75.0
+    data = frames(e, phi, lobes, angles)
+    centres, covs = free_fits(data)
+    ro = fit_runout(centres, covs, angles, AXIS)
+    assert ro.ok
+    assert ro.eccentricity_mm == pytest.approx(e, abs=0.002 + 0.05 * e)
+    beta, radius = [], []
+    for (pts, _), theta in zip(data, angles, strict=True):
+        rel = pts - ro.center_at(AXIS, theta)
+        beta.append(np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) - theta)
+        radius.append(np.hypot(*rel.T))
+    form = roundness(np.concatenate(beta), np.concatenate(radius), upr=50)
+    assert form.ok, form.reason
+    assert form.radius_mm == pytest.approx(R, abs=0.001)
+    by_order = {h.order: h for h in form.harmonics}
+    for k, a, p in lobes:
+        assert by_order[k].amplitude_mm == pytest.approx(a, abs=0.0005 + 0.1 * a)
+        gap = (by_order[k].phase_deg - p + 180.0) % 360.0 - 180.0
+        assert abs(gap) < 10.0
+    strongest = max(lobes, key=lambda x: x[1])[0]
+    assert form.dominant_order == strongest
+    assert form.odd_lobing == (strongest % 2 == 1)
+    truth = np.zeros(3600)
+    grid = np.radians(np.arange(3600) / 10.0)
+    for k, a, p in lobes:
+        truth += a * math.exp(-math.pi * (math.sqrt(math.log(2) / math.pi) * k / 50) ** 2) \
+            * np.cos(k * grid - math.radians(p))
+    ront_true = truth.max() - truth.min()
+    assert form.ront_mm == pytest.approx(ront_true, abs=0.001 + 0.1 * ront_true)
+
+
+def test_roundness_needs_the_revolution_covered() -> None:
+    beta = np.linspace(0.0, 90.0, 500)
+    out = roundness(beta, np.full(500, R))
+    assert not out.ok and "cover" in out.reason
