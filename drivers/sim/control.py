@@ -3,6 +3,8 @@
 Requests, one JSON object per line: ``{"set": {"diameter_mm": 30.0, "drift_um_per_min": 5,
 "lost_ratio": 0.001, "fps": 10}}``, ``{"set": {"disturbances": {"ghost": {"gain": 0.3}}}}``
 (the shop floor's disturbances, ``drivers.sim.disturb``; ``{}`` for none),
+``{"set": {"turning": {"eccentricity_mm": 0.05, "spindle_deg_per_frame": 37}}}`` (a surface
+off the spindle axis, ``lobes`` for one out of round: ``drivers.sim.rig.Turning``),
 ``{"set": {"cnc_total_mm": -0.004}}`` (a camera with a virtual lathe: the CNC's total wear
 offset, which the lathe's cut follows),
 ``{"get": "stats"}``, or ``{"show": ...}`` for what the camera looks at: ``"shaft"``, a shot
@@ -24,6 +26,7 @@ from typing import Any
 from drivers.sim.board import Board, Shot, session_shots
 from drivers.sim.disturb import Disturbances
 from drivers.sim.gige import SimGigECamera
+from drivers.sim.rig import Turning
 
 _SETTERS = ("diameter_mm", "drift_um_per_min", "lost_ratio", "fps", "cnc_total_mm")
 _SHOT_FIELDS = ("tilt_x_deg", "tilt_y_deg", "distance_mm", "shift_mm", "rotation_deg", "laser")
@@ -62,6 +65,26 @@ def parse_show(spec: Any) -> tuple[Shot | None, Board | None]:
     return Shot("custom", "custom", 900, **fields), board
 
 
+def parse_turning(spec: Any) -> tuple[Turning, float]:
+    """A ``turning`` request's surface and the spindle's turn per frame; ValueError names
+    what is wrong."""
+    if not isinstance(spec, dict):
+        raise ValueError("'turning' takes an object, e.g. {\"eccentricity_mm\": 0.05, "
+                         "\"spindle_deg_per_frame\": 37}; {} for a concentric round shaft")
+    spec = dict(spec)
+    step = float(spec.pop("spindle_deg_per_frame", 0.0))
+    unknown = set(spec) - {"eccentricity_mm", "eccentricity_deg", "lobes"}
+    if unknown:
+        raise ValueError(f"unknown turning fields {sorted(unknown)}; known: eccentricity_mm, "
+                         "eccentricity_deg, lobes, spindle_deg_per_frame")
+    try:
+        lobes = tuple((int(k), float(a), float(p)) for k, a, p in spec.get("lobes", ()))
+    except (TypeError, ValueError):
+        raise ValueError("lobes: a list of [order, amplitude_mm, phase_deg]") from None
+    return Turning(float(spec.get("eccentricity_mm", 0.0)),
+                   float(spec.get("eccentricity_deg", 0.0)), lobes), step
+
+
 def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
     """Carry out one control request; errors become an ``ok: false`` reply."""
     try:
@@ -71,17 +94,20 @@ def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
             changes = request["set"]
             if not isinstance(changes, dict) or not changes:
                 raise ValueError("'set' takes an object of settings")
-            unknown = set(changes) - set(_SETTERS) - {"disturbances"}
+            unknown = set(changes) - set(_SETTERS) - {"disturbances", "turning"}
             if unknown:
                 raise ValueError(f"unknown settings {sorted(unknown)}; known: "
-                                 f"{(*_SETTERS, 'disturbances')}")
+                                 f"{(*_SETTERS, 'disturbances', 'turning')}")
+            if "turning" in changes:
+                camera.set_turning(*parse_turning(changes["turning"]))
             if "disturbances" in changes:
                 spec = changes["disturbances"]
                 if not isinstance(spec, dict):
                     raise ValueError("'disturbances' takes an object, e.g. "
                                      "{\"ghost\": {\"gain\": 0.3}}; {} for none")
                 camera.set_disturbances(Disturbances.from_dict(spec))
-            values = {k: float(v) for k, v in changes.items() if k != "disturbances"}
+            values = {k: float(v) for k, v in changes.items()
+                      if k not in ("disturbances", "turning")}
             if "diameter_mm" in values or "drift_um_per_min" in values:
                 camera.set_diameter(values.get("diameter_mm", camera.current_diameter()),
                                     values.get("drift_um_per_min"))

@@ -38,7 +38,7 @@ from drivers.sim.board import Board, BoardRenderer, Shot
 from drivers.sim.disturb import Disturbances
 from drivers.sim.lathe import LaserView, LatheConfig, VirtualLathe
 from drivers.sim.replay import FrameRing, crop, min_frame_period_us
-from drivers.sim.rig import RigConfig, ShaftRenderer
+from drivers.sim.rig import RigConfig, ShaftRenderer, Turning
 
 log = logging.getLogger("shaftgauge.sim.gige")
 
@@ -104,6 +104,9 @@ class SimCameraSettings:
     rig: RigConfig = field(default_factory=RigConfig)
     replay_frames: int = 0
     """0: render every frame; N: render a ring of N frames and send them in turn."""
+    spindle_deg_per_frame: float = 0.0
+    """How far the spindle turns from one frame to the next (``rig.turning`` shows it; 0, or
+    a multiple of 360: a frame rate locked to the spindle)."""
     lathe: LatheConfig | None = None
     """A virtual lathe decides the diameter shown (continuous turning, the laser a dead time
     behind the tool; ``set_cnc_total`` or ``follow_cnc`` tell it the CNC's wear offset);
@@ -236,6 +239,20 @@ class SimGigECamera:
                 "offset_in_cut_mm": round(cut.offset_mm, 7), "cnc_total_mm": round(total, 7),
                 "dead_time_s": self._view.dead_time_s, "cnc_error": self._cnc_error}
 
+    def set_turning(self, turning: Turning, spindle_deg_per_frame: float) -> None:
+        """Show a surface off the spindle axis or out of round (``Turning()``: none), the
+        spindle turning ``spindle_deg_per_frame`` from frame to frame; a replay ring is
+        rendered again (its frames at their own angles)."""
+        renderer = ShaftRenderer(self.settings.rig.with_(turning=turning),
+                                 seed=self.settings.seed)
+        with self._lock:
+            self.settings.rig = renderer.config
+            self.settings.spindle_deg_per_frame = float(spindle_deg_per_frame)
+            self.renderer = renderer
+        if self._ring is not None:
+            self._ring.spindle_step_deg = float(spindle_deg_per_frame)
+            self._ring.set_renderer(renderer)
+
     def current_diameter(self) -> float:
         """The diameter being rendered now, mm (with the drift so far, or as the virtual
         lathe cut it)."""
@@ -290,6 +307,7 @@ class SimGigECamera:
                 "frame_period_us": self._written_period_us,
                 "replay_frames": self.settings.replay_frames,
                 "disturbances": bool(self.settings.rig.disturbances),
+                "eccentricity_mm": self.settings.rig.turning.eccentricity_mm,
                 "rerendered": self._ring.rerendered if self._ring else 0,
                 "lathe": self.lathe_stats()}
 
@@ -330,7 +348,9 @@ class SimGigECamera:
         with self._lock:
             scene = self._scene
         if scene is None:
-            image = self.renderer.render(self.current_diameter(), self._counter)
+            image = self.renderer.render(
+                self.current_diameter(), self._counter,
+                spindle_deg=self._counter * self.settings.spindle_deg_per_frame)
         else:  # a still board: render it once, send copies
             if self._scene_image is None or self._scene_image[0] != scene:
                 shot, board = scene

@@ -84,6 +84,7 @@ class FrameRing:
         self._rendered = 0
         self.rerendered = 0
         self.rest = REST
+        self.spindle_step_deg = 0.0  # the spindle's turn from one frame to the next
 
     def _diameter(self) -> float:
         """The diameter to show now: the current one, to the step."""
@@ -153,6 +154,7 @@ class FrameRing:
         return crc
 
     def _render(self, diameter_mm: float) -> np.ndarray:
-        image = self.renderer.render(diameter_mm, self._rendered)
+        image = self.renderer.render(diameter_mm, self._rendered,
+                                     spindle_deg=self._rendered * self.spindle_step_deg)
         self._rendered += 1
         return image

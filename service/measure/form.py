@@ -343,33 +343,39 @@ class ConcentricityWatch:
     room for covariances that are not quite right. It catches an eccentricity of 10 um on a
     turning surface and at a fixed angle; 5 um at a fixed angle along the arc's bisector it
     cannot tell from a change of diameter (that needs the spindle's angle: ``fit_runout``).
-    Pure: centres in, a verdict out.
+    A single frame whose own centre lies beyond ``frame_limit`` sigmas is off the axis too
+    (the first frames of a part clamped off it, before the window has judged). Pure: centres
+    in, a verdict out.
     """
 
     window: int = 40
     min_frames: int = 10
     spread_limit: float = 2.0
     offset_limit: float = 4.3
+    frame_limit: float = 4.3
     _d: list[np.ndarray] = field(default_factory=list)
     _w: list[np.ndarray] = field(default_factory=list)
     _var: list[float] = field(default_factory=list)
     _verdict: Concentricity | None = None
 
-    def update(self, offset_mm: np.ndarray, cov_mm2: np.ndarray) -> None:
-        """One frame's free-fit centre less the axis (section mm) and its covariance."""
+    def update(self, offset_mm: np.ndarray, cov_mm2: np.ndarray) -> float:
+        """One frame's free-fit centre less the axis (section mm) and its covariance; returns
+        that frame's Mahalanobis distance from the axis (NaN when it cannot be used): beyond
+        ``frame_limit`` the frame itself is off the axis, whatever the window says yet."""
         d = np.asarray(offset_mm, np.float64).reshape(2)
         cov = np.asarray(cov_mm2, np.float64).reshape(2, 2)
         try:
             w = np.linalg.inv(cov)
         except np.linalg.LinAlgError:
-            return
+            return math.nan
         if not (np.isfinite(d).all() and np.isfinite(w).all()):
-            return
+            return math.nan
         self._d.append(d)
         self._w.append(w)
         self._var.append(float(np.trace(cov)))
         del self._d[:-self.window], self._w[:-self.window], self._var[:-self.window]
         self._verdict = None
+        return math.sqrt(max(float(d @ w @ d), 0.0))
 
     def clear(self) -> None:
         """Forget the frames (a new part, a new calibration)."""

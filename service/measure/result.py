@@ -20,6 +20,9 @@ class Status(enum.StrEnum):
     FIT_FAILED = "fit_failed"
     UNCERTAIN = "uncertain"
     BAD_IMAGE = "bad_image"
+    NOT_CONCENTRIC = "not_concentric"
+    """The surface is not concentric with the spindle axis (``form.ConcentricityWatch``):
+    the ``axis`` method's diameter cannot be trusted on it."""
 
 
 class Method(enum.StrEnum):

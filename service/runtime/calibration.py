@@ -14,6 +14,7 @@ from calib_store.store import CalibrationInfo, CalibrationStore
 from service.calibrate.master import DiameterCorrection
 from service.measure.axis_track import AxisTracker
 from service.measure.diameter import axis_center
+from service.measure.form import ConcentricityWatch
 from service.measure.geometry import RigGeometry, geometry_of
 
 log = logging.getLogger("shaftgauge.calibration")
@@ -30,6 +31,8 @@ class CalibrationInUse:
     geometry: RigGeometry
     correction: DiameterCorrection | None
     tracker: AxisTracker | None
+    concentricity: ConcentricityWatch | None = None
+    """Whether the surface is concentric with the spindle axis (from the free fits)."""
 
 
 @dataclass(frozen=True)
@@ -119,7 +122,8 @@ class CalibrationContext:
                    if c0 is not None and self.policy.track_axis else None)
         self.in_use = CalibrationInUse(info, calibration, geometry, None if corr is None else
                                        DiameterCorrection(corr["offset_mm"], corr["scale"],
-                                                          corr["time"]), tracker)
+                                                          corr["time"]), tracker,
+                                       ConcentricityWatch() if tracker is not None else None)
         self._last_master_check = (self.store.last_master_check(info.id)
                                    if self.store is not None else None)
         for listener in self._listeners:

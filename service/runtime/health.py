@@ -76,6 +76,11 @@ class HealthReport:
             elif latest is not None and latest.status != "ok":
                 out.append(Problem("not_measuring",
                                    f"latest frame did not measure: {latest.reason}"))
+        in_use = self.context.in_use
+        watch = in_use.concentricity if in_use is not None else None
+        if watch is not None and not (verdict := watch.verdict()).concentric:
+            out.append(Problem("not_concentric", verdict.reason + ": its diameters are "
+                               "refused and no offset is written from them"))
         comp = self.compensation
         if comp.channel.log_problem:
             out.append(Problem("log_unwritable", comp.channel.log_problem

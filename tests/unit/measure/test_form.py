@@ -121,3 +121,47 @@ def test_roundness_needs_the_revolution_covered() -> None:
     beta = np.linspace(0.0, 90.0, 500)
     out = roundness(beta, np.full(500, R))
     assert not out.ok and "cover" in out.reason
+
+
+@pytest.mark.parametrize(("e_mm", "locked_deg", "concentric"), [
+    (0.0, None, True), (0.01, None, False), (0.01, 105.0, False), (0.03, 0.0, False)])
+def test_the_watch_tells_a_surface_off_the_spindle_from_the_rendered_frames(
+        e_mm: float, locked_deg: float | None, concentric: bool) -> None:
+    """Frames of the simulated rig, measured as the service does (axis with the free fit):
+    the surface going round, or seen at one angle (a frame rate locked to the spindle)."""
+    from drivers.sim.rig import RigConfig, ShaftRenderer, Turning
+    from service.measure.diameter import MeasureParams, axis_center, measure_frame
+    from service.measure.form import ConcentricityWatch
+    from service.measure.geometry import geometry_of
+    from service.measure.result import Method
+
+    rig = ShaftRenderer(RigConfig(turning=Turning(e_mm, 20.0)), seed=11)
+    geometry = geometry_of(rig.calibration)
+    axis = axis_center(geometry)
+    params = MeasureParams(reflection_check=False, free_fit=True)
+    watch = ConcentricityWatch()
+    for k in range(40):
+        theta = 37.0 * k if locked_deg is None else locked_deg
+        m = measure_frame(rig.render(31.0, k, spindle_deg=theta), geometry, Method.AXIS, params)
+        if m.free_center_mm is not None:
+            xx, xy, yy = m.free_center_cov
+            watch.update(np.array(m.free_center_mm) - axis, np.array([[xx, xy], [xy, yy]]))
+    v = watch.verdict()
+    assert v.frames >= 30
+    assert v.concentric is concentric, v
+    if not concentric:
+        assert "not concentric" in v.reason
+        assert v.eccentricity_mm == pytest.approx(e_mm, rel=0.5)
+
+
+def test_the_watch_needs_frames_and_forgets() -> None:
+    from service.measure.form import ConcentricityWatch
+
+    w = ConcentricityWatch(window=20, min_frames=5)
+    for _ in range(4):
+        w.update(np.array([0.05, 0.0]), np.eye(2) * 1e-5)
+    assert w.verdict().concentric and "judged from 5" in w.verdict().reason
+    w.update(np.array([0.05, 0.0]), np.eye(2) * 1e-5)
+    assert not w.verdict().concentric
+    w.clear()
+    assert w.verdict().frames == 0
