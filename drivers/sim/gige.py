@@ -113,6 +113,52 @@ class SimCameraSettings:
     ``diameter_mm`` and the drift are then not used."""
 
 
+class CameraLathe:
+    """The virtual lathe behind a simulated camera (continuous turning, ``LaserView``): what
+    it cuts is what the camera shows; thread-safe, time from its start."""
+
+    def __init__(self, config: LatheConfig, seed: int = 0) -> None:
+        self._view = LaserView(VirtualLathe(config, seed=seed))
+        self._lock = threading.Lock()
+        self._t0 = time.monotonic()
+        self.cnc_error = ""
+
+    def set_total(self, total_mm: float) -> None:
+        """The CNC holds a total wear offset of ``total_mm`` (mm of diameter) from now on:
+        what is cut from now on, and seen a dead time later, moves by it."""
+        with self._lock:
+            self._view.cnc_total(time.monotonic() - self._t0, float(total_mm))
+
+    def follow(self, read_total_mm: Callable[[], float], stop: threading.Event,
+               period_s: float = 0.2) -> None:
+        """Read the CNC's total every ``period_s`` in a thread of its own until ``stop``
+        (``read_total_mm`` raises OSError or ValueError when it cannot: the last total stays,
+        the error shows in the stats)."""
+        def follow() -> None:
+            while not stop.wait(period_s):
+                try:
+                    self.set_total(read_total_mm())
+                    self.cnc_error = ""
+                except (OSError, ValueError) as err:
+                    self.cnc_error = str(err) or type(err).__name__
+        threading.Thread(target=follow, name="sim-lathe-cnc", daemon=True).start()
+
+    def diameter_mm(self) -> float:
+        """The diameter under the laser now, mm."""
+        with self._lock:
+            return self._view.diameter_mm(time.monotonic() - self._t0)
+
+    def stats(self) -> dict[str, float | str]:
+        """The sample under the laser now, and the CNC's total it knows."""
+        with self._lock:
+            now = time.monotonic() - self._t0
+            cut = self._view.cut_under_laser(now)
+            total = self._view.total_at(now)
+        return {"cut_diameter_mm": round(cut.diameter_mm, 7), "wear_mm": round(cut.wear_mm, 7),
+                "offset_in_cut_mm": round(cut.offset_mm, 7), "cnc_total_mm": round(total, 7),
+                "dead_time_s": self._view.dead_time_s, "cnc_error": self.cnc_error}
+
+
 class SimGigECamera:
     """The simulated GigE Vision camera, in this process (run it in its own process for tests
     that kill it: ``shaftgauge sim-camera``)."""
@@ -130,9 +176,8 @@ class SimGigECamera:
         self._repeats = 0
         self._t0 = time.monotonic()
         self._d0 = settings.diameter_mm
-        self._view = LaserView(VirtualLathe(settings.lathe, seed=settings.seed)) \
+        self.lathe = CameraLathe(settings.lathe, settings.seed) \
             if settings.lathe is not None else None
-        self._cnc_error = ""
         self._scene: tuple[Shot, Board] | None = None   # None: the shaft
         self._scene_image: tuple[tuple[Shot, Board], np.ndarray] | None = None
         self._gv: int | None = None
@@ -186,7 +231,7 @@ class SimGigECamera:
 
     def set_diameter(self, diameter_mm: float, drift_um_per_min: float | None = None) -> None:
         """Jump to a diameter (and optionally change the wear drift) from now on."""
-        if self._view is not None:
+        if self.lathe is not None:
             raise ValueError("the virtual lathe decides the diameter shown: tell it the "
                              "CNC's offset ('cnc_total_mm'), not a diameter")
         with self._lock:
@@ -207,37 +252,17 @@ class SimGigECamera:
 
     def set_cnc_total(self, total_mm: float) -> None:
         """The virtual lathe's CNC holds a total wear offset of ``total_mm`` (mm of diameter)
-        from now on: what is cut from now on, and seen a dead time later, moves by it."""
-        if self._view is None:
+        from now on (``CameraLathe.set_total``)."""
+        if self.lathe is None:
             raise ValueError("no virtual lathe: start the camera with one (--lathe) to give "
                              "it the CNC's offset")
-        with self._lock:
-            self._view.cnc_total(time.monotonic() - self._t0, float(total_mm))
+        self.lathe.set_total(total_mm)
 
     def follow_cnc(self, read_total_mm: Callable[[], float], period_s: float = 0.2) -> None:
-        """Read the CNC's total wear offset every ``period_s`` (``read_total_mm`` raises
-        OSError or ValueError when it cannot: the last total stays, the error shows in the
-        stats) and give it to the virtual lathe, in a thread of its own."""
-        def follow() -> None:
-            while not self._stop.wait(period_s):
-                try:
-                    self.set_cnc_total(read_total_mm())
-                    self._cnc_error = ""
-                except (OSError, ValueError) as err:
-                    self._cnc_error = str(err) or type(err).__name__
-        threading.Thread(target=follow, name="sim-lathe-cnc", daemon=True).start()
-
-    def lathe_stats(self) -> dict[str, float | str] | None:
-        """The virtual lathe's sample under the laser now, and the CNC's total it knows."""
-        if self._view is None:
-            return None
-        with self._lock:
-            now = time.monotonic() - self._t0
-            cut = self._view.cut_under_laser(now)
-            total = self._view.total_at(now)
-        return {"cut_diameter_mm": round(cut.diameter_mm, 7), "wear_mm": round(cut.wear_mm, 7),
-                "offset_in_cut_mm": round(cut.offset_mm, 7), "cnc_total_mm": round(total, 7),
-                "dead_time_s": self._view.dead_time_s, "cnc_error": self._cnc_error}
+        """The virtual lathe follows the CNC's total (``CameraLathe.follow``) until stopped."""
+        if self.lathe is None:
+            raise ValueError("no virtual lathe to follow the CNC with")
+        self.lathe.follow(read_total_mm, self._stop, period_s)
 
     def set_turning(self, turning: Turning, spindle_deg_per_frame: float) -> None:
         """Show a surface off the spindle axis or out of round (``Turning()``: none), the
@@ -256,9 +281,9 @@ class SimGigECamera:
     def current_diameter(self) -> float:
         """The diameter being rendered now, mm (with the drift so far, or as the virtual
         lathe cut it)."""
+        if self.lathe is not None:
+            return self.lathe.diameter_mm()
         with self._lock:
-            if self._view is not None:
-                return self._view.diameter_mm(time.monotonic() - self._t0)
             minutes = (time.monotonic() - self._t0) / 60.0
             if self.settings.drift_period_min > 0:
                 minutes %= self.settings.drift_period_min
@@ -309,7 +334,7 @@ class SimGigECamera:
                 "disturbances": bool(self.settings.rig.disturbances),
                 "eccentricity_mm": self.settings.rig.turning.eccentricity_mm,
                 "rerendered": self._ring.rerendered if self._ring else 0,
-                "lathe": self.lathe_stats()}
+                "lathe": None if self.lathe is None else self.lathe.stats()}
 
     # ---- sensor -------------------------------------------------------------------------
 

@@ -154,7 +154,10 @@ class FrameRing:
         return crc
 
     def _render(self, diameter_mm: float) -> np.ndarray:
-        image = self.renderer.render(diameter_mm, self._rendered,
-                                     spindle_deg=self._rendered * self.spindle_step_deg)
+        if self.spindle_step_deg:  # a turning surface: each frame at its own angle
+            image = self.renderer.render(diameter_mm, self._rendered,
+                                         spindle_deg=self._rendered * self.spindle_step_deg)
+        else:
+            image = self.renderer.render(diameter_mm, self._rendered)
         self._rendered += 1
         return image
