@@ -15,6 +15,9 @@ import numba
 import numpy as np
 
 _OPTS = dict(cache=True, nogil=True)
+# Sums over the points may be reassociated (vectorised); NaN and infinity keep their meaning
+# (a diverging trial step must still compare as worse).
+_SUMS = dict(_OPTS, fastmath={"reassoc", "contract", "arcp"})
 MAD_TO_SIGMA = 1.4826
 # Distances here are millimetres: sqrt(dx^2 + dy^2) cannot overflow, and costs a third of the
 # overflow-safe hypot in the fits' inner loops.
@@ -72,7 +75,7 @@ def solve_circle(x: np.ndarray, y: np.ndarray, w: np.ndarray, cx: float, cy: flo
     return q[0], q[1], q[2], ok
 
 
-@numba.njit(**_OPTS)
+@numba.njit(**_SUMS)
 def _normal_equations(x: np.ndarray, y: np.ndarray, w: np.ndarray, q: np.ndarray,
                       c0x: float, c0y: float, inv_s2: float, jtj: np.ndarray,
                       grad: np.ndarray) -> float:
@@ -82,7 +85,8 @@ def _normal_equations(x: np.ndarray, y: np.ndarray, w: np.ndarray, q: np.ndarray
         dx, dy = x[i] - q[0], y[i] - q[1]
         dist = max(math.sqrt(dx * dx + dy * dy), 1e-300)
         res = dist - q[2]
-        ux, uy = dx / dist, dy / dist
+        inv = 1.0 / dist
+        ux, uy = dx * inv, dy * inv
         wi = w[i]
         sxx += wi * ux * ux
         sxy += wi * ux * uy

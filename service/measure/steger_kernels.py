@@ -20,8 +20,8 @@ _FAST = dict(_OPTS, fastmath=True)
 
 
 @numba.njit(**_FAST)
-def band_hessian(roi: np.ndarray, band: np.ndarray, g: np.ndarray, g1: np.ndarray,
-                 g2: np.ndarray) -> tuple[np.ndarray, ...]:
+def band_hessian(roi: np.ndarray, band: np.ndarray, first: np.ndarray, last: np.ndarray,
+                 g: np.ndarray, g1: np.ndarray, g2: np.ndarray) -> tuple[np.ndarray, ...]:
     """The Gaussian-smoothed image and its derivatives up to second order at every band pixel.
 
     Parameters
@@ -30,6 +30,9 @@ def band_hessian(roi: np.ndarray, band: np.ndarray, g: np.ndarray, g1: np.ndarra
         Image (background taken off).
     band : ndarray of bool, shape (H, W)
         Pixels to evaluate; those nearer the border than the kernels' radius are skipped.
+    first, last : ndarray of int64, shape (H,)
+        Each row's first and last column that may be in the band (``last < first`` for
+        none; ``Band.row_spans``): only those are looked at.
     g, g1, g2 : ndarray of float32, shape (2r + 1,)
         Sampled Gaussian and its derivatives (``band.gaussian_kernels``), applied as
         OpenCV's ``sepFilter2D`` applies them (correlation).
@@ -52,7 +55,7 @@ def band_hessian(roi: np.ndarray, band: np.ndarray, g: np.ndarray, g1: np.ndarra
     hi = np.zeros(h, np.int64)
     count = 0
     for y in range(r, h - r):
-        for x in range(r, w - r):
+        for x in range(max(r, first[y]), min(w - r, last[y] + 1)):
             if band[y, x]:
                 count += 1
                 lo[y] = min(lo[y], x)
@@ -134,7 +137,8 @@ def steger_test(d: np.ndarray, min_curvature: float, search: float
     for i in range(n):
         gx, gy, hxx, hyy, hxy = d[i, 1], d[i, 2], d[i, 3], d[i, 4], d[i, 5]
         half_tr = 0.5 * (hxx + hyy)
-        root = math.hypot(0.5 * (hxx - hyy), hxy)
+        hd = 0.5 * (hxx - hyy)
+        root = math.sqrt(hd * hd + hxy * hxy)  # moderate values: no need of hypot's care
         lam_lo = half_tr - root
         lam_hi = half_tr + root
         if not (lam_lo < 0.0 and abs(lam_lo) > abs(lam_hi) and -lam_lo > min_curvature):
@@ -161,49 +165,64 @@ def steger_test(d: np.ndarray, min_curvature: float, search: float
 def derivatives_at(image: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float
                    ) -> np.ndarray:
     """``stripe.derivatives_at`` compiled: the continuous-Gaussian derivatives at float
-    positions, as an (N, 6) array ``v, x, y, xx, xy, yy``."""
+    positions, as an (N, 6) array ``v, x, y, xx, xy, yy``.
+
+    Each kernel's Gaussian at offset ``f`` is ``exp(-j^2 / 2s^2)`` times ``q^j``, ``q =
+    exp(f / s^2)``, times ``exp(-f^2 / 2s^2)``: three exponentials a point and axis, not
+    thirteen (half the kernel's time went to them)."""
     h, w = image.shape
     r = max(1, math.ceil(4.0 * sigma))
     m = 2 * r + 1
     out = np.empty((x.shape[0], 6), np.float64)
     norm = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
+    inv_s2 = 1.0 / (sigma * sigma)
+    base = np.empty(m)
+    for j in range(m):
+        base[j] = math.exp(-0.5 * (j - r) ** 2 * inv_s2) * norm
     kx = np.empty((3, m))
     ky = np.empty((3, m))
+    rows = np.empty((3, m))
     for i in range(x.shape[0]):
         cx = min(max(int(np.rint(x[i])), r), w - 1 - r)
         cy = min(max(int(np.rint(y[i])), r), h - 1 - r)
+        fx, fy = x[i] - cx, y[i] - cy
+        qx, qy = math.exp(fx * inv_s2), math.exp(fy * inv_s2)
+        px = math.exp(-0.5 * fx * fx * inv_s2) * qx ** -r
+        py = math.exp(-0.5 * fy * fy * inv_s2) * qy ** -r
         for j in range(m):
-            u = ((j - r) - (x[i] - cx)) / sigma
-            gv = math.exp(-0.5 * u * u) * norm
+            u = ((j - r) - fx) / sigma
+            gv = base[j] * px
+            px *= qx
             kx[0, j] = gv
             kx[1, j] = u / sigma * gv
-            kx[2, j] = (u * u - 1.0) / sigma**2 * gv
-            u = ((j - r) - (y[i] - cy)) / sigma
-            gv = math.exp(-0.5 * u * u) * norm
+            kx[2, j] = (u * u - 1.0) * inv_s2 * gv
+            u = ((j - r) - fy) / sigma
+            gv = base[j] * py
+            py *= qy
             ky[0, j] = gv
             ky[1, j] = u / sigma * gv
-            ky[2, j] = (u * u - 1.0) / sigma**2 * gv
-        v = 0.0
-        dx = 0.0
-        dy = 0.0
-        dxx = 0.0
-        dxy = 0.0
-        dyy = 0.0
+            ky[2, j] = (u * u - 1.0) * inv_s2 * gv
         for a in range(m):
+            row = image[cy - r + a, cx - r:cx + r + 1]
             s0 = 0.0
             s1 = 0.0
             s2 = 0.0
             for b in range(m):
-                p = float(image[cy - r + a, cx - r + b])
+                p = float(row[b])
                 s0 += kx[0, b] * p
                 s1 += kx[1, b] * p
                 s2 += kx[2, b] * p
-            v += ky[0, a] * s0
-            dx += ky[0, a] * s1
-            dy += ky[1, a] * s0
-            dxx += ky[0, a] * s2
-            dyy += ky[2, a] * s0
-            dxy += ky[1, a] * s1
+            rows[0, a] = s0
+            rows[1, a] = s1
+            rows[2, a] = s2
+        v = dx = dy = dxx = dxy = dyy = 0.0
+        for a in range(m):
+            v += ky[0, a] * rows[0, a]
+            dx += ky[0, a] * rows[1, a]
+            dy += ky[1, a] * rows[0, a]
+            dxx += ky[0, a] * rows[2, a]
+            dyy += ky[2, a] * rows[0, a]
+            dxy += ky[1, a] * rows[1, a]
         out[i, 0] = v
         out[i, 1] = dx
         out[i, 2] = dy
@@ -311,10 +330,14 @@ def end_extensions(xy: np.ndarray, length_px: int, span: int) -> np.ndarray:
 
 
 @numba.njit(**_OPTS)
-def disc_mask(h: int, w: int, ys: np.ndarray, xs: np.ndarray, radius: int) -> np.ndarray:
+def disc_mask(h: int, w: int, ys: np.ndarray, xs: np.ndarray, radius: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A (h, w) mask of the pixels within ``radius`` px of any of the points (``ys``, ``xs``,
-    integer pixels, may lie outside)."""
+    integer pixels, may lie outside), with each row's first and last pixel in it (``last <
+    first`` in a row with none)."""
     mask = np.zeros((h, w), np.bool_)
+    first = np.full(h, w, np.int64)
+    last = np.full(h, -1, np.int64)
     r2 = radius * radius
     for i in range(ys.shape[0]):
         for dy in range(-radius, radius + 1):
@@ -322,9 +345,13 @@ def disc_mask(h: int, w: int, ys: np.ndarray, xs: np.ndarray, radius: int) -> np
             if y < 0 or y >= h:
                 continue
             span = int(math.sqrt(r2 - dy * dy))
-            for x in range(max(0, xs[i] - span), min(w, xs[i] + span + 1)):
+            a, b = max(0, xs[i] - span), min(w, xs[i] + span + 1)
+            if b > a:
+                first[y] = min(first[y], a)
+                last[y] = max(last[y], b - 1)
+            for x in range(a, b):
                 mask[y, x] = True
-    return mask
+    return mask, first, last
 
 
 @numba.njit(**_OPTS)
@@ -401,28 +428,33 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> np.ndarray:
     best_i = np.empty(k, np.int64)
     for i in range(n):
         filled = 0
-        ri = rank[i]
-        for direction in (-1, 1):
-            j = ri if direction == 1 else ri - 1
-            while 0 <= j < n:
-                q = order[j]
-                along = xy[q, axis] - xy[i, axis]
-                if filled == k and along * along > best_d[k - 1]:
-                    break
-                dx, dy = xy[q, 0] - xy[i, 0], xy[q, 1] - xy[i, 1]
-                d2 = dx * dx + dy * dy
-                if filled < k or d2 < best_d[k - 1]:
-                    pos = filled if filled < k else k - 1
-                    while pos > 0 and best_d[pos - 1] > d2:
-                        if pos < k:
-                            best_d[pos] = best_d[pos - 1]
-                            best_i[pos] = best_i[pos - 1]
-                        pos -= 1
-                    best_d[pos] = d2
-                    best_i[pos] = q
-                    if filled < k:
-                        filled += 1
-                j += direction
+        lo, hi = rank[i] - 1, rank[i]  # the next candidates below and above
+        while lo >= 0 or hi < n:
+            # The nearer along the sweep first: distances then come nearly in order, and
+            # each insertion moves few of the best.
+            a_lo = xy[i, axis] - xy[order[lo], axis] if lo >= 0 else np.inf
+            a_hi = xy[order[hi], axis] - xy[i, axis] if hi < n else np.inf
+            if a_lo <= a_hi:
+                q, along = order[lo], a_lo
+                lo -= 1
+            else:
+                q, along = order[hi], a_hi
+                hi += 1
+            if filled == k and along * along > best_d[k - 1]:
+                break  # every candidate left is farther along than the k-th is away
+            dx, dy = xy[q, 0] - xy[i, 0], xy[q, 1] - xy[i, 1]
+            d2 = dx * dx + dy * dy
+            if filled < k or d2 < best_d[k - 1]:
+                pos = filled if filled < k else k - 1
+                while pos > 0 and best_d[pos - 1] > d2:
+                    if pos < k:
+                        best_d[pos] = best_d[pos - 1]
+                        best_i[pos] = best_i[pos - 1]
+                    pos -= 1
+                best_d[pos] = d2
+                best_i[pos] = q
+                if filled < k:
+                    filled += 1
         out[i, :] = best_i
     return out
 
@@ -474,10 +506,11 @@ def chain_sizes(labels: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(**_OPTS)
-def _linear_taps(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray]:
+def _linear_taps(n_out: int, n_in: int, n_covered: int) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV's INTER_LINEAR source pixel and weight of the next one for each of ``n_out``
-    destination pixels resized from ``n_in`` (pixel centres aligned, edges clamped)."""
-    scale = n_in / n_out
+    destination pixels, ``n_in`` source pixels spanning the first ``n_covered`` of them
+    (pixel centres aligned, edges clamped)."""
+    scale = n_in / n_covered
     i0 = np.empty(n_out, np.int64)
     frac = np.empty(n_out)
     for i in range(n_out):
@@ -494,16 +527,34 @@ def _linear_taps(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(**_FAST)
-def subtract_upsampled(image: np.ndarray, small: np.ndarray, level: float, step: int
-                       ) -> np.ndarray:
+def subtract_upsampled(image: np.ndarray, small: np.ndarray, level: float, step: int,
+                       cover_h: int, cover_w: int, first: np.ndarray, last: np.ndarray,
+                       pad: int) -> np.ndarray:
     """``image - up(small) - m + level`` (float32), with ``up`` the bilinear resize of
-    ``small`` to ``image``'s size as ``cv2.resize(..., INTER_LINEAR)`` makes it and ``m`` the
+    ``small`` to ``image``'s first ``cover_h`` rows and ``cover_w`` columns as
+    ``cv2.resize(..., INTER_LINEAR)`` makes it (held at its edge beyond them) and ``m`` the
     median of ``image - up(small)`` over every ``step``-th pixel each way; without the
-    full-size background (each row of it interpolated once, used at once)."""
+    full-size background (each row of it interpolated once, used at once).
+
+    With ``first`` and ``last`` (each row's first and last column needed, ``last < first``
+    for none; empty for all of the image) only the pixels within ``pad`` px (a box) of
+    those spans are computed, in place: the others keep the image's values (a curved
+    stripe's band fills a fifth of its box, and writing the rest costs as much as the
+    band)."""
     h, w = image.shape
     sh, sw = small.shape
-    ry, fy = _linear_taps(h, sh)
-    rx, fx = _linear_taps(w, sw)
+    lo = np.zeros(h, np.int64)  # columns computed in each row: [lo, hi)
+    hi = np.full(h, w, np.int64)
+    if first.size:
+        hi[:] = 0
+        lo[:] = w
+        for y in range(h):
+            if last[y] >= first[y]:
+                for k in range(max(0, y - pad), min(h, y + pad + 1)):
+                    lo[k] = min(lo[k], max(0, first[y] - pad))
+                    hi[k] = max(hi[k], min(w, last[y] + pad + 1))
+    ry, fy = _linear_taps(h, sh, cover_h)
+    rx, fx = _linear_taps(w, sw, cover_w)
     rx1 = np.minimum(rx + 1, sw - 1)
     samples = np.empty(((h + step - 1) // step) * ((w + step - 1) // step))
     m = 0
@@ -516,13 +567,17 @@ def subtract_upsampled(image: np.ndarray, small: np.ndarray, level: float, step:
             samples[m] = image[y, x] - ((1.0 - b) * top + b * bottom)
             m += 1
     shift = level - np.median(samples[:m])
-    out = np.empty((h, w), np.float32)
+    # Each pixel depends on itself alone: in place is safe.
+    out = image if first.size else np.empty((h, w), np.float32)
     row = np.empty(sw)
     for y in range(h):
+        a0, a1 = lo[y], hi[y]
+        if a1 <= a0:
+            continue
         y0, y1, b = ry[y], min(ry[y] + 1, sh - 1), fy[y]
-        for j in range(sw):
+        for j in range(rx[a0], min(rx1[a1 - 1] + 1, sw)):
             row[j] = (1.0 - b) * small[y0, j] + b * small[y1, j]
-        for x in range(w):
+        for x in range(a0, a1):
             a = fx[x]
             out[y, x] = image[y, x] + shift - ((1.0 - a) * row[rx[x]] + a * row[rx1[x]])
     return out

@@ -244,8 +244,6 @@ def steger_centres(
     y0, y1 = max(0, band.y0 - r), min(h, band.y0 + bh + r)
     x0, x1 = max(0, band.x0 - r), min(w, band.x0 + bw + r)
     roi = image[y0:y1, x0:x1].astype(np.float32)
-    if params.background_px > 0:
-        roi = without_background(roi, params.background_px, background)
     sel = np.zeros(roi.shape, bool)
     sel[band.y0 - y0:band.y0 - y0 + bh, band.x0 - x0:band.x0 - x0 + bw] = band.mask
     # Centres need the full filter support inside the image.
@@ -255,8 +253,14 @@ def steger_centres(
         sel[roi.shape[0] - (y1 - (h - r)):, :] = False
     if x1 > w - r:
         sel[:, roi.shape[1] - (x1 - (w - r)):] = False
+    spans = _spans_in(band, roi.shape, x0, y0)
+    if params.background_px > 0:
+        # Only where the filters, the refinement and the side balance read: the band and
+        # the filters' radius, a Newton step and a pixel about it (the balance's 5 px too).
+        roi = without_background(roi, params.background_px, background, spans,
+                                 max(r + 2, 7))
     g, g1, g2 = gaussian_kernels(s)
-    iy, ix, derivs = kernels.band_hessian(roi, sel, g, g1, g2)
+    iy, ix, derivs = kernels.band_hessian(roi, sel, *spans, g, g1, g2)
     if iy.size == 0:
         return StripePoints.empty("no stripe: band lies on the image border", background, noise)
     noise_curv = max(noise, 1e-6) * math.sqrt(3.0 / (16.0 * math.pi)) / s**3
@@ -275,6 +279,18 @@ def steger_centres(
         xy=np.column_stack([x + x0, y + y0]), normal=np.column_stack([nx, ny]),
         strength=strength, width_px=width, background=background, noise=noise, peak=peak,
         balance=balance, filter_px=s)
+
+
+def _spans_in(band: Band, shape: tuple[int, int], x0: int, y0: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The band's row spans (``Band.row_spans``) in a box of ``shape`` at (x0, y0)."""
+    first, last = np.full(shape[0], shape[1], np.int64), np.full(shape[0], -1, np.int64)
+    a, b = band.row_spans()
+    dy, dx = band.y0 - y0, band.x0 - x0
+    some = b >= a
+    first[dy:dy + len(a)] = np.where(some, a + dx, shape[1])
+    last[dy:dy + len(b)] = np.where(some, b + dx, -1)
+    return first, last
 
 
 def reject_weak(points: StripePoints, params: StripeParams) -> StripePoints:

@@ -32,7 +32,8 @@ def test_band_hessian_equals_opencv_filters(seed: int) -> None:
     roi = _speckled(seed)
     band = np.random.default_rng(seed + 10).random(roi.shape) < 0.3
     g, g1, g2 = gaussian_kernels(1.5)
-    iy, ix, d = sk.band_hessian(roi, band, g, g1, g2)
+    h, w = roi.shape
+    iy, ix, d = sk.band_hessian(roi, band, np.zeros(h, np.int64), np.full(h, w - 1), g, g1, g2)
     r = (len(g) - 1) // 2
     inner = band.copy()
     inner[:r], inner[-r:], inner[:, :r], inner[:, -r:] = False, False, False, False
@@ -181,18 +182,74 @@ def test_a_stripe_that_moved_is_found_by_a_full_search(renderer) -> None:
 @pytest.mark.parametrize("shape", [(417, 397), (40, 57), (6, 9), (128, 64)])
 def test_background_subtracted_in_one_pass_equals_opencv_s_resize(shape: tuple[int, int]
                                                                  ) -> None:
-    """``subtract_upsampled`` is the image less ``cv2.resize(small, INTER_LINEAR)`` less the
-    median of the difference over every sixth pixel, plus the level."""
+    """``subtract_upsampled`` is the image less ``cv2.resize(small, INTER_LINEAR)`` over the
+    even part of the image that ``small`` halves (its last row and column held beyond) less
+    the median of the difference over every sixth pixel, plus the level."""
     rng = np.random.default_rng(shape[0])
     image = rng.uniform(0, 255, shape).astype(np.float32)
-    small = cv2.GaussianBlur(rng.uniform(0, 60, (shape[0] // 2, shape[1] // 2))
-                             .astype(np.float32), (0, 0), 2.0)
-    full = cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    h2, w2 = shape[0] // 2, shape[1] // 2
+    small = cv2.GaussianBlur(rng.uniform(0, 60, (h2, w2)).astype(np.float32), (0, 0), 2.0)
+    full = cv2.resize(small, (2 * w2, 2 * h2), interpolation=cv2.INTER_LINEAR)
+    full = np.pad(full, ((0, shape[0] - 2 * h2), (0, shape[1] - 2 * w2)), mode="edge")
     diff = image - full
     want = diff - np.float32(np.median(diff[::6, ::6])) + np.float32(7.5)
-    got = sk.subtract_upsampled(image, small, 7.5, 6)
+    none = np.zeros(0, np.int64)
+    got = sk.subtract_upsampled(image, small, 7.5, 6, 2 * h2, 2 * w2, none, none, 0)
     assert got.dtype == np.float32
     np.testing.assert_allclose(got, want, atol=1e-4)
+
+
+def test_background_subtracted_only_where_needed_equals_it_there() -> None:
+    """With each row's span of needed pixels: the pixels within ``pad`` (a box) of them as
+    without, in place, every other pixel as it was."""
+    rng = np.random.default_rng(3)
+    image = rng.uniform(0, 255, (120, 90)).astype(np.float32)
+    small = cv2.GaussianBlur(rng.uniform(0, 60, (60, 45)).astype(np.float32), (0, 0), 2.0)
+    need = np.zeros(image.shape, bool)
+    need[[10, 50, 51, 52, 110], [5, 40, 42, 44, 88]] = True
+    none = np.zeros(0, np.int64)
+    everywhere = sk.subtract_upsampled(image, small, 7.5, 6, 120, 90, none, none, 0)
+    first = np.where(need.any(axis=1), need.argmax(axis=1), 90)
+    last = np.where(need.any(axis=1), 89 - need[:, ::-1].argmax(axis=1), -1)
+    original = image.copy()
+    got = sk.subtract_upsampled(image, small, 7.5, 6, 120, 90, first, last, 4)
+    assert got is image
+    near = cv2.dilate(need.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    np.testing.assert_array_equal(got[near], everywhere[near])
+    # A row's span covers the columns between its marked pixels too (row 50: 36..48).
+    assert (got[~near] == original[~near]).mean() > 0.95
+
+
+def test_a_tube_knows_its_rows_spans(renderer) -> None:
+    """``tube_band``'s spans (from ``disc_mask``) are those its mask has."""
+    from service.measure.band import Band
+
+    near = extract_stripe(renderer.render(33.0, 0), StripeParams()).xy
+    tube = tube_band(near, (1024, 1376), 3, 8.0)
+    assert tube is not None and tube.spans is not None
+    from_mask = Band(tube.mask, tube.x0, tube.y0).row_spans()
+    for got, want in zip(tube.row_spans(), from_mask, strict=True):
+        np.testing.assert_array_equal(got, want)
+    empty = Band(np.zeros((3, 5), bool)).row_spans()
+    assert (empty[1] < empty[0]).all()
+
+
+def test_the_background_is_taken_off_wherever_the_extractor_reads(renderer, monkeypatch
+                                                                  ) -> None:
+    """The band's background computed only near the band gives the centres of the whole
+    box's (the filters, the refinement and the side balance read nothing beyond)."""
+    from service.measure import stripe
+
+    image = renderer.render(33.0, 1)
+    params = StripeParams()
+    near = extract_stripe(image, params).xy
+    tracked = extract_stripe(image, params, near)
+    whole = stripe.without_background
+    monkeypatch.setattr(stripe, "without_background",
+                        lambda roi, disc, level, _need, _pad: whole(roi, disc, level))
+    boxed = extract_stripe(image, params, near)
+    np.testing.assert_array_equal(tracked.xy, boxed.xy)
+    np.testing.assert_array_equal(tracked.balance, boxed.balance)
 
 
 def test_patches_are_chains_denser_than_lines() -> None:
