@@ -57,6 +57,11 @@ def cmd_measure(args: argparse.Namespace) -> int:
     if not args.reflection_check_hz >= 0:
         return _fail(f"--reflection-check-hz must be 0 or more, got {args.reflection_check_hz}")
     params = MeasureParams(max_uncertainty_mm=args.max_uncertainty_um / 1000.0)
+    if args.form and args.spindle_deg is None:
+        return _fail("--form needs --spindle-deg: the run-out and the roundness come from "
+                     "the frames' spindle angles")
+    if args.spindle_deg is not None:
+        return _measure_turning(args, params)
     try:
         correction = load_correction(args.correction) if args.correction else None
         calibration = load_calibration(args.calibration)
@@ -76,6 +81,40 @@ def cmd_measure(args: argparse.Namespace) -> int:
             print(json.dumps(record), flush=True)
     except (CalibrationError, ImageError, CorrectionError) as err:
         return _fail(str(err).replace("\n", " "))
+    return EXIT_OK
+
+
+def _measure_turning(args: argparse.Namespace, params: MeasureParams) -> int:
+    """``measure --spindle-deg``: each frame about the surface's own centre (one line each),
+    or with ``--form`` one line of the diameter, run-out and roundness."""
+    from service.offline import (
+        ImageError,
+        add_temperature,
+        form_record,
+        measure_turning_files,
+        measurement_record,
+        parse_spindle_angles,
+    )
+
+    if args.method != Method.AXIS.value or args.fuse or args.correction:
+        return _fail("--spindle-deg measures by the axis method about the surface's own "
+                     "centre: without --method, --fuse or --correction")
+    try:
+        angles = parse_spindle_angles(args.spindle_deg, len(args.images))
+        calibration = load_calibration(args.calibration)
+        turning = measure_turning_files(args.images, calibration, angles, params, args.form,
+                                        args.upr)
+    except (ValueError, CalibrationError, ImageError) as err:
+        return _fail(str(err).replace("\n", " "))
+    if args.form:
+        records = [form_record(args.images, turning)]
+    else:
+        records = [measurement_record(p, m)
+                   for p, m in zip(args.images, turning.measurements, strict=True)]
+    for record in records:
+        if args.part_temp is not None:
+            add_temperature(record, args.part_temp, args.alpha)
+        print(json.dumps(record), flush=True)
     return EXIT_OK
 
 
@@ -471,6 +510,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="images a second of that rate looked at for a reflection beside the "
                    "stripe, as the service does (default %(default)g; every image while one "
                    "is seen, and every lopsided stripe); `inf` checks every image")
+    p.add_argument("--spindle-deg", metavar="A1,A2,...",
+                   help="each image's spindle angle, degrees, right-handed about the "
+                   "calibration's axis direction: the frames are measured about the "
+                   "surface's own centre (its run-out from all of them)")
+    p.add_argument("--form", action="store_true",
+                   help="with --spindle-deg: one JSON line of the diameter, the run-out "
+                   "(eccentricity, phase, TIR) and the roundness (RONt, harmonics)")
+    p.add_argument("--upr", type=int, choices=(15, 50), default=50,
+                   help="the roundness filter, undulations per revolution (default 50)")
     p.add_argument("images", nargs="+", metavar="IMAGE", help="8- or 16-bit grey image files")
     p.set_defaults(func=cmd_measure)
 

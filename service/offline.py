@@ -20,6 +20,7 @@ from service.measure.fuse import fuse
 from service.measure.geometry import geometry_of
 from service.measure.result import Measurement, Method
 from service.measure.thermal import diameter_at_reference
+from service.measure.turning import TurningFrames, measure_turning
 
 
 class ImageError(ValueError):
@@ -176,3 +177,74 @@ def add_temperature(record: dict[str, Any], part_temp_c: float, alpha_per_k: flo
     record["part_temp_c"] = part_temp_c
     record["diameter_20c_mm"] = None if d is None else round(
         diameter_at_reference(d, part_temp_c, alpha_per_k), 6)
+
+
+def parse_spindle_angles(text: str, count: int) -> list[float]:
+    """``--spindle-deg A1,A2,...``: one finite angle (degrees) per image.
+
+    Raises
+    ------
+    ValueError
+        Naming what is wrong: a value that is not a number, or as many angles as images not
+        given.
+    """
+    out = []
+    for k, part in enumerate(text.split(","), 1):
+        try:
+            value = float(part)
+        except ValueError:
+            raise ValueError(f"--spindle-deg: angle {k} ({part.strip()!r}) is not a number "
+                             "of degrees") from None
+        if not math.isfinite(value):
+            raise ValueError(f"--spindle-deg: angle {k} is {value}, need a finite angle")
+        out.append(value)
+    if len(out) != count:
+        raise ValueError(f"--spindle-deg gives {len(out)} angles for {count} images: one "
+                         "each, in the images' order")
+    return out
+
+
+def measure_turning_files(paths: list[str], calibration: Calibration, spindle_deg: list[float],
+                          params: MeasureParams | None = None, form: bool = False,
+                          upr: int = 50) -> TurningFrames:
+    """``measure_turning`` over image files (each checked first, as ``measure_images``)."""
+    for p in paths:
+        check_image_file(p, calibration)
+    return measure_turning([read_grey_image(p) for p in paths], geometry_of(calibration),
+                           spindle_deg, params, form, upr)
+
+
+def form_record(paths: list[str], turning: TurningFrames) -> dict[str, Any]:
+    """The one JSON record of ``measure --form``: the diameter of the frames measured about
+    the surface's own centre, the run-out and the roundness, each with its uncertainty."""
+
+    def rnd(x: float | None, nd: int = 7) -> float | None:
+        return None if x is None or not math.isfinite(x) else round(x, nd)
+
+    r, f, shape = turning.runout, turning.fused, turning.roundness
+    reasons = [x.reason for x in (r, shape) if x is not None and not x.ok]
+    record: dict[str, Any] = {
+        "images": len(paths), "status": f.status.value if r.ok else "uncertain",
+        "diameter_mm": rnd(f.diameter_mm, 6), "diameter_uncertainty_mm": rnd(f.uncertainty_mm),
+        "n_used": f.n_used,
+        "eccentricity_mm": rnd(r.eccentricity_mm),
+        "eccentricity_uncertainty_mm": rnd(r.eccentricity_uncertainty_mm),
+        "eccentricity_deg": rnd(r.eccentricity_deg, 2),
+        "eccentricity_deg_uncertainty": rnd(r.eccentricity_deg_uncertainty, 2),
+        "tir_mm": rnd(r.tir_mm), "tir_uncertainty_mm": rnd(r.tir_uncertainty_mm),
+        "axis_check_shift_mm": None if turning.axis_check is None or not
+        turning.axis_check.ok else [rnd(v) for v in turning.axis_check.axis_shift_mm],
+        "ront_mm": None, "ront_uncertainty_mm": None, "harmonics": [],
+        "dominant_lobes": None, "odd_lobing": None,
+        "spindle_angle_source": "given (--spindle-deg)",
+        "reason": "; ".join(reasons) or f.reason,
+    }
+    if shape is not None and shape.ok:
+        record.update(
+            ront_mm=rnd(shape.ront_mm), ront_uncertainty_mm=rnd(shape.ront_uncertainty_mm),
+            harmonics=[{"order": h.order, "amplitude_mm": rnd(h.amplitude_mm),
+                        "phase_deg": rnd(h.phase_deg, 2),
+                        "amplitude_uncertainty_mm": rnd(h.amplitude_uncertainty_mm)}
+                       for h in shape.harmonics],
+            dominant_lobes=shape.dominant_order or None, odd_lobing=shape.odd_lobing)
+    return record

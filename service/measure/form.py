@@ -50,6 +50,9 @@ class Runout:
         or tracked one), section mm; with ``axis_shift_cov``.
     chi2_per_dof : float
         How well the model explains the centres (about 1 when their covariances are right).
+    parameter_cov : ndarray, shape (k, k)
+        The fit's covariance of the eccentricity vector (e cos phi, e sin phi) and, when the
+        axis was fitted, its shift (k = 4; else 2).
     frames : int
         Frames used.
     reason : str
@@ -66,6 +69,8 @@ class Runout:
     axis_shift_mm: tuple[float, float] = (math.nan, math.nan)
     axis_shift_cov: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     chi2_per_dof: float = math.nan
+    parameter_cov: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.nan),
+                                      repr=False)
     frames: int = 0
     reason: str = ""
 
@@ -152,7 +157,7 @@ def fit_runout(centres_mm: np.ndarray, covs_mm2: np.ndarray, spindle_deg: np.nda
     shift_cov = (float(p_cov[2, 2]), float(p_cov[2, 3]), float(p_cov[3, 3])) if fit_axis \
         else (0.0, 0.0, 0.0)
     return Runout(True, e, math.degrees(math.atan2(ey, ex)) % 360.0, 2.0 * e, e_std,
-                  min(phase_std, 180.0), 2.0 * e_std, shift, shift_cov, chi2 / dof, n)
+                  min(phase_std, 180.0), 2.0 * e_std, shift, shift_cov, chi2 / dof, p_cov, n)
 
 
 def _span_deg(theta_rad: np.ndarray) -> float:

@@ -3,15 +3,14 @@ feed (latest, history, live stream) and compensation, in that order."""
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import replace
 
 import numpy as np
 
 from drivers.camera.base import Frame
 from service.calibrate.master import corrected
-from service.measure.result import Measurement, Status
+from service.measure.result import Measurement
+from service.measure.turning import concentricity_check
 from service.runtime.calibration import CalibrationInUse
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed, SequenceCounter
@@ -57,26 +56,11 @@ class Publisher:
 
 def not_concentric(m: Measurement, in_use: CalibrationInUse) -> Measurement:
     """``m``, or ``m`` refused (``Status.NOT_CONCENTRIC``, the watch's reason) while the free
-    fits of the last frames say the surface is not concentric with the spindle axis: the
-    ``axis`` method's diameter would be confidently wrong on it, and an offset from it would
-    move the tool wrongly. Every frame's free fit counts, refused ones too (most frames of an
-    eccentric surface are refused as uncertain)."""
+    fits of the last frames say the surface is not concentric with the tracked spindle axis
+    (``turning.concentricity_check``): the ``axis`` method's diameter would be confidently
+    wrong on it, and an offset from it would move the tool wrongly."""
     watch, tracker = in_use.concentricity, in_use.tracker
     if watch is None or tracker is None:
         return m
-    sigmas = math.nan
-    if m.free_center_mm is not None and m.free_center_cov is not None:
-        centre, sigma = tracker.center()
-        xx, xy, yy = m.free_center_cov
-        sigmas = watch.update(np.array(m.free_center_mm) - centre,
-                              np.array([[xx + sigma**2, xy], [xy, yy + sigma**2]]))
-    if m.status is not Status.OK:
-        return m
-    verdict = watch.verdict()
-    if not verdict.concentric:
-        return replace(m, status=Status.NOT_CONCENTRIC, reason=verdict.reason)
-    if sigmas > watch.frame_limit:
-        return replace(m, status=Status.NOT_CONCENTRIC, reason=(
-            f"the surface is not concentric with the spindle axis: this frame's own centre "
-            f"lies {sigmas:.1f} sigma off it (limit {watch.frame_limit:.1f})"))
-    return m
+    centre, sigma = tracker.center()
+    return concentricity_check(m, watch, centre, sigma)

@@ -215,3 +215,57 @@ def test_every_image_checked_when_asked(frames) -> None:
     res = run("measure", "--calibration", str(cal), "--reflection-check-hz", "inf",
               *map(str, paths))
     assert res.returncode == 0 and all(r["status"] == "ok" for r in lines(res.stdout))
+
+
+@pytest.fixture(scope="module")
+def turning(tmp_path_factory) -> tuple[Path, list[Path], list[float]]:
+    """Twelve frames of a 30 mm surface turned 40 um off the spindle axis, each at its angle."""
+    from calib_store.model import save_calibration
+    from drivers.sim.rig import RigConfig, ShaftRenderer, Turning
+
+    out = tmp_path_factory.mktemp("turning")
+    rig = ShaftRenderer(RigConfig(turning=Turning(0.04, 40.0)), seed=5)
+    save_calibration(rig.calibration, out / "calibration.json")
+    angles = [7.0 + 30.0 * i for i in range(12)]
+    paths = []
+    for i, a in enumerate(angles):
+        paths.append(out / f"frame_{i:02d}.png")
+        assert cv2.imwrite(str(paths[-1]), rig.render(30.0, i, spindle_deg=a))
+    return out / "calibration.json", paths, angles
+
+
+def test_measure_form_prints_the_run_out_and_the_roundness(turning) -> None:
+    cal, paths, angles = turning
+    spindle = ",".join(f"{a:g}" for a in angles)
+    res = run("measure", "--calibration", str(cal), "--form", "--spindle-deg", spindle,
+              *map(str, paths))
+    assert res.returncode == 0, res.stderr
+    (rec,) = lines(res.stdout)
+    assert rec["images"] == 12 and rec["status"] == "ok"
+    assert abs(rec["diameter_mm"] - 30.0) < 0.004 and rec["diameter_uncertainty_mm"] > 0
+    assert abs(rec["tir_mm"] - 0.08) < 0.002 + 0.05 * 0.08
+    assert rec["eccentricity_uncertainty_mm"] > 0 and rec["tir_uncertainty_mm"] > 0
+    assert 0 <= rec["eccentricity_deg"] < 360
+    assert rec["ront_mm"] is not None and rec["ront_uncertainty_mm"] > 0
+    assert [h["order"] for h in rec["harmonics"]][:3] == [2, 3, 4]
+    assert rec["harmonics"][0].keys() == {"order", "amplitude_mm", "phase_deg",
+                                          "amplitude_uncertainty_mm"}
+    # Without --form: each frame about the surface's own centre, one line each.
+    res = run("measure", "--calibration", str(cal), "--spindle-deg", spindle,
+              *map(str, paths))
+    recs = lines(res.stdout)
+    assert [r["image"] for r in recs] == [str(p) for p in paths]
+    ok = [r for r in recs if r["status"] == "ok"]
+    assert len(ok) >= 10 and all(abs(r["diameter_mm"] - 30.0) < 0.008 for r in ok)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--form"], "--form needs --spindle-deg"),
+    (["--spindle-deg", "0,30"], "gives 2 angles for 12 images"),
+    (["--spindle-deg", "0,north" + ",0" * 10], "angle 2 ('north') is not a number"),
+    (["--spindle-deg", ",".join(["0"] * 12), "--method", "geometric"], "axis method"),
+])
+def test_measure_turning_bad_arguments_are_named(turning, args, message) -> None:
+    cal, paths, _ = turning
+    res = run("measure", "--calibration", str(cal), *args, *map(str, paths))
+    assert res.returncode == 2 and message in res.stderr and not res.stdout

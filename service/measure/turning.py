@@ -1,0 +1,188 @@
+"""Many frames of one turning surface: each frame's diameter about the surface's own centre,
+the run-out and the roundness (``form``), and the concentricity check for frames with no
+spindle angle.
+
+The ``axis`` method pins each frame's circle to the spindle axis. A surface off that axis
+(raw stock, a second clamping) breaks it; given each frame's spindle angle, the frames' free
+fits tell where the surface's centre goes round (``form.fit_runout``), and each frame is
+measured again about its own centre there. Without angles the frames are only checked
+(``concentricity_check``), and refused when they say the surface is not concentric. Pure:
+images and angles in, measurements and figures out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from service.measure.diameter import MeasureParams, axis_center, measure_frame
+from service.measure.form import (
+    ConcentricityWatch,
+    Roundness,
+    Runout,
+    fit_runout,
+    rotation,
+    roundness,
+)
+from service.measure.fuse import Fused, fuse
+from service.measure.geometry import RigGeometry
+from service.measure.result import Measurement, Method, Status
+from service.measure.section import project_to_section
+from service.measure.triangulate import triangulate
+
+MIN_CENTRE_SIGMA_MM = 0.5e-3
+"""The surface's centre at a frame is taken as known no better than this: the run-out fit's
+own uncertainty shrinks with the frames, its model's errors (a bent part, whirl) do not."""
+
+
+def concentricity_check(m: Measurement, watch: ConcentricityWatch, axis_mm: np.ndarray,
+                        axis_sigma_mm: float) -> Measurement:
+    """``m``, or ``m`` refused as ``NOT_CONCENTRIC`` when the free fits of the frames so far
+    (``watch``, fed with this one's) say the surface is not concentric with the spindle axis
+    at ``axis_mm`` (section mm, known to ``axis_sigma_mm``), or this frame's own free centre
+    lies beyond the watch's ``frame_limit`` sigmas of it. Every frame's free fit counts,
+    refused ones too (most frames of an eccentric surface are refused as uncertain)."""
+    sigmas = math.nan
+    if m.free_center_mm is not None and m.free_center_cov is not None:
+        xx, xy, yy = m.free_center_cov
+        s2 = axis_sigma_mm**2
+        sigmas = watch.update(np.array(m.free_center_mm) - axis_mm,
+                              np.array([[xx + s2, xy], [xy, yy + s2]]))
+    if m.status is not Status.OK:
+        return m
+    verdict = watch.verdict()
+    if not verdict.concentric:
+        return replace(m, status=Status.NOT_CONCENTRIC, reason=verdict.reason)
+    if sigmas > watch.frame_limit:
+        return replace(m, status=Status.NOT_CONCENTRIC, reason=(
+            f"the surface is not concentric with the spindle axis: this frame's own centre "
+            f"lies {sigmas:.1f} sigma off it (limit {watch.frame_limit:.1f})"))
+    return m
+
+
+@dataclass(frozen=True)
+class TurningFrames:
+    """What the frames of one turning surface say.
+
+    Attributes
+    ----------
+    measurements : list of Measurement
+        Each frame's, about the surface's own centre at its spindle angle when the run-out
+        is known, else the ``axis`` method's refused as not concentric where it is not.
+    runout : Runout
+        The surface's centre relative to the spindle axis.
+    fused : Fused
+        The frames' diameters combined.
+    roundness : Roundness or None
+        The form over the material's angle, when asked for.
+    axis_check : Runout or None
+        The run-out fitted with the spindle axis free (its ``axis_shift_mm``: where the
+        frames put the axis relative to the calibrated one), when the angles go round.
+    """
+
+    measurements: list[Measurement]
+    runout: Runout
+    fused: Fused
+    roundness: Roundness | None = None
+    axis_check: Runout | None = None
+
+
+def centre_sigma_at(runout: Runout, spindle_deg: float) -> float:
+    """The standard uncertainty of the surface's centre at a spindle angle (mm; the larger
+    axis of its covariance), from the run-out fit's parameter covariance, inflated by its
+    chi-square when that exceeds 1, and at least ``MIN_CENTRE_SIGMA_MM``."""
+    p_cov = runout.parameter_cov
+    j = np.hstack([rotation(math.radians(spindle_deg)), np.eye(2)])[:, :p_cov.shape[0]]
+    cov = j @ p_cov @ j.T * max(1.0, runout.chi2_per_dof)
+    return max(math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0)), MIN_CENTRE_SIGMA_MM)
+
+
+def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
+                    spindle_deg: Sequence[float], params: MeasureParams | None = None,
+                    form: bool = False, upr: int = 50) -> TurningFrames:
+    """Measure frames of one surface taken at known spindle angles.
+
+    A first pass measures each frame by ``axis`` for its free fit; the run-out about the
+    calibrated spindle axis follows from the free centres and the angles (and, as a check,
+    the axis itself when the angles cover half a revolution); a second pass measures each frame
+    about the surface's centre at its angle, as uncertain as the run-out leaves it. With
+    ``form``, the second pass's points give the radius over the material's angle.
+
+    Parameters
+    ----------
+    images : sequence of ndarray
+        The frames, in the order taken.
+    geometry : RigGeometry
+        Calibration (with its axis point).
+    spindle_deg : sequence of float
+        Each frame's spindle angle, right-handed about the calibration's axis direction.
+    params : MeasureParams, optional
+        Settings.
+    form : bool
+        Also assemble the roundness.
+    upr : int
+        The roundness filter's undulations per revolution.
+    """
+    # The free fits are what tells where the surface's centre goes.
+    params = replace(params or MeasureParams(), free_fit=True)
+    angles = np.asarray(spindle_deg, np.float64).ravel()
+    if len(angles) != len(images):
+        raise ValueError(f"{len(images)} frames but {len(angles)} spindle angles")
+    axis = axis_center(geometry)
+    if axis is None:
+        failed = Runout(False, frames=len(images), reason="the calibration has no axis point")
+        ms = [measure_frame(im, geometry, Method.AXIS, params) for im in images]
+        return TurningFrames(ms, failed, fuse(ms))
+    first, near = [], None
+    for im in images:
+        m = measure_frame(im, geometry, Method.AXIS, params, near=near)
+        near = m.stripe_px
+        first.append(m)
+    use = [i for i, m in enumerate(first)
+           if m.free_center_mm is not None and m.free_center_cov is not None]
+    centres = np.array([first[i].free_center_mm for i in use]).reshape(-1, 2)
+    covs = np.array([[[c[0], c[1]], [c[1], c[2]]] for c in
+                     (first[i].free_center_cov for i in use)]).reshape(-1, 2, 2)
+    # About the calibrated axis: fitting the axis too lets the free fits' own bias along
+    # each arc's bisector (a micrometre or two, the same at every angle) move it, and every
+    # diameter with it (3-5 um in the simulator); the frames' axis is reported as a check.
+    runout = fit_runout(centres, covs, angles[use], axis, fit_axis=False)
+    axis_check = fit_runout(centres, covs, angles[use], axis, fit_axis=True)
+    if not runout.ok:
+        watch = ConcentricityWatch(window=max(len(images), 1))
+        ms = [concentricity_check(m, watch, axis, params.axis_sigma_mm) for m in first]
+        return TurningFrames(ms, runout, fuse(ms), axis_check=axis_check)
+    second, near = [], None
+    for im, theta in zip(images, angles, strict=True):
+        centre = runout.center_at(axis, float(theta))
+        m = measure_frame(im, geometry, Method.AXIS, params,
+                          center_prior=(centre, centre_sigma_at(runout, float(theta))),
+                          near=near)
+        near = m.stripe_px
+        second.append(m)
+    shape = None
+    if form:
+        shape = _roundness(second, angles, geometry, upr)
+    return TurningFrames(second, runout, fuse(second), shape, axis_check)
+
+
+def _roundness(ms: list[Measurement], angles: np.ndarray, geometry: RigGeometry,
+               upr: int) -> Roundness:
+    """Every measured frame's points as radii about its own centre at their material angles
+    (the angle in the section less the frame's spindle angle)."""
+    material, radius = [], []
+    for m, theta in zip(ms, angles, strict=True):
+        if m.status is not Status.OK or m.center_mm is None or len(m.points_px) == 0:
+            continue
+        pts3 = triangulate(m.points_px, geometry.camera_matrix, geometry.dist_coeffs,
+                           geometry.plane_normal, geometry.plane_d)
+        sec = project_to_section(pts3[np.isfinite(pts3).all(axis=1)], geometry.axis_direction)
+        d = sec - np.asarray(m.center_mm)
+        material.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])) - theta)
+        radius.append(np.hypot(d[:, 0], d[:, 1]))
+    if not material:
+        return Roundness(False, reason="no frame was measured")
+    return roundness(np.concatenate(material), np.concatenate(radius), upr=upr)
