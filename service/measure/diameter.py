@@ -345,7 +345,7 @@ def fit_section(
     arc = fits.arc_span_deg(sec[used], center)
     common = dict(center_mm=(float(center[0]), float(center[1])), n_points=n_used, arc_deg=arc,
                   rms_residual_mm=float(rms), points_px=points.stripe.xy[used],
-                  filter_px=points.stripe.filter_px,
+                  section_mm=sec[used], filter_px=points.stripe.filter_px,
                   uncertainty_mm=float(std) if np.isfinite(std) else None, note=note,
                   **free_extra)
     if n_used < params.min_points:

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from service.measure import circle_kernels as ck
+
 
 def rotation(theta_rad: float) -> np.ndarray:
     """The 2x2 rotation by ``theta_rad`` (from ``e1`` toward ``e2``)."""
@@ -222,7 +224,8 @@ class Roundness:
 
 def roundness(material_deg: np.ndarray, radius_mm: np.ndarray, noise_mm: float | None = None,
               upr: int = 50, max_order: int = 15, bins: int = 360,
-              min_coverage: float = 0.8) -> Roundness:
+              min_coverage: float = 0.8, correlation: float | None = 1.0,
+              significance: float = 4.5) -> Roundness:
     """The radius as a function of the material's angle, assembled from many frames' points
     (each point's distance from the surface's centre at its frame, at its material angle),
     its least-squares reference circle, a Gaussian filter of ``upr`` undulations per
@@ -243,6 +246,17 @@ def roundness(material_deg: np.ndarray, radius_mm: np.ndarray, noise_mm: float |
         The profile's samples per revolution.
     min_coverage : float
         Share of the profile's bins that must hold points.
+    correlation : float or None
+        How many neighbouring points along a frame's arc share their noise (speckle: the
+        variance inflation ``fit.correlation_factor``): the harmonics' uncertainties grow by
+        its square root. None: estimated from the residuals about the fitted form, the points
+        given in each frame's arc order, frame after frame.
+    significance : float
+        RONt's profile holds the harmonics that stand above this many of their standard
+        uncertainties (0: all of them, the plain filtered profile), and the dominant order is
+        the largest of them. Noise in fifty harmonics has a peak-to-valley of its own (7 um
+        from 36 frames of a round simulated surface); at 4.5 a harmonic of noise alone
+        passes once in 25,000 (Rayleigh), one of fifty once in 500.
     """
     beta = np.radians(np.mod(np.asarray(material_deg, np.float64).ravel(), 360.0))
     r = np.asarray(radius_mm, np.float64).ravel()
@@ -269,7 +283,9 @@ def roundness(material_deg: np.ndarray, radius_mm: np.ndarray, noise_mm: float |
     dof = max(len(r) - a.shape[1], 1)
     sigma = float(noise_mm) if noise_mm is not None else float(np.sqrt(resid @ resid / dof))
     try:
-        coef_cov = sigma**2 * np.linalg.inv(a.T @ a)
+        if correlation is None:
+            correlation = ck.correlation_factor(resid, 0.2)
+        coef_cov = sigma**2 * max(float(correlation), 1.0) * np.linalg.inv(a.T @ a)
     except np.linalg.LinAlgError:
         return Roundness(False, reason="the material's angles do not determine the form")
     # ISO 16610-21's Gaussian filter for a closed profile: harmonic k passes with
@@ -282,18 +298,22 @@ def roundness(material_deg: np.ndarray, radius_mm: np.ndarray, noise_mm: float |
     for k in range(2, top + 1):
         c_, s_ = coef[2 * k - 1], coef[2 * k]
         gain = math.exp(-math.pi * (alpha * k / upr) ** 2)
-        profile += gain * (c_ * np.cos(k * grid) + s_ * np.sin(k * grid))
         cov2 = coef_cov[2 * k - 1:2 * k + 1, 2 * k - 1:2 * k + 1]
-        var_profile += gain**2 * float(np.trace(cov2)) / 2.0
+        amp, amp_std = math.hypot(c_, s_), math.sqrt(max(float(np.trace(cov2)) / 2.0, 0.0))
+        # Every harmonic's noise counts in RONt's uncertainty, kept or left out (one left
+        # out may hide form up to its threshold).
+        var_profile += gain**2 * amp_std**2
+        if amp > significance * amp_std:
+            profile += gain * (c_ * np.cos(k * grid) + s_ * np.sin(k * grid))
         if k <= max_order:
-            amp = math.hypot(c_, s_)
             harmonics.append(Harmonic(k, amp, math.degrees(math.atan2(s_, c_)) % 360.0,
-                                      math.sqrt(max(float(np.trace(cov2)) / 2.0, 0.0))))
+                                      amp_std))
     ront = float(profile.max() - profile.min())
     # The noise left in the filtered profile widens its peak-to-valley by about 2 sigma each
     # way at the extremes: taken as RONt's uncertainty.
     ront_std = 2.0 * math.sqrt(var_profile)
-    significant = [h for h in harmonics if h.amplitude_mm > 3.0 * h.amplitude_uncertainty_mm]
+    significant = [h for h in harmonics
+                   if h.amplitude_mm > significance * h.amplitude_uncertainty_mm]
     dominant = max(significant, key=lambda h: h.amplitude_mm).order if significant else 0
     return Roundness(True, float(coef[0]), ront, ront_std, harmonics,
                      np.degrees(grid), profile, dominant)

@@ -66,6 +66,9 @@ class Measurement:
         mm^2, for the axis tracker.
     points_px : ndarray, shape (N, 2)
         Sub-pixel stripe centres (x, y) in pixels that were used, for display.
+    section_mm : ndarray, shape (N, 2)
+        The same points in the section as the fit took them (mm; the light sheet's bias taken
+        out): for the form over many frames (``turning``).
     reflection_px : tuple of float or None
         The image offset (dx, dy, px) of a reflection beside the stripe whose pull was
         modelled and taken out (``service.measure.reflection``), None when there was none.
@@ -87,6 +90,7 @@ class Measurement:
     free_center_mm: tuple[float, float] | None = None
     free_center_cov: tuple[float, float, float] | None = None
     points_px: np.ndarray = field(default_factory=lambda: np.empty((0, 2)), repr=False)
+    section_mm: np.ndarray = field(default_factory=lambda: np.empty((0, 2)), repr=False)
     reflection_px: tuple[float, float] | None = None
     filter_px: float | None = None
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from service.measure.diameter import MeasureParams, axis_center, measure_frame
+from service.measure.fit import order_along_arc
 from service.measure.form import (
     ConcentricityWatch,
     Roundness,
@@ -30,8 +31,6 @@ from service.measure.form import (
 from service.measure.fuse import Fused, fuse
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement, Method, Status
-from service.measure.section import project_to_section
-from service.measure.triangulate import triangulate
 
 MIN_CENTRE_SIGMA_MM = 0.5e-3
 """The surface's centre at a frame is taken as known no better than this: the run-out fit's
@@ -165,24 +164,23 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
         second.append(m)
     shape = None
     if form:
-        shape = _roundness(second, angles, geometry, upr)
+        shape = _roundness(second, angles, upr)
     return TurningFrames(second, runout, fuse(second), shape, axis_check)
 
 
-def _roundness(ms: list[Measurement], angles: np.ndarray, geometry: RigGeometry,
-               upr: int) -> Roundness:
-    """Every measured frame's points as radii about its own centre at their material angles
-    (the angle in the section less the frame's spindle angle)."""
+def _roundness(ms: list[Measurement], angles: np.ndarray, upr: int) -> Roundness:
+    """Every measured frame's points (as its fit took them) as radii about its own centre at
+    their material angles (the angle in the section less the frame's spindle angle)."""
     material, radius = [], []
     for m, theta in zip(ms, angles, strict=True):
-        if m.status is not Status.OK or m.center_mm is None or len(m.points_px) == 0:
+        if m.status is not Status.OK or m.center_mm is None or len(m.section_mm) == 0:
             continue
-        pts3 = triangulate(m.points_px, geometry.camera_matrix, geometry.dist_coeffs,
-                           geometry.plane_normal, geometry.plane_d)
-        sec = project_to_section(pts3[np.isfinite(pts3).all(axis=1)], geometry.axis_direction)
-        d = sec - np.asarray(m.center_mm)
+        # In arc order: the form's noise correlation is estimated along each frame's arc.
+        d = m.section_mm - np.asarray(m.center_mm)
+        d = d[order_along_arc(d, np.zeros(2))]
         material.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])) - theta)
         radius.append(np.hypot(d[:, 0], d[:, 1]))
     if not material:
         return Roundness(False, reason="no frame was measured")
-    return roundness(np.concatenate(material), np.concatenate(radius), upr=upr)
+    return roundness(np.concatenate(material), np.concatenate(radius), upr=upr,
+                     correlation=None)

@@ -165,3 +165,21 @@ def test_the_watch_needs_frames_and_forgets() -> None:
     assert not w.verdict().concentric
     w.clear()
     assert w.verdict().frames == 0
+
+
+def test_noise_alone_is_not_read_as_form() -> None:
+    """Radii of a round surface with noise correlated along each arc (as speckle leaves
+    them): the plain filtered profile's peak-to-valley is the noise's, the harmonics above
+    their (correlation-inflated) uncertainty say round."""
+    rng = np.random.default_rng(4)
+    beta, radius = [], []
+    for theta in np.arange(0.0, 360.0, 10.0):
+        arc = np.linspace(-60.0, 60.0, 400) - theta
+        noise = np.convolve(rng.normal(0.0, 0.004, 420), np.ones(8) / np.sqrt(8), "valid")
+        beta.append(arc)
+        radius.append(R + noise[:400])
+    plain = roundness(np.concatenate(beta), np.concatenate(radius), significance=0.0)
+    judged = roundness(np.concatenate(beta), np.concatenate(radius), correlation=None)
+    assert plain.ront_mm > 0.003
+    assert judged.ront_mm < 0.001 and judged.dominant_order == 0
+    assert judged.ront_uncertainty_mm > plain.ront_uncertainty_mm  # the correlation counts

@@ -50,11 +50,21 @@ def test_a_surface_off_the_axis_is_measured_about_its_own_centre(eccentricity_mm
         assert min(abs(m.diameter_mm - DIAMETER_MM) for m in wrong) > 0.02
 
 
-def test_the_form_comes_with_the_run_out() -> None:
-    images, angles, rig = frames(0.04, n=36)
-    got = measure_turning(images, geometry_of(rig.calibration), angles, form=True)
-    assert got.roundness is not None and got.roundness.ok
-    assert [h.order for h in got.roundness.harmonics][:2] == [2, 3]
+@pytest.mark.parametrize(("eccentricity_mm", "lobes"), [(0.04, ()), (0.0, ((3, 0.008, 20.0),))])
+def test_the_form_comes_with_the_run_out(eccentricity_mm: float, lobes: tuple) -> None:
+    """A round surface off the axis reads round (RONt within 1 um, no lobing); three lobes
+    of 8 um read as three, odd, RONt 16 um within 1 um + 10 %."""
+    rig = ShaftRenderer(RigConfig(turning=Turning(eccentricity_mm, 40.0, lobes)), seed=5)
+    angles = np.arange(36) * 10.0 + 7.0
+    images = [rig.render(DIAMETER_MM, i, spindle_deg=a) for i, a in enumerate(angles)]
+    form = measure_turning(images, geometry_of(rig.calibration), angles, form=True).roundness
+    assert form is not None and form.ok, form
+    assert [h.order for h in form.harmonics][:2] == [2, 3]
+    ront_true = 2 * sum(a for _, a, _ in lobes)
+    assert abs(form.ront_mm - ront_true) <= 0.001 + 0.1 * ront_true
+    assert form.ront_uncertainty_mm > 0
+    assert form.dominant_order == (lobes[0][0] if lobes else 0)
+    assert form.odd_lobing == bool(lobes)
 
 
 def test_angles_must_match_the_frames() -> None:
