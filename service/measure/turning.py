@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from service.measure import fit as fits
 from service.measure.diameter import MeasureParams, axis_center, measure_frame
 from service.measure.fit import order_along_arc
 from service.measure.form import (
@@ -31,6 +32,14 @@ from service.measure.form import (
 from service.measure.fuse import Fused, fuse
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement, Method, Status
+
+FORM_SIGNIFICANCE = 4.5
+"""A harmonic of the form taken off the frames' points stands above this many of its standard
+uncertainties (``form.roundness``'s own threshold for RONt)."""
+
+FORM_ROUNDS = 1
+"""Rounds of form and run-out estimated in turn: in the simulator a second round moved TIR by
+0.3 um at most and the diameters' mean error by 0.07 um."""
 
 MIN_CENTRE_SIGMA_MM = 0.5e-3
 """The surface's centre at a frame is taken as known no better than this: the run-out fit's
@@ -162,18 +171,91 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
                           near=near)
         near = m.stripe_px
         second.append(m)
-    shape = None
-    if form:
+    shape = _roundness(second, angles, upr)
+    for _ in range(FORM_ROUNDS):
+        # A surface out of round moves each arc's free centre and bends its circle: with the
+        # form known, take it off every frame's points and fit again.
+        lobes = _significant(shape)
+        if not lobes:
+            break
+        runout, second = _about_the_form(second, angles, axis, lobes, params)
         shape = _roundness(second, angles, upr)
-    return TurningFrames(second, runout, fuse(second), shape, axis_check)
+    return TurningFrames(second, runout, fuse(second), shape if form else None, axis_check)
+
+
+def _significant(shape: Roundness) -> list[tuple[int, float, float]]:
+    """The harmonics (order, amplitude mm, phase rad) that stand above their noise."""
+    if not shape.ok or not shape.dominant_order:
+        return []
+    return [(h.order, h.amplitude_mm, math.radians(h.phase_deg)) for h in shape.harmonics
+            if h.amplitude_mm > FORM_SIGNIFICANCE * h.amplitude_uncertainty_mm]
+
+
+def _off_form(points_mm: np.ndarray, centre: np.ndarray, spindle_deg: float,
+              lobes: list[tuple[int, float, float]]) -> np.ndarray:
+    """Points moved radially about ``centre`` by the form at their material angles."""
+    d = points_mm - centre
+    r = np.hypot(d[:, 0], d[:, 1])
+    beta = np.arctan2(d[:, 1], d[:, 0]) - math.radians(spindle_deg)
+    dr = sum(a * np.cos(k * beta - ph) for k, a, ph in lobes)
+    return points_mm - (dr / np.maximum(r, 1e-12))[:, None] * d
+
+
+def _about_the_form(ms: list[Measurement], angles: np.ndarray, axis: np.ndarray,
+                    lobes: list[tuple[int, float, float]], params: MeasureParams
+                    ) -> tuple[Runout, list[Measurement]]:
+    """The run-out from free fits of the points with the form taken off, and each frame's
+    circle about its centre then (``fit.fit_axis_prior`` on those points: the diameter of
+    the form's reference circle)."""
+    centres, covs, use = [], [], []
+    for i, (m, theta) in enumerate(zip(ms, angles, strict=True)):
+        if m.center_mm is None or len(m.section_mm) < params.min_points:
+            continue
+        pts = _off_form(m.section_mm, np.asarray(m.center_mm), theta, lobes)
+        free = fits.fit_geometric(pts)
+        if free:
+            cov = fits.circle_covariance(pts, free.center, free.radius, inliers=free.inliers)
+            centres.append(free.center)
+            covs.append(cov[:2, :2])
+            use.append(i)
+    runout = fit_runout(np.array(centres).reshape(-1, 2), np.array(covs).reshape(-1, 2, 2),
+                        angles[use], axis, fit_axis=False)
+    if not runout.ok:
+        return runout, ms
+    out = []
+    for m, theta in zip(ms, angles, strict=True):
+        if m.center_mm is None or len(m.section_mm) < params.min_points:
+            out.append(m)
+            continue
+        centre = runout.center_at(axis, float(theta))
+        pts = _off_form(m.section_mm, centre, theta, lobes)
+        circ = fits.fit_axis_prior(pts, centre, centre_sigma_at(runout, float(theta)))
+        if not circ:
+            out.append(replace(m, status=Status.FIT_FAILED, diameter_mm=None,
+                               reason=circ.reason))
+            continue
+        std = 2.0 * circ.radius_std
+        ok = bool(np.isfinite(std) and std <= params.max_uncertainty_mm)
+        out.append(replace(
+            m, status=Status.OK if ok else Status.UNCERTAIN,
+            diameter_mm=float(circ.diameter) if ok else None,
+            center_mm=(float(circ.center[0]), float(circ.center[1])),
+            uncertainty_mm=float(std) if np.isfinite(std) else None,
+            reason="" if ok else f"diameter uncertain by {std * 1000:.1f} um (limit "
+            f"{params.max_uncertainty_mm * 1000:.1f} um) with the surface's form taken off",
+            note="measured with the surface's form taken off"))
+    return runout, out
 
 
 def _roundness(ms: list[Measurement], angles: np.ndarray, upr: int) -> Roundness:
-    """Every measured frame's points (as its fit took them) as radii about its own centre at
+    """Every fitted frame's points (as its fit took them) as radii about its own centre at
     their material angles (the angle in the section less the frame's spindle angle)."""
     material, radius = [], []
     for m, theta in zip(ms, angles, strict=True):
-        if m.status is not Status.OK or m.center_mm is None or len(m.section_mm) == 0:
+        # Frames refused only as uncertain count too: a form the run-out does not model
+        # (lobes) leaves most of them uncertain until it is known.
+        if m.status not in (Status.OK, Status.UNCERTAIN) or m.center_mm is None \
+                or len(m.section_mm) == 0:
             continue
         # In arc order: the form's noise correlation is estimated along each frame's arc.
         d = m.section_mm - np.asarray(m.center_mm)
