@@ -143,7 +143,11 @@ def by_chain(inside: np.ndarray, chain: np.ndarray | None, min_share: float = 0.
     """
     if chain is None or len(chain) == 0:
         return inside
-    _, inverse = np.unique(chain, return_inverse=True)
-    on = np.bincount(inverse, weights=inside.astype(np.float64))
-    share = on / np.bincount(inverse)
-    return inside & ((share[inverse] >= min_share) | (on[inverse] >= min_on_circle))
+    # Labels are point indices (``steger_kernels.chain_labels``): counted as they are, with
+    # no sort; any other labels are numbered first.
+    labels = chain if chain.min() >= 0 and chain.max() < 4 * len(chain) + 1024 else \
+        np.unique(chain, return_inverse=True)[1]
+    on = np.bincount(labels, weights=inside.astype(np.float64))
+    count = np.bincount(labels)
+    share = on[labels] / count[labels]
+    return inside & ((share >= min_share) | (on[labels] >= min_on_circle))
