@@ -9,8 +9,11 @@ along the axis does not matter.
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
+
+from service.measure.stripe import StripePoints
 
 
 def orthonormal_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -175,3 +178,29 @@ def first_hit_on_cylinder(rays_xy: np.ndarray, axis_point: np.ndarray,
     nrm = rel - (rel @ a)[..., None] * a
     nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-300)
     return hit, points, nrm
+
+
+@dataclass(frozen=True)
+class SectionPoints:
+    """Stripe points carried through triangulation and projection.
+
+    Attributes
+    ----------
+    stripe : StripePoints
+        Image centres (px) with a finite 3-D point.
+    points3d : ndarray, shape (N, 3)
+        Camera-frame points on the light plane, mm.
+    section : ndarray, shape (N, 2)
+        Coordinates on the plane perpendicular to the axis, mm.
+    """
+
+    stripe: StripePoints
+    points3d: np.ndarray
+    section: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> SectionPoints:
+        """The points selected by a boolean mask or index array (these points themselves
+        when the mask keeps them all)."""
+        if keep.dtype == np.bool_ and keep.all():
+            return self
+        return SectionPoints(self.stripe.subset(keep), self.points3d[keep], self.section[keep])

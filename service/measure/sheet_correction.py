@@ -17,11 +17,13 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from service.measure.geometry import RigGeometry
+from service.measure.params import MeasureParams
+from service.measure.section import SectionPoints
 from service.measure.sheet import (
     Crossings,
     arc_angles,
@@ -31,9 +33,6 @@ from service.measure.sheet import (
     ridge_bias,
     sheet_sigma_from_profile,
 )
-
-if TYPE_CHECKING:
-    from service.measure.diameter import MeasureParams, SectionPoints
 
 SAMPLE_STEP_RAD = 0.05
 """Spacing of the points along the arc where the sheet's error is modelled (it changes slowly

@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from calib_store.compensation_log import CompensationLog
-from service.runtime.record import Feature, MeasurementRecord
+from service.record import Feature, MeasurementRecord
 
 
 class MeasurementArchive:

@@ -24,7 +24,7 @@ from service.compensation import (
     State,
 )
 from service.offsets import OffsetChannel, OffsetTransport
-from service.runtime.record import Feature, MeasurementRecord
+from service.record import Feature, MeasurementRecord
 
 log = logging.getLogger("shaftgauge.compensation")
 

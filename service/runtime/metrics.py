@@ -23,8 +23,8 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 from drivers.plc.client import Outcome
+from service.record import MeasurementRecord
 from service.runtime.health import HealthReport
-from service.runtime.record import MeasurementRecord
 
 # Frame -> registers is milliseconds; an offset write, tens of ms to seconds.
 LATENCY_BUCKETS_S = (0.001, 0.002, 0.003, 0.005, 0.0075, 0.01, 0.015, 0.02, 0.03, 0.05,

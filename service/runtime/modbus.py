@@ -21,8 +21,8 @@ from drivers.plc.registers import (
 from drivers.plc.server import GaugeModbusServer, ModbusAccess, run_heartbeat
 from service.compensation import CompensationSettings, Decision, State
 from service.config import ModbusSettings
+from service.record import MeasurementRecord
 from service.runtime.compensating import CompensationService
-from service.runtime.record import MeasurementRecord
 
 log = logging.getLogger("shaftgauge.modbus")
 

@@ -11,11 +11,11 @@ from drivers.camera.base import Frame
 from service.calibrate.master import corrected
 from service.measure.result import Measurement
 from service.measure.turning import concentricity_check
+from service.record import make_record
 from service.runtime.calibration import CalibrationInUse
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed, SequenceCounter
 from service.runtime.modbus import ModbusFacade
-from service.runtime.record import make_record
 
 
 class Publisher:

@@ -9,8 +9,8 @@ from typing import Any
 
 from service.config import SpcConfig
 from service.quality.monitor import SpcMonitor, SpcSettings, Subgroup
+from service.record import Feature, MeasurementRecord
 from service.runtime.feed import Subscribers
-from service.runtime.record import Feature, MeasurementRecord
 
 
 class SpcService:

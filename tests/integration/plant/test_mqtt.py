@@ -17,7 +17,7 @@ from calib_store.outbox import Outbox
 from service.compensation import Decision, Kind
 from service.config import MqttSettings
 from service.plant.mqtt import MqttPublisher
-from service.runtime.record import MeasurementRecord
+from service.record import MeasurementRecord
 from tests.integration.plant.conftest import Mosquitto, make_test_ca, wait_until
 
 

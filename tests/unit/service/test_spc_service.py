@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from service.config import SpcConfig
-from service.runtime.record import Feature
+from service.record import Feature
 from service.runtime.spc import SpcService
 from service.runtime.studies import GaugeStudies, StudyPolicy
 from tests.integration.plant.test_mqtt import record
