@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.unit.service.conftest import client  # noqa: F401 (the API on simulated parts)
+
 SHAFTGAUGE = str(Path(sys.executable).with_name("shaftgauge"))
 
 

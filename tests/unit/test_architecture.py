@@ -123,7 +123,7 @@ def test_no_two_modules_import_each_other() -> None:
         state[node] = "open"
         for dep in sorted(graph[node]):
             if state.get(dep) == "open":
-                cycles.append(" -> ".join(path[path.index(dep):] + [dep]))
+                cycles.append(" -> ".join([*path[path.index(dep):], dep]))
             elif dep not in state:
                 visit(dep, [*path, dep])
         state[node] = "done"
