@@ -4,7 +4,7 @@ VENV  := .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.shaftgauge-installed
 
-.PHONY: setup run test bench soak lint clean linuxcnc-demo
+.PHONY: setup run test check docs bench soak lint clean linuxcnc-demo
 
 setup: $(STAMP)
 
@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml deploy/bootstrap.sh
 	bash deploy/bootstrap.sh
 
 ## make run: the service on its embedded default (simulated GigE camera and PLC on loopback).
-run: setup
+run: setup docs
 	$(PY) -m service.measure.compiled
 	$(VENV)/bin/shaftgauge serve
 
@@ -23,10 +23,22 @@ linuxcnc-demo: setup
 	bash deploy/linuxcnc/demo.sh
 
 ## make test: lint, then the whole suite (short fault runs included, long soak runs left out).
-test: setup
+test: setup docs
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
 	$(PY) -m pytest -m "not slow" -q --durations=20
+
+## make check: the fast layer for a developer's loop (lint, unit and property tests, on both
+## cores): under two minutes.
+check: setup
+	$(VENV)/bin/ruff check .
+	$(PY) -m service.measure.compiled
+	$(PY) -m pytest -m "not slow" -q -n 2 tests/unit tests/fuzz
+
+## make docs: the manual (docs/) built into service/web/manual, served at /ui/manual/; a broken
+## link fails the build.
+docs: setup
+	$(VENV)/bin/mkdocs build --quiet
 
 ## make bench: accuracy and speed figures; results land in bench-results/ (with the machine,
 ## the commit and the date), the speed guard's baseline among them: commit them with the change.
@@ -54,4 +66,4 @@ lint: setup
 	$(VENV)/bin/ruff check .
 
 clean:
-	rm -rf $(VENV) bench-results test-artifacts .pytest_cache .ruff_cache
+	rm -rf $(VENV) bench-results test-artifacts .pytest_cache .ruff_cache service/web/manual

@@ -306,7 +306,7 @@ class QualitySettings(_Section):
 
 
 class MqttSettings(_Section):
-    """The plant's MQTT broker (``deploy/mqtt.md``): on when ``host`` is set."""
+    """The plant's MQTT broker (``docs/mqtt.md``): on when ``host`` is set."""
 
     host: str | None = None
     port: int = Field(1883, ge=1, le=65535)
@@ -347,7 +347,7 @@ class MqttSettings(_Section):
 
 
 class OpcUaSettings(_Section):
-    """The OPC UA server (``deploy/opcua.md``)."""
+    """The OPC UA server (``docs/opcua.md``)."""
 
     enabled: bool | None = None
     """None: on for the embedded default (a simulated camera), off on an installation."""

@@ -1,6 +1,6 @@
 """The Modbus register map the CNC polls, and a thread-safe bank of its values.
 
-One table (``REGISTERS``) defines every register; ``deploy/modbus-register-map.md`` is checked
+One table (``REGISTERS``) defines every register; ``docs/modbus-register-map.md`` is checked
 against it by a test. Addresses are 0-based. 32-bit values take two registers; their word
 order is configurable (big-endian words, high word first, by default). Diameters and offsets
 are signed 32-bit integers in 0.1 um; ``NO_VALUE`` (0x80000000) means "no value".
@@ -255,7 +255,7 @@ class RegisterBank:
 
 def markdown_tables() -> str:
     """The register, status-bit, fault-bit and command tables as Markdown (the text that
-    ``deploy/modbus-register-map.md`` must contain; a test checks it)."""
+    ``docs/modbus-register-map.md`` must contain; a test checks it)."""
     lines = ["| address | name | type | unit | access | meaning |",
              "|---:|---|---|---|---|---|"]
     for r in REGISTERS:

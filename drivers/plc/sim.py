@@ -3,7 +3,7 @@
 On a write of offset and sequence (FC16 over both pairs) it applies the offset, after an
 optional delay, if the sequence is new and still in its request registers, and echoes the
 sequence into its acknowledgement register. A write of sequence 0 clears the request (what a
-CNC does with a request it will not apply; see deploy/modbus-register-map.md); with
+CNC does with a request it will not apply; see docs/modbus-register-map.md); with
 ``never_ack`` it keeps every request and applies none (a CNC that stopped its part of the
 exchange). The request registers are volatile, as a PLC's exchange area is: after a restart
 they read 0. Every write received and every offset applied goes into a log (in memory and, when

@@ -1,6 +1,6 @@
 """The gauge on the plant's MQTT broker (aiomqtt): measurements, decisions, state and health.
 
-Topics under ``<prefix>`` (``shaftgauge/<gauge id>`` unless set; ``deploy/mqtt.md``):
+Topics under ``<prefix>`` (``shaftgauge/<gauge id>`` unless set; ``docs/mqtt.md``):
 
 - ``measurement``: the latest measurement as JSON, at most ``measurement_hz`` a second (the
   frames between are in its fused value), QoS ``qos_measurement`` (0: a newer one follows);

@@ -1,6 +1,6 @@
 """The gauge as an OPC UA server (asyncua): live variables, and two methods for technicians.
 
-Address space (namespace ``urn:shaftgauge``; ``deploy/opcua.md``), named after OPC 40001
+Address space (namespace ``urn:shaftgauge``; ``docs/opcua.md``), named after OPC 40001
 (Machinery: ``Identification``, ``Monitoring``) and OPC 40501 (Machine Tools: ``Production``,
 ``Equipment``) where they have a name for the thing::
 

@@ -81,6 +81,23 @@ def test_operator_view_is_live(service, browser) -> None:
     assert phone.evaluate("document.documentElement.scrollWidth") <= 391
 
 
+def test_the_dashboard_links_to_the_manual_it_serves(service, browser) -> None:
+    """The manual (``make docs``) is served by the gauge itself, for a closed plant network:
+    from the dashboard's footer to its operating page, with nothing fetched from outside."""
+    built = Path(__file__).resolve().parents[2] / "service" / "web" / "manual" / "index.html"
+    assert built.exists(), "the manual is not built: `make docs` (make test runs it first)"
+    page = open_page(browser, service.url + "/ui/#operator")
+    outside: list[str] = []
+    page.on("request", lambda r: outside.append(r.url)
+            if not r.url.startswith(service.url) else None)
+    page.click("#manual")
+    expect(page).to_have_title(re.compile("shaftgauge"))
+    page.get_by_role("link", name="Operating", exact=True).first.click()
+    expect(page.locator("h1")).to_have_text("Operating the gauge")
+    expect(page.locator("body")).to_contain_text("not_concentric")
+    assert not outside, outside
+
+
 def test_the_trend_shows_the_uncompensated_process(service, browser) -> None:
     """Measured less the offsets in force when the surface was cut: an offset applied after
     measurement 2 shows from measurement 2 + the dead time on."""

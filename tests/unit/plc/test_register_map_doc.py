@@ -1,14 +1,14 @@
-"""deploy/modbus-register-map.md says exactly what the code does."""
+"""docs/modbus-register-map.md says exactly what the code does."""
 
 from pathlib import Path
 
 from drivers.plc.registers import markdown_tables
 
-DOC = Path(__file__).resolve().parents[3] / "deploy" / "modbus-register-map.md"
+DOC = Path(__file__).resolve().parents[3] / "docs" / "modbus-register-map.md"
 
 
 def test_document_holds_the_tables_the_code_defines() -> None:
     text = DOC.read_text()
     assert markdown_tables() in text, (
-        "deploy/modbus-register-map.md differs from drivers/plc/registers.py; regenerate the "
+        "docs/modbus-register-map.md differs from drivers/plc/registers.py; regenerate the "
         "tables with: .venv/bin/python -m drivers.plc.registers")
