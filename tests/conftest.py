@@ -10,6 +10,28 @@ import pytest
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
 
+RIG_DIRS = ("tests/e2e/", "tests/faults/", "tests/integration/linuxcnc/")
+RIG_MARKS = ("start_service", "sim_camera", "drivers.sim.gige", "drivers.camera.aravis",
+             "test_speed_guard")
+"""What needs the one simulated GigE camera's port (3956 on 127.0.0.1), LinuxCNC, or the
+machine to itself (services timed against their baseline): those run one after another on
+one worker of ``pytest -n`` (``xdist_group``); the rest share the other cores."""
+
+
+def _needs_the_rig(path: Path, cache: dict[Path, bool]) -> bool:
+    if path not in cache:
+        rel = path.relative_to(Path(__file__).resolve().parents[1]).as_posix()
+        cache[path] = rel.startswith(RIG_DIRS) or any(
+            mark in rel or mark in path.read_text() for mark in RIG_MARKS)
+    return cache[path]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    cache: dict[Path, bool] = {}
+    for item in items:
+        if _needs_the_rig(Path(item.fspath), cache):
+            item.add_marker(pytest.mark.xdist_group("rig"))
+
 
 @pytest.fixture(scope="session")
 def renderer() -> ShaftRenderer:
