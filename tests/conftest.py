@@ -18,19 +18,21 @@ machine to itself (services timed against their baseline): those run one after a
 one worker of ``pytest -n`` (``xdist_group``); the rest share the other cores."""
 
 
-def _needs_the_rig(path: Path, cache: dict[Path, bool]) -> bool:
-    if path not in cache:
+_RIG: dict[Path, bool] = {}
+
+
+def _needs_the_rig(path: Path) -> bool:
+    if path not in _RIG:
         rel = path.relative_to(Path(__file__).resolve().parents[1]).as_posix()
-        cache[path] = rel.startswith(RIG_DIRS) or any(
+        _RIG[path] = rel.startswith(RIG_DIRS) or any(
             mark in rel or mark in path.read_text() for mark in RIG_MARKS)
-    return cache[path]
+    return _RIG[path]
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    cache: dict[Path, bool] = {}
-    for item in items:
-        if _needs_the_rig(Path(item.fspath), cache):
-            item.add_marker(pytest.mark.xdist_group("rig"))
+def pytest_itemcollected(item: pytest.Item) -> None:
+    # As each test is collected: xdist reads the groups into the test ids after collection.
+    if _needs_the_rig(Path(item.fspath)):
+        item.add_marker(pytest.mark.xdist_group("rig"))
 
 
 @pytest.fixture(scope="session")
