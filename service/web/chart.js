@@ -9,11 +9,48 @@ function fit(canvas) {
   return { ctx, w, h };
 }
 
+// Round tick values between lo and hi, about n of them (1, 2 or 5 times a power of ten apart).
+export function ticks(lo, hi, n = 5) {
+  if (!(hi > lo)) return [lo];
+  const mag = 10 ** Math.floor(Math.log10((hi - lo) / n));
+  const step = [1, 2, 5, 10].map((k) => k * mag).find((s) => (hi - lo) / s <= n + 1 + 1e-9);
+  const out = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) {
+    out.push(Math.abs(v) < step * 1e-9 ? 0 : v);
+  }
+  return out;
+}
+
+// Decimals that tell ticks `step` apart.
+const decimals = (vs) => vs.length < 2 ? 4 :
+  Math.max(0, Math.min(6, -Math.floor(Math.log10(Math.abs(vs[1] - vs[0])) + 1e-9)));
+
+// Axes: tick values on the left (y, in `yUnit`) and below (x), gridlines, the units named.
+function axes(ctx, pad, w, h, x, y, xs, ys) {
+  ctx.save();
+  ctx.font = "11px system-ui"; ctx.fillStyle = "#9aa5b1"; ctx.strokeStyle = "rgba(154,165,177,.18)";
+  const yt = ticks(ys.lo, ys.hi, Math.max(2, Math.floor((h - pad.t - pad.b) / 28)))
+    .filter((v) => !ys.integer || Number.isInteger(v));
+  const yd = ys.integer ? 0 : decimals(yt);
+  for (const v of yt) {
+    ctx.beginPath(); ctx.moveTo(pad.l, y(v)); ctx.lineTo(w - pad.r, y(v)); ctx.stroke();
+    ctx.textAlign = "right"; ctx.fillText(v.toFixed(yd), pad.l - 4, y(v) + 4);
+  }
+  ctx.textAlign = "left"; ctx.fillText(ys.unit, 4, pad.t + 8);
+  const xt = ticks(xs.lo, xs.hi, Math.max(2, Math.floor((w - pad.l - pad.r) / 90)))
+    .filter((v) => !xs.integer || Number.isInteger(v));
+  const xd = xs.integer ? 0 : decimals(xt);
+  ctx.textAlign = "center";
+  for (const v of xt) ctx.fillText(v.toFixed(xd), x(v), h - pad.b + 13);
+  ctx.textAlign = "right"; ctx.fillText(xs.unit, w - pad.r, h - 3);
+  ctx.restore();
+}
+
 // points: [{seq, d}] (mm); band: {lo, hi, nominal} (mm) or null; marks: [seq];
 // process: [{seq, d}] (mm), the uncompensated process, dashed (none when no offset applied)
 export function drawTrend(canvas, points, band, marks, process = []) {
   const { ctx, w, h } = fit(canvas);
-  const pad = { l: 64, r: 8, t: 8, b: 18 };
+  const pad = { l: 64, r: 8, t: 8, b: 30 };
   ctx.font = "12px system-ui"; ctx.fillStyle = "#9aa5b1";
   if (!points.length) { ctx.fillText("no measurements yet", pad.l, h / 2); return; }
   const ds = [...points, ...process].map((p) => p.d);
@@ -30,10 +67,8 @@ export function drawTrend(canvas, points, band, marks, process = []) {
     ctx.beginPath(); ctx.moveTo(pad.l, y(band.nominal)); ctx.lineTo(w - pad.r, y(band.nominal)); ctx.stroke();
     ctx.setLineDash([]);
   }
-  ctx.fillStyle = "#9aa5b1";
-  for (const v of [hi - (hi - lo) * 0.1, (hi + lo) / 2, lo + (hi - lo) * 0.1]) {
-    ctx.fillText(v.toFixed(4), 4, y(v) + 4);
-  }
+  axes(ctx, pad, w, h, x, y, { lo: s0, hi: s1, unit: "measurement", integer: true },
+       { lo, hi, unit: "mm" });
   ctx.strokeStyle = "#e0a030";
   for (const s of marks) {
     if (s < s0) continue;
@@ -72,21 +107,28 @@ export function drawBars(canvas, bars, unit, limit) {
 
 // A line chart of values with horizontal reference lines; flagged points drawn red.
 // values: [number]; lines: [{v, label, color, dash}]; flagged: Set of indices
-export function drawLines(canvas, values, lines, flagged = new Set()) {
+// opts: {unit (y), xUnit, note: said on the chart (e.g. why it has no limits yet)}
+export function drawLines(canvas, values, lines, flagged = new Set(), opts = {}) {
   const { ctx, w, h } = fit(canvas);
-  const pad = { l: 70, r: 8, t: 8, b: 14 };
+  const pad = { l: 70, r: 8, t: 8, b: 30 };
   ctx.font = "11px system-ui"; ctx.fillStyle = "#9aa5b1";
-  if (!values.length) { ctx.fillText("no values yet", pad.l, h / 2); return; }
+  if (!values.length) { ctx.fillText(opts.note || "no values yet", pad.l, h / 2); return; }
   const all = [...values, ...lines.map((l) => l.v)];
   let lo = Math.min(...all), hi = Math.max(...all);
   const span = Math.max(hi - lo, 1e-6); lo -= span * 0.08; hi += span * 0.08;
   const x = (i) => pad.l + (values.length > 1 ? i / (values.length - 1) : 0.5) * (w - pad.l - pad.r);
   const y = (v) => pad.t + (hi - v) / (hi - lo) * (h - pad.t - pad.b);
+  const n = values.length;
+  axes(ctx, pad, w, h, (v) => x(v - 1), y,
+       { lo: 1, hi: Math.max(n, 2), unit: opts.xUnit || "", integer: true },
+       { lo, hi, unit: opts.unit || "" });
   for (const l of lines) {
     ctx.strokeStyle = l.color; ctx.setLineDash(l.dash ? [5, 4] : []);
     ctx.beginPath(); ctx.moveTo(pad.l, y(l.v)); ctx.lineTo(w - pad.r, y(l.v)); ctx.stroke();
-    ctx.fillStyle = l.color; ctx.fillText(`${l.label} ${l.v.toFixed(4)}`, 2, y(l.v) + 4);
+    ctx.fillStyle = l.color; ctx.textAlign = "right";
+    ctx.fillText(l.label, w - pad.r - 2, y(l.v) - 3); ctx.textAlign = "left";
   }
+  if (opts.note) { ctx.fillStyle = "#f3c76b"; ctx.fillText(opts.note, pad.l + 6, pad.t + 12); }
   ctx.setLineDash([]); ctx.strokeStyle = "#6fb3ff"; ctx.beginPath();
   values.forEach((v, i) => (i ? ctx.lineTo(x(i), y(v)) : ctx.moveTo(x(i), y(v))));
   ctx.stroke();
@@ -99,7 +141,7 @@ export function drawLines(canvas, values, lines, flagged = new Set()) {
 // A histogram of values with the specification limits (lsl, usl may be null).
 export function drawHistogram(canvas, values, lsl, usl, nominal) {
   const { ctx, w, h } = fit(canvas);
-  const pad = { l: 8, r: 8, t: 8, b: 18 };
+  const pad = { l: 36, r: 8, t: 8, b: 30 };
   ctx.font = "11px system-ui"; ctx.fillStyle = "#9aa5b1";
   if (!values.length) { ctx.fillText("no values yet", 10, h / 2); return; }
   const edges = [...values, ...[lsl, usl].filter((v) => v != null)];
@@ -110,6 +152,8 @@ export function drawHistogram(canvas, values, lsl, usl, nominal) {
   const top = Math.max(...counts);
   const x = (v) => pad.l + (v - lo) / (hi - lo) * (w - pad.l - pad.r);
   const bw = (w - pad.l - pad.r) / bins;
+  axes(ctx, pad, w, h, x, (c) => h - pad.b - c / top * (h - pad.t - pad.b),
+       { lo, hi, unit: "mm" }, { lo: 0, hi: top, unit: "count", integer: true });
   ctx.fillStyle = "#2d6cdf";
   counts.forEach((c, i) => {
     const bh = c / top * (h - pad.t - pad.b);
@@ -119,6 +163,6 @@ export function drawHistogram(canvas, values, lsl, usl, nominal) {
                                    [nominal, "nominal", "#8be0b0"]]) {
     if (v == null) continue;
     ctx.strokeStyle = color; ctx.beginPath(); ctx.moveTo(x(v), pad.t); ctx.lineTo(x(v), h - pad.b);
-    ctx.stroke(); ctx.fillStyle = color; ctx.fillText(label, x(v) + 3, h - 4);
+    ctx.stroke(); ctx.fillStyle = color; ctx.fillText(label, x(v) + 3, pad.t + 10);
   }
 }

@@ -41,7 +41,11 @@ function render() {
                { v: f.limits.center_mm, label: "CL", color: "#8be0b0" },
                { v: f.limits.lcl_mm, label: "LCL", color: "#f3c76b", dash: true });
   }
-  drawLines($("spc-chart"), means, lines, flagged);
+  drawLines($("spc-chart"), means, lines, flagged, {
+    unit: "mm", xUnit: "subgroup",
+    note: f.limits ? "" : `no control limits until the baseline is complete (${base.subgroups} of ` +
+      `${base.needed} subgroups)`,
+  });
   drawHistogram($("spc-hist"), f.points.flatMap((p) => p.values_mm), f.lsl_mm, f.usl_mm,
                 f.nominal_mm);
   const list = $("spc-violations");

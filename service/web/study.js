@@ -10,7 +10,7 @@ function chart(values, ref, tol) {
     { v: ref + 0.1 * tol, label: "+0.1T", color: "#f3c76b", dash: true },
     { v: ref, label: "ref", color: "#8be0b0" },
     { v: ref - 0.1 * tol, label: "-0.1T", color: "#f3c76b", dash: true }];
-  drawLines($("study-chart"), values, lines);
+  drawLines($("study-chart"), values, lines, new Set(), { unit: "mm", xUnit: "value" });
 }
 
 function verdict(s) {

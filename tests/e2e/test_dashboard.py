@@ -98,6 +98,46 @@ def test_the_dashboard_links_to_the_manual_it_serves(service, browser) -> None:
     assert not outside, outside
 
 
+def test_charts_read_like_charts(service, browser) -> None:
+    """Every chart has axes with values and units; the X-bar chart says why it has no limits
+    while its baseline fills (what the canvas is told to write, spied)."""
+    page = open_page(browser, service.url + "/ui/#operator")
+    got = page.evaluate("""async () => {
+        const c = await import("./chart.js");
+        const canvas = Object.assign(document.createElement("canvas"),
+                                     { width: 600, height: 200 });
+        canvas.style.width = "600px"; canvas.style.height = "200px";
+        document.body.append(canvas);
+        const said = [];
+        const real = CanvasRenderingContext2D.prototype.fillText;
+        CanvasRenderingContext2D.prototype.fillText = function (t, ...rest) {
+            said.push(String(t)); return real.call(this, t, ...rest); };
+        const draw = (f) => { said.length = 0; f(); return [...said]; };
+        const pts = [29.996, 30.001, 30.004].map((d, i) => ({ seq: 40 + i * 10, d }));
+        const out = {
+            ticks: c.ticks(29.994, 30.006).map((v) => v.toFixed(3)),
+            trend: draw(() => c.drawTrend(canvas, pts,
+                                          { lo: 29.99, hi: 30.01, nominal: 30.0 }, [])),
+            xbar: draw(() => c.drawLines(canvas, [29.998, 30.002, 30.0], [], new Set(),
+                { unit: "mm", xUnit: "subgroup",
+                  note: "no control limits until the baseline is complete (3 of 25 subgroups)" })),
+            hist: draw(() => c.drawHistogram(canvas, [29.998, 30.0, 30.0, 30.002], 29.99,
+                                             30.01, 30.0)),
+        };
+        CanvasRenderingContext2D.prototype.fillText = real;
+        return out;
+    }""")
+    assert got["ticks"] == ["29.994", "29.996", "29.998", "30.000", "30.002", "30.004",
+                            "30.006"]
+    for name, unit in (("trend", "mm"), ("xbar", "mm"), ("hist", "count")):
+        assert unit in got[name], (name, got[name])
+    assert "measurement" in got["trend"] and "subgroup" in got["xbar"]
+    assert "30.000" in got["trend"] and "30.000" in got["xbar"]
+    assert any(t == "50" for t in got["trend"])  # measurement numbers along the bottom
+    assert "no control limits until the baseline is complete (3 of 25 subgroups)" in got["xbar"]
+    assert "LSL" in got["hist"] and "USL" in got["hist"] and "mm" in got["hist"]
+
+
 def test_the_trend_shows_the_uncompensated_process(service, browser) -> None:
     """Measured less the offsets in force when the surface was cut: an offset applied after
     measurement 2 shows from measurement 2 + the dead time on."""
