@@ -368,7 +368,8 @@ def latest_seq(svc, timeout_s: float = 10.0) -> int:
 
 def test_a_thousand_live_streams_at_once(tmp_path) -> None:
     """1000 clients open the live stream at once: at most ``api.max_streams`` get one, the
-    rest a 503 at once; the service keeps measuring and answering."""
+    rest a 503 at once; the service keeps measuring and answering, and once they are gone a
+    client gets its stream."""
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))  # the service's too
     svc = start_service(tmp_path)
@@ -401,9 +402,21 @@ def test_a_thousand_live_streams_at_once(tmp_path) -> None:
                 refused_503=codes.get("503", 0), other=sum(v for k, v in codes.items()
                                                            if k not in ("200", "503")),
                 rss_growth_mib=round(grown_mib, 1))
-        assert codes.get("200", 0) <= 32 and codes.get("200", 0) >= 1, codes
+        # How many of the flood are served depends on how fast the server takes them in
+        # (on a busy machine all 1000 are open before it reads the first: every one 503).
+        assert codes.get("200", 0) <= 32, codes
         assert codes.get("503", 0) >= 900, codes
         assert grown_mib < 128, grown_mib
+        for s in socks:
+            s.close()
+        socks.clear()
+        # The flood gone, a client gets its stream again.
+        def stream_served() -> bool:
+            with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+                s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: x\r\n\r\n")
+                return s.recv(4096).split(b"\r\n")[0].split(b" ")[1:2] == [b"200"]
+
+        until(stream_served, 30, "a live stream served after the flood")
     finally:
         for s in socks:
             s.close()
