@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -46,9 +48,16 @@ def calibration_images(tmp_path_factory) -> Path:
     """A simulated calibration session's images, as ``shaftgauge calibrate render`` writes
     them (``views/``, ``plane/``, ``axis/``): rendered once for every test that only reads
     them (half a minute of rendering each time otherwise)."""
-    out = tmp_path_factory.mktemp("calibration-images")
-    shaftgauge = str(Path(sys.executable).with_name("shaftgauge"))
-    r = subprocess.run([shaftgauge, "calibrate", "render", "--output", str(out)],
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # shared by this run's workers: rendered once, not once each
+    out = root / "calibration-images"
+    with open(root / "calibration-images.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (out / ".rendered").exists():
+            shaftgauge = str(Path(sys.executable).with_name("shaftgauge"))
+            r = subprocess.run([shaftgauge, "calibrate", "render", "--output", str(out)],
+                               capture_output=True, text=True, timeout=300)
+            assert r.returncode == 0, r.stderr
+            (out / ".rendered").touch()
     return out
