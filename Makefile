@@ -41,7 +41,8 @@ docs: setup
 	$(VENV)/bin/mkdocs build --quiet
 
 ## make bench: accuracy and speed figures; results land in bench-results/ (with the machine,
-## the commit and the date), the speed guard's baseline among them: commit them with the change.
+## the commit and the date), the speed guard's baseline among them, and the manual's figures
+## are rendered from them (tests.bench.figures): commit them with the change.
 bench: setup
 	$(PY) -m service.measure.compiled
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PY) -m tests.bench.core_throughput
@@ -55,7 +56,8 @@ bench: setup
 	$(PY) -m tests.bench.plant_publish
 	$(PY) -m tests.bench.closed_loop
 	$(PY) -m tests.bench.guard --runs 3 --write
-	@git status --short bench-results
+	$(PY) -m tests.bench.figures
+	@git status --short bench-results docs
 
 ## make soak: the long soak and fault runs (an hour; SHAFTGAUGE_SOAK_S=600 for ten minutes).
 soak: setup

@@ -1,0 +1,118 @@
+"""The manual's bench figures, rendered from ``bench-results/`` (what ``make bench`` wrote, with
+its machine, commit and date), so that a figure in the docs is always the last run's.
+
+A page holds a rendered block between ``<!-- figures: NAME -->`` and ``<!-- /figures -->``;
+``python -m tests.bench.figures`` writes every block again (``make bench`` runs it last),
+``--check`` only says which differ (``tests/unit/test_figures.py`` runs that: a figure edited
+by hand in a block fails it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "bench-results"
+DOCS = ROOT / "docs"
+BLOCK = re.compile(r"(<!-- figures: (?P<name>[a-z_]+) -->\n)(?P<body>.*?)(<!-- /figures -->)",
+                   re.S)
+
+
+def _load(name: str) -> dict:
+    return json.loads((RESULTS / f"{name}.json").read_text())
+
+
+def _measured(run: dict) -> str:
+    dirty = ", uncommitted changes" if run.get("dirty") else ""
+    return (f"*Measured {run['date'][:10]} on {run['machine'].split(',')[1].strip()} "
+            f"({run['machine'].split(',')[0]}), commit `{run['commit']}`{dirty}.*")
+
+
+def core_throughput() -> str:
+    """The measurement core on one core against the fair plain Steger of the same run."""
+    d = _load("core_throughput")
+    plain = d["extractors"]["plain_steger"]["ms_per_frame"]
+    names = {"axis": "default, `axis`", "geometric": "default, `geometric`",
+             "axis, wide sheet": f"sheet {d['wide_rig']['sheet_sigma_mm']} mm, "
+             f"{d['wide_rig']['speckle_grain_px']} px speckle grains, `axis`"}
+    rows = ["| rig, method | frames/s on one core | median frame | first frame of a shaft | "
+            "plain Steger / median frame | mean \\|error\\| per frame |",
+            "|---|---:|---:|---:|---:|---:|"]
+    for key, v in d["core"].items():
+        err = "every frame refused as uncertain" if v["mean_abs_error_um"] is None \
+            else f"{v['mean_abs_error_um']:.2f} um"
+        rows.append(f"| {names.get(key, key)} | {v['fps_one_core']:.1f} | "
+                    f"{v['median_frame_ms']:.2f} ms | {v['first_frame_ms']:.1f} ms | "
+                    f"{v['plain_steger_vs_median_frame']:.1f}x | {err} |")
+    rc = d["reflection_check"]
+    return "\n".join([
+        f"{d['shafts']} shafts x {d['frames_per_shaft']} frames of "
+        f"{d['image_size'][0]}x{d['image_size'][1]}, {d['runs']} runs, medians; the plain "
+        f"Steger {plain:.1f} ms a frame in the same run; a frame checked for a reflection "
+        f"{rc['median_frame_ms']:.2f} ms.", "", *rows, "", _measured(d["run"])])
+
+
+def service_throughput() -> str:
+    """``serve`` at 100 fps: the embedded default and a fixed shaft, region on and off."""
+    rows = ["| run | region of interest | measurements/s | frames dropped | "
+            "registers median / p99 | CPU | with two polling clients: p99, REST p99, "
+            "Modbus p99 |", "|---|:---:|---:|---:|---:|---:|---:|"]
+    runs = []
+    for name, what in (("service_throughput_embedded", "the embedded default, 100 fps"),
+                       ("service_throughput_100fps", "a fixed 30 mm shaft, 100 fps")):
+        d = _load(name)
+        runs.append(d["run"])
+        for r in d["results"]:
+            c = r["with_clients"]
+            rows.append(
+                f"| {what} | {'on' if r['roi'] else 'off'} | {r['measurements_per_s']:.1f} | "
+                f"{r['camera_dropped']} | {r['latency_median_ms']:.1f} / "
+                f"{r['latency_p99_ms']:.1f} ms | {r['service_cpu_pct']:.0f} % | "
+                f"{c['latency_p99_ms']:.1f} / {c['client_rest']['p99_ms']:.0f} / "
+                f"{c['client_modbus']['p99_ms']:.0f} ms |")
+    return "\n".join([*rows, "", *(_measured(r) for r in runs)])
+
+
+RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
+                                        "service_throughput": service_throughput}
+
+
+def render_page(text: str) -> str:
+    """``text`` with every figures block rendered again."""
+    def block(m: re.Match) -> str:
+        name = m["name"]
+        if name not in RENDER:
+            raise KeyError(f"no figures named {name!r} (known: {', '.join(RENDER)})")
+        return f"{m.group(1)}{RENDER[name]()}\n{m.group(4)}"
+
+    return BLOCK.sub(block, text)
+
+
+def stale_pages() -> list[Path]:
+    """The pages whose figures blocks are not what the bench results render."""
+    return [p for p in sorted(DOCS.glob("*.md")) if render_page(p.read_text()) != p.read_text()]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="only say which pages differ")
+    args = ap.parse_args()
+    stale = stale_pages()
+    if args.check:
+        for p in stale:
+            print(f"{p.relative_to(ROOT)}: its figures are not bench-results' "
+                  "(python -m tests.bench.figures renders them)", file=sys.stderr)
+        return 1 if stale else 0
+    for p in stale:
+        p.write_text(render_page(p.read_text()))
+        print(f"rendered {p.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
