@@ -75,7 +75,7 @@ def service_throughput() -> str:
                 f"{r['latency_p99_ms']:.1f} ms | {r['service_cpu_pct']:.0f} % | "
                 f"{c['latency_p99_ms']:.1f} / {c['client_rest']['p99_ms']:.0f} / "
                 f"{c['client_modbus']['p99_ms']:.0f} ms |")
-    return "\n".join([*rows, "", *(_measured(r) for r in runs)])
+    return "\n".join([*rows, "", *dict.fromkeys(_measured(r) for r in runs)])
 
 
 RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
