@@ -116,8 +116,10 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
     A first pass measures each frame by ``axis`` for its free fit; the run-out about the
     calibrated spindle axis follows from the free centres and the angles (and, as a check,
     the axis itself when the angles cover half a revolution); a second pass measures each frame
-    about the surface's centre at its angle, as uncertain as the run-out leaves it. With
-    ``form``, the second pass's points give the radius over the material's angle.
+    about the surface's centre at its angle, as uncertain as the run-out leaves it. The
+    second pass's points give the radius over the material's angle; where harmonics of it
+    stand above their noise, they are taken off every frame's points and the run-out and the
+    circles fitted again. ``form`` returns that roundness too.
 
     Parameters
     ----------
@@ -178,7 +180,10 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
         lobes = _significant(shape)
         if not lobes:
             break
-        runout, second = _about_the_form(second, angles, axis, lobes, params)
+        again, refitted = _about_the_form(second, angles, axis, lobes, params)
+        if not again.ok:
+            break
+        runout, second = again, refitted
         shape = _roundness(second, angles, upr)
     return TurningFrames(second, runout, fuse(second), shape if form else None, axis_check)
 
@@ -207,9 +212,15 @@ def _about_the_form(ms: list[Measurement], angles: np.ndarray, axis: np.ndarray,
     """The run-out from free fits of the points with the form taken off, and each frame's
     circle about its centre then (``fit.fit_axis_prior`` on those points: the diameter of
     the form's reference circle)."""
+    def refit(m: Measurement) -> bool:
+        # Only frames whose circle stood but for its uncertainty: the others' checks (the
+        # arc, the points' scatter) stand as they were.
+        return m.status in (Status.OK, Status.UNCERTAIN) and m.center_mm is not None \
+            and len(m.section_mm) >= params.min_points
+
     centres, covs, use = [], [], []
     for i, (m, theta) in enumerate(zip(ms, angles, strict=True)):
-        if m.center_mm is None or len(m.section_mm) < params.min_points:
+        if not refit(m):
             continue
         pts = _off_form(m.section_mm, np.asarray(m.center_mm), theta, lobes)
         free = fits.fit_geometric(pts)
@@ -224,7 +235,7 @@ def _about_the_form(ms: list[Measurement], angles: np.ndarray, axis: np.ndarray,
         return runout, ms
     out = []
     for m, theta in zip(ms, angles, strict=True):
-        if m.center_mm is None or len(m.section_mm) < params.min_points:
+        if not refit(m):
             out.append(m)
             continue
         centre = runout.center_at(axis, float(theta))
