@@ -355,3 +355,34 @@ def rejection_clip(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float,
         return floor
     res = (_dist(x[idx], y[idx], cx, cy) - r) * sw[idx]
     return max(reject_k * _mad(res)[1], floor)
+
+
+@numba.njit(**_OPTS)
+def arc_span(x: np.ndarray, y: np.ndarray, cx: float, cy: float) -> float:
+    """``fit.arc_span_deg`` compiled: 2 pi less the largest gap between the points' angles
+    about (cx, cy), radians."""
+    n = x.shape[0]
+    a = np.empty(n)
+    for i in range(n):
+        a[i] = math.atan2(y[i] - cy, x[i] - cx)
+    a.sort()
+    widest = a[0] + 2.0 * math.pi - a[n - 1]
+    for i in range(1, n):
+        widest = max(widest, a[i] - a[i - 1])
+    return 2.0 * math.pi - widest
+
+
+@numba.njit(**_OPTS)
+def view_cosines(section: np.ndarray, points3d: np.ndarray, cx: float, cy: float
+                 ) -> np.ndarray:
+    """``diameter.view_angles_deg``'s cosines compiled: of the angle between each point's
+    radial direction about (cx, cy) and the line of sight back to the camera."""
+    n = section.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        sx, sy = section[i, 0], section[i, 1]
+        rx, ry = sx - cx, sy - cy
+        px, py, pz = points3d[i, 0], points3d[i, 1], points3d[i, 2]
+        norms = math.sqrt(rx * rx + ry * ry) * math.sqrt(px * px + py * py + pz * pz)
+        out[i] = min(max(-(rx * sx + ry * sy) / max(norms, 1e-300), -1.0), 1.0)
+    return out

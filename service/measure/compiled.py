@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from service.measure import fit, sheet_kernels
+from service.measure import circle_kernels, fit, sheet_kernels
 from service.measure.stripe import extract_stripe
 
 
@@ -41,6 +41,9 @@ def compile_kernels() -> float:
     ones = np.ones(len(pts))
     sheet_kernels.light_coefficients(pts, 0.0, 0.0, ones, np.eye(2))
     sheet_kernels.profile_sigma(ones, ones, ones, 12, 0.5)
+    sheet_kernels.arc_angles(pts, 0.0, 0.0)
+    fit.arc_span_deg(pts, np.zeros(2))
+    circle_kernels.view_cosines(pts, np.column_stack([pts, ones]), 0.0, 0.0)
     return time.perf_counter() - t0
 
 

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from service.measure import consensus
+from service.measure import circle_kernels, consensus
 from service.measure import fit as fits
 from service.measure.geometry import RigGeometry
 from service.measure.params import MeasureParams
@@ -74,12 +74,10 @@ def view_angles_deg(points: SectionPoints, center: np.ndarray) -> np.ndarray:
     line of sight is ``-X / |X|``, and ``X . e1``, ``X . e2`` are the point's own section
     coordinates: the cosine is ``-(d . section) / (|d| |X|)``.
     """
-    sec = points.section
-    radial = sec - center
-    dot = radial[:, 0] * sec[:, 0] + radial[:, 1] * sec[:, 1]
-    norms = np.hypot(radial[:, 0], radial[:, 1]) * np.linalg.norm(points.points3d, axis=1)
-    cos = -dot / np.maximum(norms, 1e-300)
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    cos = circle_kernels.view_cosines(np.ascontiguousarray(points.section, np.float64),
+                                      np.ascontiguousarray(points.points3d, np.float64),
+                                      float(center[0]), float(center[1]))
+    return np.degrees(np.arccos(cos))
 
 
 def drop_grazing(points: SectionPoints, geometry: RigGeometry, params: MeasureParams,
@@ -340,15 +338,14 @@ def measure_frame(
                                median(st.width_px), params.reflection,
                                lopsided=lopsided > limit)
         if found:
-            return _without_reflection(found, points, geometry, method, params,
-                                       center_prior, known)
+            return _without_reflection(found, points, geometry, method, params, known)
         if lopsided > limit:
             return Measurement.failed(
                 Status.UNCERTAIN, method,
                 f"the stripe's profile is lopsided (side balance {lopsided:.3f}, limit "
                 f"{limit:.3f}): a second line runs beside it and pulls its centres, and "
                 f"{found.reason}", n_points=len(points.section), points_px=st.xy)
-    return fit_section(points, geometry, method, params, center_prior)
+    return fit_section(points, geometry, method, params, known)
 
 
 def _still_suits(stripe: StripePoints, scale_px: float, params: MeasureParams) -> bool:
@@ -404,7 +401,6 @@ def _with_matched_filters(image: np.ndarray, points: SectionPoints, geometry: Ri
 
 def _without_reflection(found: Reflection, points: SectionPoints, geometry: RigGeometry,
                         method: Method, params: MeasureParams,
-                        center_prior: tuple[np.ndarray, float] | None,
                         known: tuple[np.ndarray, float] | None) -> Measurement:
     """The fit with the stripe's centres moved back by a reflection's modelled pull.
 
@@ -418,7 +414,7 @@ def _without_reflection(found: Reflection, points: SectionPoints, geometry: RigG
         xy = st.xy + (scale * found.shift_px)[:, None] * st.normal
         again = section_points(replace(st, xy=xy, balance=None), geometry)
         again = drop_grazing(again, geometry, p, None if known is None else known[0])
-        return fit_section(again, geometry, method, p, center_prior)
+        return fit_section(again, geometry, method, p, known)
 
     m = moved(1.0)
     if m.status is not Status.OK:

@@ -429,9 +429,10 @@ def arc_span_deg(points: np.ndarray, center: np.ndarray) -> float:
     """Angular span of points around a centre, degrees: 360 minus the largest empty gap."""
     if len(points) < 2 or not np.isfinite(center).all():
         return 0.0
-    a = np.sort(np.arctan2(points[:, 1] - center[1], points[:, 0] - center[0]))
-    gaps = np.diff(np.concatenate([a, [a[0] + 2 * math.pi]]))
-    return float(np.degrees(2 * math.pi - gaps.max()))
+    pts = np.asarray(points, np.float64)
+    return math.degrees(ck.arc_span(np.ascontiguousarray(pts[:, 0]),
+                                    np.ascontiguousarray(pts[:, 1]),
+                                    float(center[0]), float(center[1])))
 
 
 def _chord_crossings(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,6 +38,15 @@ class RigGeometry:
     plane_d: float
     axis_direction: np.ndarray
     axis_point: np.ndarray | None = None
+
+    @functools.cached_property
+    def key(self) -> tuple[float, ...]:
+        """Every number of the geometry, as a key for what is computed from it (kept: the
+        arrays are not changed in place; a changed geometry is a new one)."""
+        parts = [self.camera_matrix.ravel(), self.dist_coeffs.ravel(), self.plane_normal.ravel(),
+                 [self.plane_d], self.axis_direction.ravel(),
+                 [] if self.axis_point is None else self.axis_point.ravel()]
+        return tuple(float(v) for part in parts for v in part)
 
 
 def geometry_of(calibration: Any) -> RigGeometry:

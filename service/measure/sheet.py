@@ -19,7 +19,6 @@ triangulates it as the measurement does. Pure numerics; no image is read.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import cv2
@@ -41,18 +40,12 @@ def _to_3d(section: np.ndarray, geometry: RigGeometry) -> np.ndarray:
     return base + t[:, None] * a
 
 
-def _unwrap_about(angles: np.ndarray, mid: float) -> np.ndarray:
-    """Angles (radians) brought within pi of ``mid``."""
-    return mid + (np.asarray(angles) - mid + math.pi) % (2 * math.pi) - math.pi
-
-
 def arc_angles(section: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, float]:
     """Angles of section points about ``center``, unwrapped about the arc's middle, and that
     middle (radians)."""
-    d = section - center
-    ang = np.arctan2(d[:, 1], d[:, 0])
-    mid = float(np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()))
-    return _unwrap_about(ang, mid), mid
+    ang, mid = sheet_kernels.arc_angles(np.ascontiguousarray(section, np.float64),
+                                        float(center[0]), float(center[1]))
+    return ang, float(mid)
 
 
 @dataclass(frozen=True)

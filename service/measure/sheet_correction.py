@@ -65,14 +65,6 @@ _CROSSINGS = _Kept(64)
 _RIDGES = _Kept(512)
 
 
-def geometry_key(geometry: RigGeometry) -> tuple[float, ...]:
-    """Every number of a calibration's geometry, as a key."""
-    parts = [geometry.camera_matrix.ravel(), geometry.dist_coeffs.ravel(),
-             geometry.plane_normal.ravel(), [geometry.plane_d], geometry.axis_direction.ravel(),
-             [] if geometry.axis_point is None else geometry.axis_point.ravel()]
-    return tuple(float(v) for part in parts for v in part)
-
-
 def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
                        geometry: RigGeometry, params: MeasureParams) -> np.ndarray:
     """The section coordinates (mm) moved radially by the error the sheet's thickness leaves
@@ -89,7 +81,7 @@ def correct_sheet_bias(points: SectionPoints, center: np.ndarray, radius: float,
     angles, _ = arc_angles(points.section, center)
     blur, filter_px = params.stripe.optics_blur_px, st.filter_px
     smoothing = float(np.hypot(filter_px, blur))
-    gkey = geometry_key(geometry)
+    gkey = geometry.key
     c_q = tuple(round(float(v) / POSITION_STEP_MM) for v in center)
     r_q = round(float(radius) / POSITION_STEP_MM)
     lo_q = math.floor(float(angles.min()) / ARC_END_STEP_RAD)

@@ -90,3 +90,21 @@ def profile_sigma(peak: np.ndarray, curvature: np.ndarray, slope: np.ndarray, gr
             sigmas[k] = math.sqrt(w2) * np.median(slopes)
             k += 1
     return np.median(sigmas[:k]) if k > 0 else math.nan
+
+
+@numba.njit(**_OPTS)
+def arc_angles(section: np.ndarray, cx: float, cy: float) -> tuple[np.ndarray, float]:
+    """``sheet.arc_angles`` compiled: the points' angles about (cx, cy) unwrapped about the
+    arc's middle (the mean direction), and that middle, radians."""
+    n = section.shape[0]
+    ang = np.empty(n)
+    s = c = 0.0
+    for i in range(n):
+        a = math.atan2(section[i, 1] - cy, section[i, 0] - cx)
+        ang[i] = a
+        s += math.sin(a)
+        c += math.cos(a)
+    mid = math.atan2(s / max(n, 1), c / max(n, 1))
+    for i in range(n):
+        ang[i] = mid + (ang[i] - mid + math.pi) % (2.0 * math.pi) - math.pi
+    return ang, mid

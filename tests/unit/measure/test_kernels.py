@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from service.measure import circle_kernels as ck
+from service.measure import sheet_kernels
 from service.measure import steger_kernels as sk
 from service.measure.band import gaussian_kernels, tube_band
 from service.measure.stripe import StripeParams, extract_stripe
@@ -291,3 +292,52 @@ def test_local_parabolas_are_the_weighted_least_squares_fits() -> None:
         sw = np.sqrt(np.exp(-0.5 * (u[use] / 5.0) ** 2))
         want = np.linalg.lstsq(a * sw[:, None], v[use] * sw, rcond=None)[0][2]
         assert got[i] == pytest.approx(want, rel=1e-6, abs=1e-9)
+
+
+def _stats_reference(image: np.ndarray, k: int, spacing: int) -> tuple[float, float]:
+    """``background_and_noise`` as its docstring has it, in numpy, block by block."""
+    hb, wb = image.shape[0] // k, image.shape[1] // k
+    means, variances = [], []
+    for by in range(0, hb, spacing):
+        for bx in range(0, wb, spacing):
+            block = image[by * k:by * k + k, bx * k:bx * k + k].astype(np.float64)
+            d = block[:, 1::2][:, :k // 2] - block[:, 0::2][:, :k // 2]
+            means.append(block.mean())
+            variances.append((d**2).sum() / (2.0 * d.size))
+    means, variances = np.array(means), np.array(variances)
+    dark = variances[means <= np.percentile(means, 75.0)]
+    chi2 = (1.0 - 2.0 / (9.0 * k * (k // 2))) ** 3
+    return float(np.median(means)), math.sqrt(np.median(dark) / chi2)
+
+
+@pytest.mark.parametrize("shape", [(1024, 1376), (101, 77)])
+def test_background_and_noise_are_the_block_statistics(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(shape[0])
+    image = np.clip(rng.normal(20, 4, shape) + np.linspace(0, 30, shape[1]), 0, 255
+                    ).astype(np.uint8)
+    got = sk.background_and_noise(image, 4, 8)
+    assert got == pytest.approx(_stats_reference(image, 4, 8), rel=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.integers(2, 300), st.floats(0.05, 6.3))
+def test_compiled_arc_geometry_is_numpy_s(seed: int, n: int, arc: float) -> None:
+    rng = np.random.default_rng(seed)
+    t = rng.uniform(0.0, arc, n) + rng.uniform(-math.pi, math.pi)
+    c = rng.normal(0, 2, 2)
+    sec = c + 10.0 * np.column_stack([np.cos(t), np.sin(t)]) + rng.normal(0, 0.01, (n, 2))
+    a = np.sort(np.arctan2(sec[:, 1] - c[1], sec[:, 0] - c[0]))
+    gaps = np.diff(np.concatenate([a, [a[0] + 2 * math.pi]]))
+    assert ck.arc_span(sec[:, 0].copy(), sec[:, 1].copy(), c[0], c[1]) == \
+        pytest.approx(2 * math.pi - gaps.max(), abs=1e-12)
+    ang, mid = sheet_kernels.arc_angles(sec, c[0], c[1])
+    raw = np.arctan2(sec[:, 1] - c[1], sec[:, 0] - c[0])
+    want_mid = np.arctan2(np.sin(raw).mean(), np.cos(raw).mean())
+    assert mid == pytest.approx(want_mid, abs=1e-9)
+    np.testing.assert_allclose(ang, want_mid + (raw - want_mid + math.pi) % (2 * math.pi)
+                               - math.pi, atol=1e-9)
+    pts3 = np.column_stack([sec, rng.uniform(50, 80, n)])
+    radial = sec - c
+    cos = -(radial * sec).sum(axis=1) / (np.hypot(*radial.T) * np.linalg.norm(pts3, axis=1))
+    np.testing.assert_allclose(ck.view_cosines(sec, pts3, c[0], c[1]),
+                               np.clip(cos, -1, 1), atol=1e-12)
