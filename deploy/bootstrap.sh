@@ -13,6 +13,7 @@ APT_PACKAGES=(
   chromium                                              # browser tests (never downloaded)
   mosquitto mosquitto-clients                           # the plant's MQTT broker in tests
   linuxcnc-uspace                                       # a real CNC (simulated lathe, mb2hal)
+  systemd                                               # systemd-analyze rates the unit
 )
 
 missing=()
