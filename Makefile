@@ -4,11 +4,11 @@ VENV  := .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.shaftgauge-installed
 
-.PHONY: setup run test check docs bench soak lint clean linuxcnc-demo
+.PHONY: setup run test check docs bench soak lint clean linuxcnc-demo lock wheel wheel-test
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml deploy/bootstrap.sh
+$(STAMP): pyproject.toml deploy/bootstrap.sh deploy/requirements-test.lock
 	bash deploy/bootstrap.sh
 
 ## make run: the service on its embedded default (simulated GigE camera and PLC on loopback).
@@ -26,14 +26,37 @@ linuxcnc-demo: setup
 test: setup docs
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
-	$(PY) -m pytest -m "not slow" -q -n 2 --dist loadgroup --durations=20
+	$(PY) -m pytest -m "not slow and not wheel" -q -n 2 --dist loadgroup --durations=20
 
 ## make check: the fast layer for a developer's loop (lint, unit and property tests, on both
 ## cores): under two minutes.
 check: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
-	$(PY) -m pytest -m "not slow" -q -n 2 tests/unit tests/fuzz
+	$(PY) -m pytest -m "not slow and not wheel" -q -n 2 tests/unit tests/fuzz
+
+## make lock: renew the lock files from pyproject.toml (pip-tools, in a venv of its own):
+## deploy/requirements-test.lock (the service and its test tools: development and CI) and
+## deploy/requirements.lock (the service alone, at the same versions: installations).
+LOCK_OPTS := --quiet --generate-hashes --allow-unsafe --strip-extras --no-emit-index-url \
+	--no-emit-find-links --no-header --upgrade
+lock:
+	python3 -m venv build/lock-venv
+	build/lock-venv/bin/pip install -q 'pip-tools>=7.4,<8'
+	build/lock-venv/bin/pip-compile $(LOCK_OPTS) --extra test -o deploy/requirements-test.lock pyproject.toml
+	build/lock-venv/bin/pip-compile $(LOCK_OPTS) -c deploy/requirements-test.lock -o deploy/requirements.lock pyproject.toml
+
+## make wheel: the installable package in build/dist (the manual and the commit it was built
+## from inside it).
+wheel: setup docs
+	git rev-parse --short=12 HEAD > service/BUILD_COMMIT
+	$(PY) -m pip wheel -q --no-deps -w build/dist .
+	rm -f service/BUILD_COMMIT
+
+## make wheel-test: the wheel built from this tree, installed in a clean venv from
+## deploy/requirements.lock, serves the embedded default with its dashboard (CI runs it).
+wheel-test: setup docs
+	$(PY) -m pytest -m wheel -q tests/release
 
 ## make docs: the manual (docs/) built into service/web/manual, served at /ui/manual/; a broken
 ## link fails the build.

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 from calib_store.model import CalibrationError, load_calibration
 from service.measure.diameter import DEFAULT_METHOD, MeasureParams
 from service.measure.result import Method
+from service.version import describe
 
 if TYPE_CHECKING:
     from drivers.sim.lathe import LatheConfig
@@ -478,10 +479,23 @@ def cmd_export(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+class _Version(argparse.Action):
+    """``--version``: worked out only when asked (it may run git)."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        print(describe())
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = argparse.ArgumentParser(
         prog="shaftgauge", description="Lathe-side shaft diameter measurement.")
+    parser.add_argument("--version", action=_Version,
+                        help="the package's version and the commit it was built from")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     methods = [m.value for m in Method]
 

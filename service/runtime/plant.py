@@ -7,7 +7,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import sqlite3
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -20,6 +19,7 @@ from service.config import Settings
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
+from service.version import package_version
 
 MEASURE_NOW_TIMEOUT_S = 2.0
 
@@ -36,13 +36,6 @@ class PlantLink(Protocol):
     def status(self) -> dict[str, Any]: ...
 
     def problems(self) -> list[tuple[str, str]]: ...
-
-
-def _software_revision() -> str:
-    try:
-        return version("shaftgauge")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 class LastOffset:
@@ -134,5 +127,5 @@ def make_plant_links(settings: Settings, feed: MeasurementFeed,
         links.append(OpcUaServer(ua, GaugeView(
             values.values, values.measure_now, values.reset,
             serial_number=settings.camera.device_id or settings.camera.sim_serial,
-            software_revision=_software_revision()), Path(data_dir) / "opcua"))
+            software_revision=package_version()), Path(data_dir) / "opcua"))
     return links

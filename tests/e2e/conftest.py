@@ -62,7 +62,8 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   env: dict[str, str] | None = None, nominal: float | None = 30.0,
                   opcua_port: int | None = None, embedded: bool = False,
                   processes: bool = False, camera_toml: str = "", modbus_toml: str = "",
-                  compensation_toml: str | None = None) -> Service:
+                  compensation_toml: str | None = None, executable: str = SHAFTGAUGE
+                  ) -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
     ``nominal`` None leaves the feature unset; the OPC UA server only on ``opcua_port`` or
@@ -72,7 +73,8 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     worker processes as an installation does (a spawned worker costs about 3 s of CPU at
     start, and the suites start the service dozens of times: threads unless asked);
     ``camera_toml`` and ``modbus_toml`` more lines of those tables, ``compensation_toml`` the whole
-    ``[compensation]`` table in place of the tests' own."""
+    ``[compensation]`` table in place of the tests' own; ``executable`` another installed
+    ``shaftgauge`` (an installed wheel's)."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
@@ -109,7 +111,7 @@ path = "{data / 'gauge.db'}"
     # warnings and block the service on its next log line; the file is there to read after.
     log = tmp_path / f"serve-{api}.log"
     with log.open("w") as err:
-        proc = subprocess.Popen([SHAFTGAUGE, "serve", "--config", str(cfg)],
+        proc = subprocess.Popen([executable, "serve", "--config", str(cfg)],
                                 stdout=subprocess.PIPE, stderr=err, text=True,
                                 start_new_session=True,
                                 env={**os.environ, "SHAFTGAUGE_MEASUREMENT__PROCESSES":
