@@ -386,3 +386,68 @@ def view_cosines(section: np.ndarray, points3d: np.ndarray, cx: float, cy: float
         norms = math.sqrt(rx * rx + ry * ry) * math.sqrt(px * px + py * py + pz * pz)
         out[i] = min(max(-(rx * sx + ry * sy) / max(norms, 1e-300), -1.0), 1.0)
     return out
+
+
+@numba.njit(**_OPTS)
+def circle_rms(points: np.ndarray, cx: float, cy: float, r: float) -> float:
+    """``fit.circle_rms`` compiled: RMS distance of the points from the circle."""
+    acc = 0.0
+    for i in range(points.shape[0]):
+        dx, dy = points[i, 0] - cx, points[i, 1] - cy
+        d = math.sqrt(dx * dx + dy * dy) - r
+        acc += d * d
+    return math.sqrt(acc / points.shape[0])
+
+
+@numba.njit(**_OPTS)
+def ring_consensus(section: np.ndarray, cx: float, cy: float, window: float,
+                   scatter_sigmas: float) -> np.ndarray:
+    """``consensus.ring_consensus`` compiled (the same steps, no temporary arrays' calls)."""
+    n = section.shape[0]
+    rho = np.empty(n)
+    for i in range(n):
+        rho[i] = math.hypot(section[i, 0] - cx, section[i, 1] - cy)
+    s = np.sort(rho)
+    best, i_best, end = -1, 0, 0
+    for i in range(n):
+        # The window [s_i, s_i + 2 w] holding the most radii (ends only move forward).
+        end = max(end, i)
+        top = s[i] + 2.0 * window
+        while end < n and s[end] <= top:
+            end += 1
+        if end - i > best:
+            best, i_best = end - i, i
+    j = i_best
+    top = s[j] + 2.0 * window
+    k = j
+    while k < n and s[k] <= top:
+        k += 1
+    radius = np.median(s[j:k])
+    dev = np.abs(rho - radius)
+    for _ in range(3):  # a cut sample understates its scatter: widen until it holds
+        inside = dev[dev <= window]
+        if inside.shape[0] == 0:
+            break
+        scatter = MAD_TO_SIGMA * np.median(inside)
+        if not scatter_sigmas * scatter > window * 1.05:
+            break
+        window = scatter_sigmas * scatter
+    return dev <= window
+
+
+@numba.njit(**_OPTS)
+def by_chain(inside: np.ndarray, labels: np.ndarray, min_share: float, min_on_circle: int
+             ) -> np.ndarray:
+    """``consensus.by_chain`` compiled, for labels in ``0 .. len(labels) * 4 + 1024``."""
+    size = labels.max() + 1
+    on = np.zeros(size)
+    count = np.zeros(size)
+    for i in range(labels.shape[0]):
+        count[labels[i]] += 1.0
+        if inside[i]:
+            on[labels[i]] += 1.0
+    out = np.empty(labels.shape[0], np.bool_)
+    for i in range(labels.shape[0]):
+        c = labels[i]
+        out[i] = inside[i] and (on[c] / count[c] >= min_share or on[c] >= min_on_circle)
+    return out

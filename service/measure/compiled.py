@@ -13,8 +13,9 @@ import time
 
 import numpy as np
 
-from service.measure import circle_kernels, fit, sheet_kernels
+from service.measure import circle_kernels, consensus, fit, sheet_kernels
 from service.measure.stripe import extract_stripe
+from service.measure.triangulate import intersect_plane
 
 
 def _ring(dtype: type, scale: float) -> np.ndarray:
@@ -43,6 +44,9 @@ def compile_kernels() -> float:
     sheet_kernels.profile_sigma(ones, ones, ones, 12, 0.5)
     sheet_kernels.arc_angles(pts, 0.0, 0.0)
     fit.arc_span_deg(pts, np.zeros(2))
+    intersect_plane(pts, np.array([0.0, 0.0, 1.0]), 100.0)
+    inside = consensus.ring_consensus(pts, np.zeros(2), 0.05)
+    consensus.by_chain(inside, np.zeros(len(pts), np.int64))
     circle_kernels.view_cosines(pts, np.column_stack([pts, ones]), 0.0, 0.0)
     return time.perf_counter() - t0
 

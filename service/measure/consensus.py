@@ -17,8 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.measure.circle_kernels import MAD_TO_SIGMA
-from service.measure.robust import median
+from service.measure import circle_kernels as ck
 
 
 def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: float,
@@ -54,20 +53,12 @@ def ring_consensus(section_mm: np.ndarray, center_mm: np.ndarray, window_mm: flo
     n = len(section_mm)
     if n == 0:
         return np.zeros(0, bool)
-    rho = np.hypot(section_mm[:, 0] - center_mm[0], section_mm[:, 1] - center_mm[1])
-    s = np.sort(rho)
-    # The window [s_i, s_i + 2 w] holding the most radii; the ring's radius is their median.
-    ends = np.searchsorted(s, s + 2.0 * window_mm, side="right")
-    i = int(np.argmax(ends - np.arange(n)))
-    radius = median(s[i:ends[i]])
-    window = window_mm
-    for _ in range(3):  # a cut sample understates its scatter: widen until it holds
-        dev = np.abs(rho - radius)
-        scatter = MAD_TO_SIGMA * median(dev[dev <= window])
-        if not scatter_sigmas * scatter > window * 1.05:
-            break
-        window = scatter_sigmas * scatter
-    return np.abs(rho - radius) <= window
+    # Compiled (circle_kernels.ring_consensus): the radii sorted, the window [s_i, s_i + 2 w]
+    # holding the most of them, the ring's radius their median, the window widened to the
+    # scatter about it while a cut sample understates it (three times at most).
+    return ck.ring_consensus(np.ascontiguousarray(section_mm, np.float64),
+                             float(center_mm[0]), float(center_mm[1]), float(window_mm),
+                             float(scatter_sigmas))
 
 
 def circle_consensus(section_mm: np.ndarray, tol_mm: float, max_radius_mm: float,
@@ -147,7 +138,6 @@ def by_chain(inside: np.ndarray, chain: np.ndarray | None, min_share: float = 0.
     # no sort; any other labels are numbered first.
     labels = chain if chain.min() >= 0 and chain.max() < 4 * len(chain) + 1024 else \
         np.unique(chain, return_inverse=True)[1]
-    on = np.bincount(labels, weights=inside.astype(np.float64))
-    count = np.bincount(labels)
-    share = on[labels] / count[labels]
-    return inside & ((share >= min_share) | (on[labels] >= min_on_circle))
+    return ck.by_chain(np.ascontiguousarray(inside, np.bool_),
+                       np.ascontiguousarray(labels, np.int64), float(min_share),
+                       int(min_on_circle))

@@ -118,8 +118,10 @@ def _check_points(points: np.ndarray, need: int) -> str:
 
 def circle_rms(points: np.ndarray, center: np.ndarray, radius: float) -> float:
     """RMS orthogonal distance of points (mm) to a circle, mm."""
-    r = np.hypot(points[:, 0] - center[0], points[:, 1] - center[1]) - radius
-    return float(np.sqrt(np.mean(r * r))) if r.size else math.nan
+    pts = np.ascontiguousarray(points, np.float64)
+    if len(pts) == 0:
+        return math.nan
+    return ck.circle_rms(pts, float(center[0]), float(center[1]), float(radius))
 
 
 def correlation_factor(residuals: np.ndarray, max_lag_fraction: float = 0.2) -> float:
@@ -557,7 +559,7 @@ def fit_axis_prior(points: np.ndarray, center_prior: np.ndarray, center_sigma: f
         inliers, center, radius = start.inliers.copy(), start.center.copy(), start.radius
     else:
         inliers, center = np.ones(len(pts), bool), c0.copy()
-        radius = float(np.average(np.hypot(*(pts - c0).T), weights=w))
+        radius = float(np.hypot(pts[:, 0] - c0[0], pts[:, 1] - c0[1]) @ w / w.sum())
     cx, cy, radius, inliers, status = ck.robust_rounds(
         np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sw_all,
         float(center[0]), float(center[1]), float(radius), inliers, True, float(c0[0]),

@@ -61,8 +61,17 @@ def project_to_section(points: np.ndarray, axis_direction: np.ndarray) -> np.nda
         Section coordinates ``(X . e1, X . e2)``, mm. A point on the axis maps to the axis's
         own section coordinates, so the centre of a turned surface is the axis there.
     """
-    e1, e2 = orthonormal_basis(axis_direction)
-    return np.column_stack([points @ e1, points @ e2])
+    return points @ _section_matrix(
+        tuple(float(v) for v in np.asarray(axis_direction, np.float64).ravel()))
+
+
+@functools.lru_cache(maxsize=64)
+def _section_matrix(direction: tuple[float, ...]) -> np.ndarray:
+    """``(e1 e2)`` as the columns of a (3, 2) matrix (read-only: kept per axis)."""
+    e1, e2 = _basis(direction)
+    out = np.column_stack([e1, e2])
+    out.flags.writeable = False
+    return out
 
 
 def light_plane_coordinates(

@@ -19,6 +19,7 @@ triangulates it as the measurement does. Pure numerics; no image is read.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -172,6 +173,22 @@ def _light_plane_directions(key: tuple[float, ...]) -> tuple[np.ndarray, np.ndar
     return u1, np.cross(n, u1)
 
 
+def _section_to_plane(geometry: RigGeometry) -> np.ndarray:
+    """``[[e1 . u1, e1 . u2], [e2 . u1, e2 . u2]]``: the section's axes in the light plane's
+    (a surface normal ``rel_x e1 + rel_y e2`` has ``normal . u = rel . (e1 . u, e2 . u)``)."""
+    return _section_to_plane_of(tuple(float(v) for v in (*geometry.axis_direction,
+                                                        *geometry.plane_normal)))
+
+
+@functools.lru_cache(maxsize=16)
+def _section_to_plane_of(key: tuple[float, ...]) -> np.ndarray:
+    e1, e2 = orthonormal_basis(np.array(key[:3]))
+    u1, u2 = _light_plane_directions(key)
+    out = np.array([[e1 @ u1, e1 @ u2], [e2 @ u1, e2 @ u2]])
+    out.flags.writeable = False
+    return out
+
+
 def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndarray,
                     geometry: RigGeometry) -> np.ndarray | None:
     """Direction toward the laser (unit, camera frame) from the stripe's brightness along the
@@ -183,15 +200,12 @@ def light_direction(section: np.ndarray, center: np.ndarray, brightness: np.ndar
     away compared with the section (its direction the same over the arc). None when the
     points do not fix it (too few, or brightness that does not follow any direction).
     """
-    e1, e2 = orthonormal_basis(geometry.axis_direction)
     u1, u2 = light_plane_directions(geometry)
-    # normals = rel_x e1 + rel_y e2, so normals . u = rel . (e1 . u, e2 . u)
-    basis = np.array([[e1 @ u1, e1 @ u2], [e2 @ u1, e2 @ u2]])
     c0, c1, n, facing = sheet_kernels.light_coefficients(
         np.ascontiguousarray(section, np.float64), float(center[0]), float(center[1]),
-        np.asarray(brightness, np.float64), basis)
+        np.asarray(brightness, np.float64), _section_to_plane(geometry))
     v = c0 * u1 + c1 * u2
-    norm = float(np.linalg.norm(v))
+    norm = math.sqrt(float(v @ v))
     if n < 10 or not norm > 0 or not np.isfinite(norm):
         return None
     # Every point seen lit must face the source.

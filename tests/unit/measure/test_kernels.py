@@ -17,7 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from service.measure import circle_kernels as ck
-from service.measure import sheet_kernels
+from service.measure import consensus, sheet_kernels
 from service.measure import steger_kernels as sk
 from service.measure.band import gaussian_kernels, tube_band
 from service.measure.stripe import StripeParams, extract_stripe
@@ -341,3 +341,40 @@ def test_compiled_arc_geometry_is_numpy_s(seed: int, n: int, arc: float) -> None
     cos = -(radial * sec).sum(axis=1) / (np.hypot(*radial.T) * np.linalg.norm(pts3, axis=1))
     np.testing.assert_allclose(ck.view_cosines(sec, pts3, c[0], c[1]),
                                np.clip(cos, -1, 1), atol=1e-12)
+
+
+def _ring_reference(sec: np.ndarray, c: np.ndarray, window: float, sigmas: float
+                    ) -> np.ndarray:
+    """``ring_consensus`` as it was written in numpy."""
+    rho = np.hypot(sec[:, 0] - c[0], sec[:, 1] - c[1])
+    s = np.sort(rho)
+    ends = np.searchsorted(s, s + 2.0 * window, side="right")
+    i = int(np.argmax(ends - np.arange(len(s))))
+    radius = np.median(s[i:ends[i]])
+    for _ in range(3):
+        dev = np.abs(rho - radius)
+        inside = dev[dev <= window]
+        scatter = ck.MAD_TO_SIGMA * np.median(inside) if inside.size else math.nan
+        if not sigmas * scatter > window * 1.05:
+            break
+        window = sigmas * scatter
+    return np.abs(rho - radius) <= window
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 400), st.floats(0.005, 0.2),
+       st.sampled_from([0.0, 4.0]))
+def test_compiled_consensus_is_the_numpy_one(seed: int, n: int, window: float,
+                                            sigmas: float) -> None:
+    rng = np.random.default_rng(seed)
+    t = rng.uniform(0, 2.0, n)
+    r = np.where(rng.random(n) < 0.8, 15.0, rng.uniform(5, 25, n))
+    sec = np.column_stack([r * np.cos(t), r * np.sin(t)]) + rng.normal(0, 0.02, (n, 2))
+    c = rng.normal(0, 0.01, 2)
+    inside = consensus.ring_consensus(sec, c, window, sigmas)
+    np.testing.assert_array_equal(inside, _ring_reference(sec, c, window, sigmas))
+    chain = rng.integers(0, max(1, n // 7), n)
+    on = np.bincount(chain, weights=inside.astype(float))
+    share = on[chain] / np.bincount(chain)[chain]
+    want = inside & ((share >= 0.5) | (on[chain] >= 30))
+    np.testing.assert_array_equal(consensus.by_chain(inside, chain), want)
