@@ -33,54 +33,6 @@ from calib_store.store import open_database, transaction
 
 log = logging.getLogger("shaftgauge.compensation_log")
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS compensation_decisions (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    wall_time REAL NOT NULL,
-    kind TEXT NOT NULL,
-    reason TEXT NOT NULL,
-    measurement_seq INTEGER,
-    deviation_mm REAL,
-    filtered_mm REAL,
-    offset_mm REAL,
-    offset_seq INTEGER,
-    before_mm REAL NOT NULL,
-    after_mm REAL NOT NULL,
-    shadow INTEGER NOT NULL
-);
-CREATE TABLE IF NOT EXISTS compensation_state (
-    id INTEGER PRIMARY KEY CHECK (id = 1),
-    state TEXT NOT NULL
-);
-CREATE TABLE IF NOT EXISTS measurements (
-    seq INTEGER PRIMARY KEY,
-    wall_time REAL NOT NULL,
-    status TEXT NOT NULL,
-    diameter_mm REAL,
-    uncertainty_mm REAL,
-    fused_diameter_mm REAL,
-    deviation_mm REAL,
-    in_tolerance INTEGER,
-    calibration_id INTEGER,
-    nominal_mm REAL,
-    tol_lower_mm REAL,
-    tol_upper_mm REAL
-);
-CREATE TABLE IF NOT EXISTS gauge_values (
-    key TEXT PRIMARY KEY,
-    value TEXT NOT NULL
-);
-"""
-# Columns added since the first version of the table (older files get them on opening).
-_ADDED_COLUMNS = {"code": "TEXT NOT NULL DEFAULT ''", "who": "TEXT NOT NULL DEFAULT ''",
-                  "count": "INTEGER NOT NULL DEFAULT 1", "last_time": "REAL",
-                  "last_measurement_seq": "INTEGER"}
-_INDEXES = """
-CREATE INDEX IF NOT EXISTS compensation_decisions_kind ON compensation_decisions (kind, id);
-CREATE INDEX IF NOT EXISTS compensation_decisions_last_time
-    ON compensation_decisions (last_time);
-CREATE INDEX IF NOT EXISTS measurements_time ON measurements (wall_time);
-"""
 MEASUREMENT_COLUMNS = ("seq", "wall_time", "status", "diameter_mm", "uncertainty_mm",
                        "fused_diameter_mm", "deviation_mm", "in_tolerance", "calibration_id",
                        "nominal_mm", "tol_lower_mm", "tol_upper_mm")
@@ -129,15 +81,7 @@ class CompensationLog:
                  retention: LogRetention | None = None) -> None:
         self.path = Path(path)
         self.retention = retention or LogRetention()
-        self._db = open_database(self.path, create_if_missing)
-        self._db.executescript(_SCHEMA)
-        have = {row[1] for row in self._db.execute("PRAGMA table_info(compensation_decisions)")}
-        for column, decl in _ADDED_COLUMNS.items():
-            if column not in have:
-                self._db.execute(f"ALTER TABLE compensation_decisions ADD COLUMN {column} {decl}")
-        self._db.execute("UPDATE compensation_decisions SET last_time = wall_time "
-                         "WHERE last_time IS NULL")
-        self._db.executescript(_INDEXES)
+        self._db = open_database(self.path, create_if_missing)  # its tables: schema.py
         self._read_lock = threading.Lock()
         self._read = sqlite3.connect(str(self.path), check_same_thread=False,
                                      isolation_level=None)

@@ -10,22 +10,6 @@ from typing import Any
 
 from calib_store.store import open_database, transaction
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS gauge_studies (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    started REAL NOT NULL,
-    finished REAL,
-    by TEXT NOT NULL,
-    calibration_id INTEGER,
-    certified_mm REAL NOT NULL,
-    tolerance_mm REAL NOT NULL,
-    n INTEGER NOT NULL,
-    state TEXT NOT NULL,
-    reason TEXT NOT NULL DEFAULT '',
-    "values" TEXT NOT NULL DEFAULT '[]',
-    result TEXT
-);
-"""
 _COLUMNS = ("id", "started", "finished", "by", "calibration_id", "certified_mm",
             "tolerance_mm", "n", "state", "reason", "values", "result")
 
@@ -42,7 +26,6 @@ class GaugeStudyStore:
     def __init__(self, path: str | Path) -> None:
         self._lock = threading.Lock()
         self._db = open_database(Path(path), True)
-        self._db.executescript(_SCHEMA)
         with self._lock, transaction(self._db):  # a study cut short by a stop stays failed
             self._db.execute("UPDATE gauge_studies SET state = 'failed', reason = "
                              "'the service stopped during the study' WHERE state = 'running'")

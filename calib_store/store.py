@@ -18,50 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from calib_store import schema
 from calib_store.model import Calibration, CalibrationError, parse_calibration
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS calibrations (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    created REAL NOT NULL,
-    created_by TEXT NOT NULL,
-    note TEXT NOT NULL,
-    document TEXT NOT NULL,
-    quality TEXT
-);
-CREATE TABLE IF NOT EXISTS active_calibration (
-    id INTEGER PRIMARY KEY CHECK (id = 1),
-    calibration_id INTEGER NOT NULL REFERENCES calibrations(id)
-);
-CREATE TABLE IF NOT EXISTS master_corrections (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    time REAL NOT NULL,
-    calibration_id INTEGER NOT NULL REFERENCES calibrations(id),
-    offset_mm REAL NOT NULL,
-    scale REAL NOT NULL,
-    masters TEXT NOT NULL,
-    created_by TEXT NOT NULL
-);
-CREATE TABLE IF NOT EXISTS master_checks (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    time REAL NOT NULL,
-    calibration_id INTEGER,
-    certified_mm REAL NOT NULL,
-    measured_mm REAL NOT NULL,
-    error_mm REAL NOT NULL,
-    limit_mm REAL NOT NULL,
-    passed INTEGER NOT NULL,
-    created_by TEXT NOT NULL
-);
-CREATE TABLE IF NOT EXISTS audit (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    time REAL NOT NULL,
-    who TEXT NOT NULL,
-    action TEXT NOT NULL,
-    calibration_id INTEGER,
-    detail TEXT NOT NULL
-);
-"""
 
 
 class StoreError(RuntimeError):
@@ -107,7 +65,10 @@ def open_database(path: Path, create_if_missing: bool) -> sqlite3.Connection:
                              f"{check[0] if check else 'no answer'}); it was left untouched")
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA foreign_keys=ON")
-        db.executescript(_SCHEMA)
+        schema.migrate(db, path)
+    except schema.SchemaError as err:
+        db.close()
+        raise StoreError(str(err)) from None
     except sqlite3.DatabaseError as err:
         raise StoreError(f"calibration store {path} cannot be used: {err}; it was left "
                          "untouched") from None

@@ -8,6 +8,7 @@ import math
 import socket
 import sys
 import tempfile
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -452,6 +453,53 @@ def _when(text: str) -> float:
     return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
 
 
+def cmd_store(args: argparse.Namespace) -> int:
+    """The store's schema version, its migrations, a backup and a restore."""
+    import sqlite3
+
+    from calib_store import schema
+
+    path = Path(args.store)
+    source = Path(args.backup) if args.action == "restore" else path
+    if not source.is_file():
+        return _fail(f"{source}: no such store file")
+    try:
+        # Read-only unless migrating: nothing changes a file by looking at it.
+        mode = "rw" if args.action == "migrate" and not args.dry_run else "ro"
+        db = sqlite3.connect(f"file:{source}?mode={mode}", uri=True, isolation_level=None)
+        check = db.execute("PRAGMA integrity_check").fetchone()[0]
+        if check != "ok":
+            return _fail(f"{source} is damaged (integrity check: {check})")
+        todo = schema.pending(db, source)
+        out: dict = {"store": str(source), "schema_version": schema.version_of(db),
+                     "release_knows": schema.SCHEMA_VERSION,
+                     "pending": [f"{m.version}: {m.what}" for m in todo]}
+        if args.action == "migrate" and not args.dry_run:
+            out["applied"] = [m.version for m in schema.migrate(db, path)]
+            out["schema_version"] = schema.version_of(db)
+        elif args.action == "backup":
+            out["backup"] = str(schema.backup(db, args.output))
+        elif args.action == "restore":
+            if path.exists():
+                with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as current:
+                    stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+                    out["kept"] = str(schema.backup(
+                        current, path.with_name(f"{path.name}.before-restore-{stamp}.bak")))
+            target = sqlite3.connect(str(path))
+            try:
+                db.backup(target)
+            finally:
+                target.close()
+            out["restored"] = str(path)
+        db.close()
+    except schema.SchemaError as err:
+        return _fail(str(err))
+    except sqlite3.DatabaseError as err:
+        return _fail(f"{source} cannot be used as a store: {err}")
+    print(json.dumps(out))
+    return EXIT_OK
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     """Write the store's archived measurements as a Q-DAS AQDEF transfer file."""
     from calib_store.compensation_log import CompensationLog
@@ -674,6 +722,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-index", type=float, default=1.33)
     p.add_argument("images", nargs="+", metavar="IMAGE")
     p.set_defaults(func=cmd_study)
+
+    st = sub.add_parser("store", help="the store's schema version, migrations, backup and "
+                        "restore")
+    st_sub = st.add_subparsers(dest="action", required=True, metavar="ACTION")
+    store_help = "the service's store (store.path; default %(default)s)"
+    for name, text in (("version", "its schema version and what this release would migrate"),
+                       ("migrate", "apply the pending migrations (backed up first)"),
+                       ("backup", "a consistent copy, also while the service runs"),
+                       ("restore", "the store replaced by a backup (stop the service first; "
+                        "the store it replaces is kept beside it)")):
+        p = st_sub.add_parser(name, help=text)
+        p.add_argument("--store", default="shaftgauge-data/shaftgauge.db", metavar="DB",
+                       help=store_help)
+        if name == "migrate":
+            p.add_argument("--dry-run", action="store_true", help="say what, change nothing")
+        if name == "backup":
+            p.add_argument("output", metavar="BACKUP.db", help="a new file")
+        if name == "restore":
+            p.add_argument("backup", metavar="BACKUP.db")
+        p.set_defaults(func=cmd_store)
 
     exp = sub.add_parser("export", help="export the store's measurements")
     exp_sub = exp.add_subparsers(dest="format", required=True, metavar="FORMAT")

@@ -1,0 +1,159 @@
+"""The store's life: stores written by earlier releases (tests/fixtures/stores, each made by
+that release's own serve) open with every row kept, backed up first; a store of a newer
+schema is refused naming both versions and left as it was; backup, restore and migrate from
+the command line."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sqlite3
+from pathlib import Path
+
+import pytest
+
+from calib_store import schema
+from calib_store.compensation_log import CompensationLog
+from calib_store.gauge_studies import GaugeStudyStore
+from calib_store.store import CalibrationStore, StoreError
+from service import cli
+
+FIXTURES = sorted((Path(__file__).resolve().parents[1] / "fixtures" / "stores").glob("*.db"))
+
+
+def _counts(path: Path) -> dict[str, int]:
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        tables = [r[0] for r in db.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'table' AND name NOT LIKE 'sqlite_%'")]
+        return {t: db.execute(f'SELECT COUNT(*) FROM "{t}"').fetchone()[0] for t in tables}
+    finally:
+        db.close()
+
+
+def _open_all(path: Path) -> tuple[CalibrationStore, CompensationLog, GaugeStudyStore]:
+    return CalibrationStore(path), CompensationLog(path), GaugeStudyStore(path)
+
+
+def test_stores_of_three_earlier_releases_are_here() -> None:
+    assert len(FIXTURES) >= 3, FIXTURES
+
+
+@pytest.mark.parametrize("fixture", FIXTURES, ids=lambda p: p.stem)
+def test_a_store_of_an_earlier_release_opens_with_every_row_kept(fixture: Path, tmp_path
+                                                                ) -> None:
+    path = tmp_path / "shaftgauge.db"
+    shutil.copy(fixture, path)
+    before = _counts(path)
+    assert sum(before.values()) > 0
+    store, log_, studies = _open_all(path)
+    try:
+        _, calibration = store.active()
+        assert calibration.image_size
+        assert log_.decisions(limit=1000)
+        studies.list()
+    finally:
+        log_.close()
+        store.close()
+    after = _counts(path)
+    assert {t: after[t] for t in before} == before
+    assert set(after) >= {"calibrations", "compensation_decisions", "measurements",
+                          "gauge_studies", "gauge_values"}
+    db = sqlite3.connect(str(path))
+    assert schema.version_of(db) == schema.SCHEMA_VERSION
+    db.close()
+    kept = list(tmp_path.glob("shaftgauge.db.v0-*.bak"))
+    assert len(kept) == 1 and _counts(kept[0]) == before
+
+
+def test_a_new_store_is_made_at_the_latest_version_without_a_backup(tmp_path) -> None:
+    path = tmp_path / "new.db"
+    CalibrationStore(path).close()
+    db = sqlite3.connect(str(path))
+    assert schema.version_of(db) == schema.SCHEMA_VERSION
+    db.close()
+    assert not list(tmp_path.glob("*.bak"))
+
+
+def test_a_store_of_a_newer_release_is_refused_and_left_as_it_was(tmp_path) -> None:
+    path = tmp_path / "newer.db"
+    CalibrationStore(path).close()
+    db = sqlite3.connect(str(path))
+    db.execute(f"PRAGMA user_version = {schema.SCHEMA_VERSION + 1}")
+    db.commit()
+    db.close()
+    before = path.read_bytes()
+    with pytest.raises(StoreError) as err:
+        CompensationLog(path)
+    text = str(err.value)
+    assert f"schema version {schema.SCHEMA_VERSION + 1}" in text
+    assert f"up to {schema.SCHEMA_VERSION}" in text and str(path) in text
+    assert path.read_bytes() == before
+
+
+def test_a_migration_that_fails_leaves_the_store_at_its_version(tmp_path, monkeypatch) -> None:
+    path = tmp_path / "old.db"
+    shutil.copy(FIXTURES[0], path)
+
+    def broken(db: sqlite3.Connection) -> None:
+        db.execute("CREATE TABLE half_done (x INTEGER)")
+        raise sqlite3.OperationalError("disk I/O error")
+
+    monkeypatch.setattr(schema, "MIGRATIONS", (schema.Migration(1, "broken", broken),))
+    with pytest.raises(StoreError):
+        CalibrationStore(path)
+    db = sqlite3.connect(str(path))
+    assert schema.version_of(db) == 0
+    assert "half_done" not in _counts(path)
+    db.close()
+
+
+def _cli(*args: str, capsys) -> tuple[int, dict | str]:
+    code = cli.main(list(args))
+    out, err = capsys.readouterr()
+    return code, (json.loads(out) if code == 0 else err)
+
+
+def test_version_migrate_backup_and_restore_from_the_command_line(tmp_path, capsys) -> None:
+    path = tmp_path / "shaftgauge.db"
+    shutil.copy(FIXTURES[-1], path)
+    before = _counts(path)
+    code, out = _cli("store", "version", "--store", str(path), capsys=capsys)
+    assert code == 0 and out["schema_version"] == 0 and out["pending"]
+    code, out = _cli("store", "migrate", "--dry-run", "--store", str(path), capsys=capsys)
+    assert code == 0 and out["pending"] and "applied" not in out
+    assert _counts(path) == before
+    code, out = _cli("store", "migrate", "--store", str(path), capsys=capsys)
+    assert code == 0 and out["applied"] == [1] and out["schema_version"] == 1
+    code, out = _cli("store", "backup", "--store", str(path), str(tmp_path / "b.db"),
+                     capsys=capsys)
+    assert code == 0
+    assert {t: n for t, n in _counts(tmp_path / "b.db").items() if t in before} == before
+    code, err = _cli("store", "backup", "--store", str(path), str(tmp_path / "b.db"),
+                     capsys=capsys)
+    assert code != 0 and "exists already" in err
+    # A decision more, then the backup restored: the store is the backup's again, and the
+    # store it replaced is kept.
+    log_ = CompensationLog(path)
+    log_.put_value("marker", "after the backup")
+    assert log_.get_value("marker") == "after the backup"
+    log_.close()
+    code, out = _cli("store", "restore", "--store", str(path), str(tmp_path / "b.db"),
+                     capsys=capsys)
+    assert code == 0 and Path(out["kept"]).exists()
+    assert _counts(path) == _counts(tmp_path / "b.db")
+    store, log2, _ = _open_all(path)
+    assert store.active() is not None
+    assert log2.get_value("marker") is None
+    log2.close()
+    store.close()
+
+
+def test_the_command_line_names_a_missing_or_foreign_file(tmp_path, capsys) -> None:
+    code, err = _cli("store", "version", "--store", str(tmp_path / "none.db"), capsys=capsys)
+    assert code != 0 and "no such store file" in err
+    junk = tmp_path / "junk.db"
+    junk.write_bytes(b"not a database at all" * 100)
+    code, err = _cli("store", "backup", "--store", str(junk), str(tmp_path / "x.db"),
+                     capsys=capsys)
+    assert code != 0 and "junk.db" in err and "Traceback" not in err
