@@ -177,6 +177,10 @@ class ApiSettings(_Section):
     """Images one calibration session may hold."""
     session_expiry_h: float = Field(24.0, gt=0)
     """A calibration session untouched this long is deleted with its images."""
+    trusted_hosts: list[str] = []
+    """Host names the API and dashboard answer to besides addresses, ``localhost`` and this
+    machine's own name (others get 400: a page of another site cannot rebind its name to the
+    gauge and read it)."""
     keys: dict[str, Literal["operator", "technician", "admin"]] = {}
     """API key -> role (operator: read where reading is not open; technician: calibrations,
     feature, shadow mode, commands, temperature; admin: also compensation tuning). Put keys in

@@ -23,6 +23,7 @@ from service.api import (
     sessions,
 )
 from service.api.auth import reader
+from service.api.edge import SecurityHeaders
 from service.api.limits import BodyLimit
 from service.api.models import ERRORS
 from service.plant.mqtt import gauge_identity
@@ -48,10 +49,13 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
                   description="Lathe-side shaft diameter measurement. Reading is open on the "
                   "plant network; changes need an X-API-Key with a role.")
 
+    # Outermost (added last): the Host check and the headers on every answer, 413s included.
     # Bodies are bounded before anything reads them, before routing and access checks.
     app.add_middleware(BodyLimit, default_bytes=gauge.settings.api.max_body_bytes,
                        larger=[(r"/api/v1/calibration-sessions/[^/]+/images/",
                                 gauge.settings.api.max_image_bytes)])
+
+    app.add_middleware(SecurityHeaders, trusted_hosts=gauge.settings.api.trusted_hosts)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_: Request, exc: RequestValidationError) -> JSONResponse:

@@ -1,10 +1,18 @@
 """Who may do what: reading is open on the plant network (configurable); changing anything
-needs an API key whose role is high enough. Keys are compared in constant time."""
+needs an API key whose role is high enough. Keys are compared in constant time; an address
+that sends ``MAX_FAILURES`` wrong keys within ``WINDOW_S`` gets 429 (with ``Retry-After``)
+for any key until the oldest of them is that old, and every wrong key is logged with the
+address (never the key)."""
 
 from __future__ import annotations
 
+import collections
 import hmac
 import ipaddress
+import logging
+import math
+import threading
+import time
 from collections.abc import Callable
 from typing import Literal
 
@@ -15,6 +23,76 @@ from service.config import ApiSettings
 Role = Literal["operator", "technician", "admin"]
 RANK = {"operator": 0, "technician": 1, "admin": 2}
 KEY_HEADER = "X-API-Key"
+MAX_FAILURES = 20
+WINDOW_S = 60.0
+log = logging.getLogger("shaftgauge.api")
+
+
+class KeyAttempts:
+    """Wrong keys per client address over a sliding window (time passed in)."""
+
+    def __init__(self, max_failures: int = MAX_FAILURES, window_s: float = WINDOW_S) -> None:
+        self.max_failures, self.window_s = max_failures, window_s
+        self._failures: dict[str, collections.deque[float]] = {}
+        self._lock = threading.Lock()
+        self.refused = 0  # wrong keys seen since the start
+
+    def _recent(self, client: str, now: float) -> collections.deque[float]:
+        times = self._failures.setdefault(client, collections.deque())
+        while times and times[0] <= now - self.window_s:
+            times.popleft()
+        return times
+
+    def retry_after(self, client: str, now: float) -> float:
+        """Seconds until ``client`` may try a key again (0: now)."""
+        with self._lock:
+            times = self._recent(client, now)
+            if len(times) < self.max_failures:
+                return 0.0
+            return times[-self.max_failures] + self.window_s - now
+
+    def failed(self, client: str, now: float) -> int:
+        """Count a wrong key from ``client``; how many it sent within the window."""
+        with self._lock:
+            times = self._recent(client, now)
+            times.append(now)
+            self.refused += 1
+            if len(self._failures) > 10_000:  # a flood of addresses: forget the quiet ones
+                for quiet in [c for c, t in self._failures.items() if not t][:5_000]:
+                    del self._failures[quiet]
+            return len(times)
+
+
+_ATTEMPTS: dict[int, tuple[ApiSettings, KeyAttempts]] = {}
+
+
+def attempts_for(api: ApiSettings) -> KeyAttempts:
+    """The wrong-key counts of the API that ``api`` configures (one per settings object)."""
+    entry = _ATTEMPTS.get(id(api))
+    if entry is None or entry[0] is not api:
+        entry = _ATTEMPTS[id(api)] = (api, KeyAttempts())
+    return entry[1]
+
+
+def _checked_role(api: ApiSettings, request: Request, key: str | None) -> Role | None:
+    """``role_of`` for a request: 429 while its address is locked out, each wrong key counted
+    and logged with the address."""
+    if not key:
+        return None
+    client = request.client.host if request.client else "?"
+    attempts, now = attempts_for(api), time.monotonic()
+    wait = attempts.retry_after(client, now)
+    if wait > 0:
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                            f"{attempts.max_failures} wrong keys from {client} within "
+                            f"{attempts.window_s:.0f} s: try again in {math.ceil(wait)} s",
+                            headers={"Retry-After": str(math.ceil(wait))})
+    role = role_of(api, key)
+    if role is None:
+        n = attempts.failed(client, now)
+        log.warning("api: a wrong %s from %s (%d within %.0f s)", KEY_HEADER, client, n,
+                    attempts.window_s)
+    return role
 
 
 def role_of(api: ApiSettings, key: str | None) -> Role | None:
@@ -46,7 +124,7 @@ def reader(api: ApiSettings) -> Callable[[Request], None]:
     def dependency(request: Request) -> None:
         if _client_may_read(api, request):
             return
-        if role_of(api, request.headers.get(KEY_HEADER)) is None:
+        if _checked_role(api, request, request.headers.get(KEY_HEADER)) is None:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED,
                                 f"reading from this address needs a valid {KEY_HEADER} header")
 
@@ -58,7 +136,7 @@ def requires(api: ApiSettings, role: Role) -> Callable[[Request], Role]:
 
     def dependency(request: Request) -> Role:
         key = request.headers.get(KEY_HEADER)
-        have = role_of(api, key)
+        have = _checked_role(api, request, key)
         if have is None:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED,
                                 f"this needs a valid {KEY_HEADER} header ({role} or above)"

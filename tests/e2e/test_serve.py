@@ -185,3 +185,20 @@ def test_worker_processes_measure_and_one_killed_is_replaced(tmp_path) -> None:
         assert wait_for(gone, timeout_s=10), f"workers {left} outlived the service"
     finally:
         stop_service(svc)
+
+
+def test_every_answer_carries_the_security_headers_and_a_foreign_host_is_refused(service
+                                                                                 ) -> None:
+    for path in ("/ui/", "/api/v1/status", "/ui/manual/"):
+        r = service.get(path)
+        assert r.status_code == 200, path
+        assert r.headers["x-content-type-options"] == "nosniff"
+        assert r.headers["x-frame-options"] == "DENY"
+        csp = r.headers["content-security-policy"]
+        assert "frame-ancestors 'none'" in csp and "default-src 'self'" in csp
+        assert ("'unsafe-inline'" in csp) == path.startswith("/ui/manual"), (path, csp)
+    # A DNS-rebinding page names its own host: refused, and nothing of the gauge read.
+    r = service.get("/api/v1/measurements/latest", headers={"Host": "evil.example:8000"})
+    assert r.status_code == 400 and "trusted_hosts" in r.json()["detail"]
+    assert r.headers["x-frame-options"] == "DENY"
+    assert service.get("/api/v1/status", headers={"Host": "localhost"}).status_code == 200

@@ -10,6 +10,7 @@ import zlib
 
 import cv2
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 
 from service.api.app import create_app
@@ -156,3 +157,49 @@ def test_runtime_settings_survive_a_restart_and_are_audited(tmp_path) -> None:
 def test_an_unknown_kind_in_the_log_query_is_a_422(client) -> None:
     r = client.get("/api/v1/compensation/log", params={"kinds": "write,banana"})
     assert r.status_code == 422 and "banana" in r.json()["detail"]
+
+
+def test_host_names_served_are_addresses_this_machine_and_the_trusted() -> None:
+    import socket
+
+    from service.api.edge import SecurityHeaders
+
+    edge = SecurityHeaders(None, trusted_hosts=["gauge-7.plant.example"])
+    for ok in ("127.0.0.1", "10.1.2.3", "[::1]", "localhost", "gauge-7.plant.example",
+               socket.gethostname().lower()):
+        assert edge.allowed(ok), ok
+    for bad in ("evil.example", "", "127.0.0.1.evil.example", "gauge-7.plant.example.evil"):
+        assert not edge.allowed(bad), bad
+
+
+def test_wrong_keys_are_counted_per_address_in_a_sliding_window() -> None:
+    from service.api.auth import KeyAttempts
+
+    a = KeyAttempts(max_failures=3, window_s=10.0)
+    for t in (0.0, 1.0, 2.0):
+        assert a.retry_after("10.0.0.9", t) == 0.0
+        a.failed("10.0.0.9", t)
+    assert a.retry_after("10.0.0.9", 2.5) == pytest.approx(7.5)
+    assert a.retry_after("10.0.0.8", 2.5) == 0.0  # another address is not held
+    assert a.retry_after("10.0.0.9", 10.5) == 0.0  # the first has aged out
+    assert a.refused == 3
+
+
+def test_twenty_wrong_keys_in_a_row_get_429_and_the_log_names_the_address(tmp_path,
+                                                                          caplog) -> None:
+    from service.api.auth import MAX_FAILURES
+
+    settings = make_settings(tmp_path)
+    gauge, _ = build(settings, Children())
+    with TestClient(create_app(gauge)) as c:
+        wrong = "not-the-key-0123456789"
+        for _ in range(MAX_FAILURES):
+            r = c.put("/api/v1/compensation/shadow", json={"shadow": True}, headers={H: wrong})
+            assert r.status_code == 401
+        r = c.put("/api/v1/compensation/shadow", json={"shadow": True},
+                  headers={H: TECHNICIAN})
+        assert r.status_code == 429, r.text
+        assert int(r.headers["Retry-After"]) > 0 and "testclient" in r.json()["detail"]
+    lines = [rec.getMessage() for rec in caplog.records if rec.name == "shaftgauge.api"]
+    assert len(lines) == MAX_FAILURES and all("testclient" in line for line in lines)
+    assert not any(wrong in line for line in lines)
