@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -134,11 +135,13 @@ class Calibration(_Strict):
         return json.dumps(self.to_document(), indent=indent)
 
 
-def format_validation_error(err: ValidationError) -> str:
-    """One line per problem, each starting with the dotted field name."""
+def format_validation_error(err: ValidationError,
+                            rename: Callable[[tuple], tuple] | None = None) -> str:
+    """One line per problem, each starting with the dotted field name (``rename`` may change
+    a field's path first: one that holds a secret)."""
     lines = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"])
+        loc = ".".join(str(p) for p in (rename(e["loc"]) if rename else e["loc"]))
         msg = e["msg"].removeprefix("Value error, ")
         # Whole-document checks name their fields in the message itself.
         lines.append(f"{loc}: {msg}" if loc else msg)

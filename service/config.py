@@ -22,6 +22,7 @@ from pydantic import (
     model_validator,
 )
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+from pydantic_settings.exceptions import SettingsError
 
 from calib_store.model import format_validation_error
 from service.compensation import CompensationSettings
@@ -199,9 +200,10 @@ class ApiSettings(_Section):
     @field_validator("keys")
     @classmethod
     def _key_length(cls, v: dict[str, str]) -> dict[str, str]:
-        short = [k[:4] + "..." for k in v if len(k) < 16]
-        if short:
-            raise ValueError(f"API keys must be at least 16 characters ({short})")
+        short = sum(1 for k in v if len(k) < 16)
+        if short:  # never a key, nor a part of one, in a message
+            raise ValueError(f"API keys must be at least 16 characters: {short} of the "
+                             f"{len(v)} are shorter")
         return v
 
 
@@ -429,4 +431,14 @@ def load_settings(path: str | Path | None = None) -> Settings:
     try:
         return Settings(**data)
     except ValidationError as err:
-        raise ConfigError(f"{where}: {format_validation_error(err)}") from None
+        raise ConfigError(f"{where}: {format_validation_error(err, _without_keys)}") from None
+    except SettingsError as err:  # a SHAFTGAUGE_... variable that is not valid JSON
+        raise ConfigError(f"environment: a SHAFTGAUGE_ variable cannot be read ({err}); a "
+                          "table such as SHAFTGAUGE_API__KEYS must be JSON") from None
+
+
+def _without_keys(loc: tuple) -> tuple:
+    """A field's path with an API key in it replaced (a key is its own field name in
+    ``api.keys.<key>``)."""
+    return (*loc[:2], "<a key>", *loc[3:]) if loc[:2] == ("api", "keys") and len(loc) > 2 \
+        else loc

@@ -62,3 +62,16 @@ def test_settings_are_frozen_after_load() -> None:
         s.api.port = 1
     with pytest.raises(pydantic.ValidationError, match="frozen"):
         s.log_level = "debug"
+
+
+@pytest.mark.parametrize(("keys", "words"), [
+    ('{"0123456789abcdefSECRET": "wizard"}', "api.keys.<a key>: Input should be"),
+    ('{"SECRET": "admin", "0123456789abcdef0123": "admin"}', "1 of the 2 are shorter"),
+    ('{"0123456789abcdefSECRET": "admin"', "must be JSON"),  # not JSON: no traceback
+])
+def test_a_config_error_never_prints_a_key(monkeypatch, keys: str, words: str) -> None:
+    monkeypatch.setenv("SHAFTGAUGE_API__KEYS", keys)
+    with pytest.raises(ConfigError) as err:
+        load_settings()
+    text = str(err.value)
+    assert words in text and "SECRET" not in text and "0123" not in text, text
