@@ -453,6 +453,28 @@ def _when(text: str) -> float:
     return (t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp()
 
 
+def cmd_api_key(args: argparse.Namespace) -> int:
+    """API keys kept as hashes: add one (printed once), list them, remove one."""
+    from calib_store import api_keys
+
+    path = Path(args.key_file)
+    try:
+        if args.action == "add":
+            entry, key = api_keys.add(path, args.role, args.note)
+            print(json.dumps({"id": entry.id, "role": entry.role, "key": key,
+                              "key_file": str(path), "note": "shown this once: keep it"}))
+        elif args.action == "list":
+            print(json.dumps([{"id": k.id, "role": k.role, "created": k.created,
+                               "note": k.note} for k in api_keys.read(path)]))
+        elif not api_keys.remove(path, args.id):
+            return _fail(f"{path}: no key {args.id!r}")
+        else:
+            print(json.dumps({"removed": args.id}))
+    except api_keys.KeyFileError as err:
+        return _fail(str(err))
+    return EXIT_OK
+
+
 def cmd_store(args: argparse.Namespace) -> int:
     """The store's schema version, its migrations, a backup and a restore."""
     import sqlite3
@@ -722,6 +744,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-index", type=float, default=1.33)
     p.add_argument("images", nargs="+", metavar="IMAGE")
     p.set_defaults(func=cmd_study)
+
+    ak = sub.add_parser("api-key", help="API keys kept as hashes (api.key_file)")
+    ak_sub = ak.add_subparsers(dest="action", required=True, metavar="ACTION")
+    for name, text in (("add", "a new random key of a role, printed once"),
+                       ("list", "the keys' ids and roles (never a key)"),
+                       ("remove", "a key by its id")):
+        p = ak_sub.add_parser(name, help=text)
+        p.add_argument("--key-file", default="/etc/shaftgauge/api-keys.json", metavar="FILE",
+                       help="api.key_file (default %(default)s)")
+        if name == "add":
+            p.add_argument("--role", required=True, choices=["operator", "technician",
+                                                             "admin"])
+            p.add_argument("--note", default="", help="who or what the key is for")
+        if name == "remove":
+            p.add_argument("id", metavar="ID")
+        p.set_defaults(func=cmd_api_key)
 
     st = sub.add_parser("store", help="the store's schema version, migrations, backup and "
                         "restore")

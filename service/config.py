@@ -182,10 +182,14 @@ class ApiSettings(_Section):
     """Host names the API and dashboard answer to besides addresses, ``localhost`` and this
     machine's own name (others get 400: a page of another site cannot rebind its name to the
     gauge and read it)."""
+    key_file: Path | None = None
+    """The API keys kept as hashes (``shaftgauge api-key add`` makes one and prints it once;
+    an installation's way: ``/etc/shaftgauge/api-keys.json``)."""
     keys: dict[str, Literal["operator", "technician", "admin"]] = {}
-    """API key -> role (operator: read where reading is not open; technician: calibrations,
-    feature, shadow mode, commands, temperature; admin: also compensation tuning). Put keys in
-    the environment or in a root-only config file, never in the repository."""
+    """API key -> role, in plain: for development and tests (an installation uses
+    ``key_file``). Roles: operator reads where reading is not open; technician: calibrations,
+    feature, shadow mode, commands, temperature; admin: also compensation tuning. Never in
+    the repository."""
 
     @field_validator("read_networks")
     @classmethod

@@ -1,77 +1,29 @@
 """Who may do what: reading is open on the plant network (configurable); changing anything
-needs an API key whose role is high enough. Keys are compared in constant time; an address
-that sends ``MAX_FAILURES`` wrong keys within ``WINDOW_S`` gets 429 (with ``Retry-After``)
-for any key until the oldest of them is that old, and every wrong key is logged with the
-address (never the key)."""
+needs an API key whose role is high enough: one of ``api.keys`` or of the hashed
+``api.key_file`` (``calib_store.api_keys``), compared in constant time. An address that sends
+too many wrong keys gets 429 for a while (``service.api.attempts``); every wrong key is
+logged with the address, never the key."""
 
 from __future__ import annotations
 
-import collections
 import hmac
 import ipaddress
 import logging
 import math
-import threading
 import time
 from collections.abc import Callable
 from typing import Literal
 
 from fastapi import HTTPException, Request, status
 
+from calib_store import api_keys
+from service.api.attempts import attempts_for
 from service.config import ApiSettings
 
 Role = Literal["operator", "technician", "admin"]
 RANK = {"operator": 0, "technician": 1, "admin": 2}
 KEY_HEADER = "X-API-Key"
-MAX_FAILURES = 20
-WINDOW_S = 60.0
 log = logging.getLogger("shaftgauge.api")
-
-
-class KeyAttempts:
-    """Wrong keys per client address over a sliding window (time passed in)."""
-
-    def __init__(self, max_failures: int = MAX_FAILURES, window_s: float = WINDOW_S) -> None:
-        self.max_failures, self.window_s = max_failures, window_s
-        self._failures: dict[str, collections.deque[float]] = {}
-        self._lock = threading.Lock()
-        self.refused = 0  # wrong keys seen since the start
-
-    def _recent(self, client: str, now: float) -> collections.deque[float]:
-        times = self._failures.setdefault(client, collections.deque())
-        while times and times[0] <= now - self.window_s:
-            times.popleft()
-        return times
-
-    def retry_after(self, client: str, now: float) -> float:
-        """Seconds until ``client`` may try a key again (0: now)."""
-        with self._lock:
-            times = self._recent(client, now)
-            if len(times) < self.max_failures:
-                return 0.0
-            return times[-self.max_failures] + self.window_s - now
-
-    def failed(self, client: str, now: float) -> int:
-        """Count a wrong key from ``client``; how many it sent within the window."""
-        with self._lock:
-            times = self._recent(client, now)
-            times.append(now)
-            self.refused += 1
-            if len(self._failures) > 10_000:  # a flood of addresses: forget the quiet ones
-                for quiet in [c for c, t in self._failures.items() if not t][:5_000]:
-                    del self._failures[quiet]
-            return len(times)
-
-
-_ATTEMPTS: dict[int, tuple[ApiSettings, KeyAttempts]] = {}
-
-
-def attempts_for(api: ApiSettings) -> KeyAttempts:
-    """The wrong-key counts of the API that ``api`` configures (one per settings object)."""
-    entry = _ATTEMPTS.get(id(api))
-    if entry is None or entry[0] is not api:
-        entry = _ATTEMPTS[id(api)] = (api, KeyAttempts())
-    return entry[1]
 
 
 def _checked_role(api: ApiSettings, request: Request, key: str | None) -> Role | None:
@@ -104,7 +56,8 @@ def role_of(api: ApiSettings, key: str | None) -> Role | None:
     for candidate, role in api.keys.items():
         if hmac.compare_digest(candidate.encode(), given):
             found = role
-    return found
+    stored = api_keys.match(api.key_file, key) if api.key_file else None
+    return found or (stored.role if stored else None)  # type: ignore[return-value]
 
 
 def _client_may_read(api: ApiSettings, request: Request) -> bool:

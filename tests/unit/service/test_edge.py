@@ -173,7 +173,7 @@ def test_host_names_served_are_addresses_this_machine_and_the_trusted() -> None:
 
 
 def test_wrong_keys_are_counted_per_address_in_a_sliding_window() -> None:
-    from service.api.auth import KeyAttempts
+    from service.api.attempts import KeyAttempts
 
     a = KeyAttempts(max_failures=3, window_s=10.0)
     for t in (0.0, 1.0, 2.0):
@@ -187,7 +187,7 @@ def test_wrong_keys_are_counted_per_address_in_a_sliding_window() -> None:
 
 def test_twenty_wrong_keys_in_a_row_get_429_and_the_log_names_the_address(tmp_path,
                                                                           caplog) -> None:
-    from service.api.auth import MAX_FAILURES
+    from service.api.attempts import MAX_FAILURES
 
     settings = make_settings(tmp_path)
     gauge, _ = build(settings, Children())
