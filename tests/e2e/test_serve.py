@@ -114,7 +114,7 @@ def test_sigterm_stops_the_service_with_a_live_stream_open(tmp_path) -> None:
     try:
         assert wait_ready(svc)
         with socket.create_connection(svc.url.removeprefix("http://").split(":")) as s:
-            s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: x\r\n\r\n")
+            s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
             assert s.recv(64).startswith(b"HTTP/1.1 200")
             t0 = time.monotonic()
             os.killpg(svc.proc.pid, signal.SIGTERM)

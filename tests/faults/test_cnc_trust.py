@@ -324,12 +324,12 @@ def test_oversized_and_lying_uploads(tmp_path) -> None:
                          headers={"X-API-Key": TECH_KEY}, timeout=10).json()["id"]
         rss0 = rss_kib(svc.proc.pid)
         status, sent_5g = send_until_answered(
-            port, "PUT /api/v1/feature HTTP/1.1\r\nHost: x\r\nContent-Type: "
+            port, "PUT /api/v1/feature HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
             f"application/json\r\nContent-Length: {5 << 30}\r\n\r\n", 5 << 30)
         assert " 413 " in status, status
         status, sent_chunked = send_until_answered(
             port, f"POST /api/v1/calibration-sessions/{sid}/images/view HTTP/1.1\r\n"
-            f"Host: x\r\nX-API-Key: {TECH_KEY}\r\nTransfer-Encoding: chunked\r\n\r\n",
+            f"Host: 127.0.0.1\r\nX-API-Key: {TECH_KEY}\r\nTransfer-Encoding: chunked\r\n\r\n",
             200 << 20, chunked=True)
         assert " 413 " in status, status
         r = httpx.post(svc.url + f"/api/v1/calibration-sessions/{sid}/images/view",
@@ -381,7 +381,7 @@ def test_a_thousand_live_streams_at_once(tmp_path) -> None:
         rss0 = rss_kib(svc.proc.pid)
         for _ in range(1000):
             s = socket.create_connection(("127.0.0.1", port), timeout=10)
-            s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: x\r\n\r\n")
+            s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
             socks.append(s)
         codes: dict[str, int] = {}
         for s in socks:
@@ -413,7 +413,7 @@ def test_a_thousand_live_streams_at_once(tmp_path) -> None:
         # The flood gone, a client gets its stream again.
         def stream_served() -> bool:
             with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
-                s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: x\r\n\r\n")
+                s.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
                 return s.recv(4096).split(b"\r\n")[0].split(b" ")[1:2] == [b"200"]
 
         until(stream_served, 30, "a live stream served after the flood")

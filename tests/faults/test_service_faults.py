@@ -208,7 +208,7 @@ def test_slow_consumer(fast_camera_rig: Rig) -> None:
     rig = fast_camera_rig
     host, port = rig.svc.url.removeprefix("http://").split(":")
     with socket.create_connection((host, int(port))) as stuck:
-        stuck.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: x\r\n\r\n")
+        stuck.sendall(b"GET /api/v1/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         d0 = rig.status()["pipeline"]["camera_dropped"]
         control(rig.camera.control_port, {"set": {"fps": 1000.0}})
         until(lambda: rig.status()["pipeline"]["camera_dropped"] > d0 + 20, 30,
