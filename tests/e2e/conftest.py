@@ -175,3 +175,14 @@ def service(tmp_path) -> Iterator[Service]:
         yield svc
     finally:
         stop_service(svc)
+
+
+def wait_for_js(page, expression: str, timeout_s: float = 10.0) -> None:
+    """Until ``expression`` is true in the page. Polled from here with ``page.evaluate``:
+    Playwright's own ``wait_for_function`` polls by evaluating a string in the page, which
+    the dashboard's Content-Security-Policy (no eval) rightly refuses."""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"not true within {timeout_s} s: {expression}")
+        time.sleep(0.1)

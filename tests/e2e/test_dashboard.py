@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from playwright.sync_api import Page, expect, sync_playwright
 
-from tests.e2e.conftest import TECH_KEY
+from tests.e2e.conftest import TECH_KEY, wait_for_js
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -69,7 +69,7 @@ def test_operator_view_is_live(service, browser) -> None:
     expect(page.locator("#nominal")).to_have_text("30.0000 mm")
     expect(page.locator("#camera")).to_contain_text("streaming")
     expect(page.locator("#plc")).to_contain_text("connected", timeout=15000)
-    page.wait_for_function("document.getElementById('frame').naturalWidth > 0", timeout=10000)
+    wait_for_js(page, "document.getElementById('frame').naturalWidth > 0")
     page.wait_for_timeout(1500)  # a few points on the trend
     shot(page, "operator-1280x800")
     assert page.evaluate("document.documentElement.scrollHeight") <= 800 + 40

@@ -12,7 +12,7 @@ import httpx
 from playwright.sync_api import expect
 
 from drivers.plc.registers import FaultBit
-from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_ready
+from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_for_js, wait_ready
 from tests.e2e.test_dashboard import browser, enter_key, open_page, shot  # noqa: F401
 from tests.faults.test_cnc_trust import read_register
 
@@ -98,8 +98,7 @@ def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) 
         page.goto(svc.url + "/ui/#operator")
         expect(page.locator("#problems")).to_contain_text("gauge study", timeout=10000)
         expect(page.locator("#problems")).to_contain_text("only proposed")
-        page.wait_for_function("document.getElementById('frame').naturalWidth > 0",
-                               timeout=10000)
+        wait_for_js(page, "document.getElementById('frame').naturalWidth > 0")
         page.evaluate("window.scrollTo(0, 0)")
         shot(page, "gauge-study-failed-operator")
         assert not page.errors  # type: ignore[attr-defined]
