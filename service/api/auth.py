@@ -2,7 +2,9 @@
 needs an API key whose role is high enough: one of ``api.keys`` or of the hashed
 ``api.key_file`` (``calib_store.api_keys``), compared in constant time. An address that sends
 too many wrong keys gets 429 for a while (``service.api.attempts``); every wrong key is
-logged with the address, never the key."""
+logged with the address, never the key. A change is done by a ``Caller``: the role, which key
+(its id in the key file, or its place in ``api.keys``) and the client's address, as the audit
+names it."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Literal
 
 from fastapi import HTTPException, Request, status
@@ -26,12 +29,28 @@ KEY_HEADER = "X-API-Key"
 log = logging.getLogger("shaftgauge.api")
 
 
-def _checked_role(api: ApiSettings, request: Request, key: str | None) -> Role | None:
-    """``role_of`` for a request: 429 while its address is locked out, each wrong key counted
+@dataclass(frozen=True)
+class Caller:
+    """Who asked for a change: ``str(caller)`` is what the audit and the decision log keep."""
+
+    role: Role
+    key_id: str
+    client: str
+
+    def __str__(self) -> str:
+        return f"{self.role} (key {self.key_id}, {self.client})"
+
+
+def _client(request: Request) -> str:
+    return request.client.host if request.client else "?"
+
+
+def _checked(api: ApiSettings, request: Request, key: str | None) -> Caller | None:
+    """``identify`` for a request: 429 while its address is locked out, each wrong key counted
     and logged with the address."""
     if not key:
         return None
-    client = request.client.host if request.client else "?"
+    client = _client(request)
     attempts, now = attempts_for(api), time.monotonic()
     wait = attempts.retry_after(client, now)
     if wait > 0:
@@ -39,25 +58,35 @@ def _checked_role(api: ApiSettings, request: Request, key: str | None) -> Role |
                             f"{attempts.max_failures} wrong keys from {client} within "
                             f"{attempts.window_s:.0f} s: try again in {math.ceil(wait)} s",
                             headers={"Retry-After": str(math.ceil(wait))})
-    role = role_of(api, key)
-    if role is None:
+    found = identify(api, key)
+    if found is None:
         n = attempts.failed(client, now)
         log.warning("api: a wrong %s from %s (%d within %.0f s)", KEY_HEADER, client, n,
                     attempts.window_s)
-    return role
+        return None
+    return Caller(found[0], found[1], client)
+
+
+def identify(api: ApiSettings, key: str | None) -> tuple[Role, str] | None:
+    """The role and the id of a key (``api.keys#N`` for the N-th configured key, never the key
+    itself), comparing against every key in constant time."""
+    if not key:
+        return None
+    found: tuple[Role, str] | None = None
+    given = key.encode()
+    for n, (candidate, role) in enumerate(api.keys.items(), start=1):
+        if hmac.compare_digest(candidate.encode(), given):
+            found = (role, f"api.keys#{n}")
+    stored = api_keys.match(api.key_file, key) if api.key_file else None
+    if found is None and stored is not None:
+        found = (stored.role, stored.id)  # type: ignore[assignment]
+    return found
 
 
 def role_of(api: ApiSettings, key: str | None) -> Role | None:
-    """The role of a key, comparing against every configured key in constant time."""
-    if not key:
-        return None
-    found: Role | None = None
-    given = key.encode()
-    for candidate, role in api.keys.items():
-        if hmac.compare_digest(candidate.encode(), given):
-            found = role
-    stored = api_keys.match(api.key_file, key) if api.key_file else None
-    return found or (stored.role if stored else None)  # type: ignore[return-value]
+    """The role of a key (``identify`` without the id)."""
+    found = identify(api, key)
+    return found[0] if found else None
 
 
 def _client_may_read(api: ApiSettings, request: Request) -> bool:
@@ -77,27 +106,27 @@ def reader(api: ApiSettings) -> Callable[[Request], None]:
     def dependency(request: Request) -> None:
         if _client_may_read(api, request):
             return
-        if _checked_role(api, request, request.headers.get(KEY_HEADER)) is None:
+        if _checked(api, request, request.headers.get(KEY_HEADER)) is None:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED,
                                 f"reading from this address needs a valid {KEY_HEADER} header")
 
     return dependency
 
 
-def requires(api: ApiSettings, role: Role) -> Callable[[Request], Role]:
+def requires(api: ApiSettings, role: Role) -> Callable[[Request], Caller]:
     """Dependency: a key of at least ``role`` (401 without a valid key, 403 if too low)."""
 
-    def dependency(request: Request) -> Role:
+    def dependency(request: Request) -> Caller:
         key = request.headers.get(KEY_HEADER)
-        have = _checked_role(api, request, key)
-        if have is None:
+        caller = _checked(api, request, key)
+        if caller is None:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED,
                                 f"this needs a valid {KEY_HEADER} header ({role} or above)"
                                 if key else f"this needs an {KEY_HEADER} header ({role} or "
                                 "above)")
-        if RANK[have] < RANK[role]:
+        if RANK[caller.role] < RANK[role]:
             raise HTTPException(status.HTTP_403_FORBIDDEN,
-                                f"this needs the {role} role; the key has {have}")
-        return have
+                                f"this needs the {role} role; the key has {caller.role}")
+        return caller
 
     return dependency

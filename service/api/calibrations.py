@@ -9,7 +9,7 @@ from fastapi.responses import JSONResponse
 
 from calib_store.model import CalibrationError, parse_calibration
 from calib_store.store import StoreError
-from service.api.auth import requires
+from service.api.auth import Caller, requires
 from service.api.models import CalibrationImportIn
 from service.config import ApiSettings
 from service.runtime.calibration import CalibrationContext
@@ -57,22 +57,22 @@ def router(context: CalibrationContext, api: ApiSettings) -> APIRouter:
             "Content-Disposition": f'attachment; filename="calibration-{cid}.json"'})
 
     @r.post("/calibrations", status_code=201, summary="Import a calibration document")
-    async def import_(body: CalibrationImportIn, role: str = technician) -> dict:
+    async def import_(body: CalibrationImportIn, caller: Caller = technician) -> dict:
         try:
             cal = parse_calibration(body.document)
         except CalibrationError as err:
             raise HTTPException(422, f"document: {err}") from None
-        cid = store().add(cal, by=role, note=body.note, activate=body.activate)
+        cid = store().add(cal, by=str(caller), note=body.note, activate=body.activate)
         if body.activate:
             context.set_calibration(*store().get(cid))
         info, _ = store().get(cid)
         return info.as_dict()
 
     @r.post("/calibrations/{cid}/activate", summary="Measure with this calibration")
-    async def activate(cid: CalibrationId, role: str = technician) -> dict:
+    async def activate(cid: CalibrationId, caller: Caller = technician) -> dict:
         find(cid)
         try:
-            store().activate(cid, by=role)
+            store().activate(cid, by=str(caller))
         except StoreError as err:
             raise HTTPException(409, str(err)) from None
         info, cal = store().get(cid)

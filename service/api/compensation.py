@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 
 from calib_store.compensation_log import CompensationLog
 from drivers.plc.registers import Command
-from service.api.auth import requires
+from service.api.auth import Caller, requires
 from service.api.models import CommandIn, CompensationIn, FeatureIn, ShadowIn, TemperatureIn
 from service.compensation import CompensationSettings, Decision, Kind
 from service.config import ApiSettings
@@ -29,9 +29,9 @@ def router(comp: CompensationService, log: CompensationLog | None, run_command: 
 
     # The endpoints that change the controller are async: they run on the event loop, in turn
     # with the compensation task and the CNC's register writes, never beside them in a thread.
-    async def apply(settings: CompensationSettings, role: str) -> dict:
+    async def apply(settings: CompensationSettings, caller: Caller) -> dict:
         try:
-            d = await comp.update_settings(settings, who=f"api:{role}")
+            d = await comp.update_settings(settings, who=f"api:{caller}")
         except ValueError as err:
             raise HTTPException(422, str(err)) from None
         return {"settings": asdict(comp.settings), "decision": d.as_dict()}
@@ -43,27 +43,27 @@ def router(comp: CompensationService, log: CompensationLog | None, run_command: 
                 "tol_lower_mm": s.tol_lower_mm}
 
     @r.put("/feature", summary="Set the feature (technician)")
-    async def set_feature(body: FeatureIn, role: str = technician) -> dict:
-        return await apply(replace(comp.settings, **body.model_dump()), role)
+    async def set_feature(body: FeatureIn, caller: Caller = technician) -> dict:
+        return await apply(replace(comp.settings, **body.model_dump()), caller)
 
     @r.get("/compensation", summary="Compensation settings and state")
     def compensation() -> dict:
         return {"settings": asdict(comp.settings), **comp.status()}
 
     @r.put("/compensation", summary="Tune compensation (admin)")
-    async def tune(body: CompensationIn, role: str = admin) -> dict:
+    async def tune(body: CompensationIn, caller: Caller = admin) -> dict:
         changes = {k: v for k, v in body.model_dump().items() if v is not None}
-        return await apply(replace(comp.settings, **changes), role)
+        return await apply(replace(comp.settings, **changes), caller)
 
     @r.put("/compensation/shadow", summary="Shadow mode on or off (technician)")
-    async def shadow(body: ShadowIn, role: str = technician) -> dict:
-        return await apply(replace(comp.settings, shadow=body.shadow), role)
+    async def shadow(body: ShadowIn, caller: Caller = technician) -> dict:
+        return await apply(replace(comp.settings, shadow=body.shadow), caller)
 
     @r.post("/compensation/command", summary="Reset compensation or acknowledge an alarm")
-    async def command(body: CommandIn, role: str = technician) -> dict:
+    async def command(body: CommandIn, caller: Caller = technician) -> dict:
         code = Command.RESET_COMPENSATION if body.command == "reset" \
             else Command.ACKNOWLEDGE_ALARM
-        d = await run_command(code, source="api", who=f"api:{role}")
+        d = await run_command(code, source="api", who=f"api:{caller}")
         return {"decision": None if d is None else d.as_dict(), "state": comp.state.value}
 
     @r.get("/compensation/log", summary="Compensation decisions, newest first")
@@ -88,8 +88,8 @@ def router(comp: CompensationService, log: CompensationLog | None, run_command: 
         return {"part_temp_c": comp.part_temp_c, "alpha_per_k": comp.alpha_per_k}
 
     @r.put("/temperature", summary="Set the part temperature (technician)")
-    async def set_temperature(body: TemperatureIn, role: str = technician) -> dict:
-        await comp.set_temperature(body.part_temp_c, body.alpha_per_k, who=f"api:{role}")
+    async def set_temperature(body: TemperatureIn, caller: Caller = technician) -> dict:
+        await comp.set_temperature(body.part_temp_c, body.alpha_per_k, who=f"api:{caller}")
         return temperature()
 
     return r

@@ -9,7 +9,7 @@ from dataclasses import asdict
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import Field
 
-from service.api.auth import requires
+from service.api.auth import Caller, requires
 from service.api.models import _Strict
 from service.calibrate.master import DiameterCorrection, check_master, correction_from_masters
 from service.config import ApiSettings, MeasurementSettings
@@ -53,7 +53,7 @@ def router(context: CalibrationContext, comp: CompensationService, feed: Measure
         return context.master_status()
 
     @r.post("/master/measure", summary="Measure the master in the lathe and record a check")
-    async def measure(body: MasterMeasureIn, role: str = technician) -> dict:
+    async def measure(body: MasterMeasureIn, caller: Caller = technician) -> dict:
         calibration_id = context.calibration_id
         if calibration_id is None or context.store is None:
             raise HTTPException(409, "no active calibration: activate one first")
@@ -81,13 +81,13 @@ def router(context: CalibrationContext, comp: CompensationService, feed: Measure
         f_raw, f_cor = fuse(raw), fuse(corrected)
         check = check_master(body.certified_mm, f_cor.diameter_mm, ms.master_limit_mm)
         context.record_master_check(check.certified_mm, check.measured_mm, check.error_mm,
-                                  check.limit_mm, check.passed, by=role)
+                                  check.limit_mm, check.passed, by=str(caller))
         return {"certified_mm": body.certified_mm, "raw_mm": f_raw.diameter_mm,
                 "corrected_mm": f_cor.diameter_mm, "uncertainty_mm": f_cor.uncertainty_mm,
                 "frames": f_cor.n_used, "check": asdict(check)}
 
     @r.post("/master/correction", summary="Set the diameter correction from masters")
-    def correction(body: CorrectionIn, role: str = technician) -> dict:
+    def correction(body: CorrectionIn, caller: Caller = technician) -> dict:
         calibration_id = context.calibration_id
         if calibration_id is None or context.store is None:
             raise HTTPException(409, "no active calibration: activate one first")
@@ -105,7 +105,8 @@ def router(context: CalibrationContext, comp: CompensationService, feed: Measure
                                 "measurement.max_correction_*): calibrate again, or check the "
                                 "master's certificate")
         context.store.add_correction(calibration_id, corr.offset_mm, corr.scale,
-                                     [m.model_dump() for m in body.masters], by=role)
+                                     [m.model_dump() for m in body.masters],
+                                     by=str(caller))
         context.set_correction(DiameterCorrection(corr.offset_mm, corr.scale, corr.created))
         return context.master_status()
 

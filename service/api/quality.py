@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import Field
 
-from service.api.auth import requires
+from service.api.auth import Caller, requires
 from service.api.models import _Strict
 from service.config import ApiSettings
 from service.runtime.compensating import CompensationService
@@ -44,13 +44,13 @@ def router(spc: SpcService, studies: GaugeStudies, compensation: CompensationSer
         items = [] if studies.store is None else studies.store.list(min(max(limit, 1), 200))
         return {**studies.status(), "items": items}
 
-    @r.post("/gauge-studies", status_code=202, dependencies=[technician],
+    @r.post("/gauge-studies", status_code=202,
             summary="Measure the master n times (offsets held meanwhile) and compute Cg, Cgk")
-    async def start(body: GaugeStudyIn) -> dict:
+    async def start(body: GaugeStudyIn, caller: Caller = technician) -> dict:
         f = compensation.feature()
         tol = body.tolerance_mm or (f.tol_upper_mm - f.tol_lower_mm)
         try:
-            sid = studies.start(body.certified_mm, body.n, tol, by="api:technician")
+            sid = studies.start(body.certified_mm, body.n, tol, by=f"api:{caller}")
         except StudyError as err:
             raise HTTPException(409, str(err)) from None
         return {"id": sid, "n": body.n, "certified_mm": body.certified_mm,

@@ -10,7 +10,7 @@ import time
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request
 
-from service.api.auth import requires
+from service.api.auth import Caller, requires
 from service.api.limits import check_image_size, decode_gray, png_size
 from service.api.models import ActivateIn, SessionIn
 from service.calibrate import commands
@@ -55,9 +55,9 @@ def router(sessions: CalibrationSessions, context: CalibrationContext,
         return {**added, **s.as_dict()}
 
     @r.post("/calibration-sessions", status_code=201, summary="Start a calibration session")
-    def start(body: SessionIn, role: str = technician) -> dict:
+    def start(body: SessionIn, caller: Caller = technician) -> dict:
         try:
-            return sessions.create(body.board, body.note, role).as_dict()
+            return sessions.create(body.board, body.note, str(caller)).as_dict()
         except commands.StepError as err:
             raise HTTPException(422, str(err)) from None
         except SessionLimitError as err:
@@ -122,7 +122,7 @@ def router(sessions: CalibrationSessions, context: CalibrationContext,
 
     @r.post("/calibration-sessions/{sid}/activate",
             summary="Import and activate the result (ends the hold its captures set)")
-    async def activate(sid: str, body: ActivateIn, role: str = technician) -> dict:
+    async def activate(sid: str, body: ActivateIn, caller: Caller = technician) -> dict:
         s = find(sid)
         cal = s.calibration()
         if cal is None:
@@ -132,7 +132,7 @@ def router(sessions: CalibrationSessions, context: CalibrationContext,
         if context.store is None:
             raise HTTPException(503, f"the calibration store cannot be used: "
                                 f"{context.store_error}")
-        cid = context.store.add(cal, by=role, note=body.note or s.note, quality=s.report,
+        cid = context.store.add(cal, by=str(caller), note=body.note or s.note, quality=s.report,
                                 activate=True)
         context.set_calibration(*context.store.get(cid))
         s.activated_id = cid

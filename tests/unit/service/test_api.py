@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -98,7 +99,7 @@ def test_calibration_import_export_activate_round_trip(client) -> None:
     assert client.get("/api/v1/status").json()["calibration"]["id"] == cid
     audit = client.get("/api/v1/calibrations/audit").json()["items"]
     assert [a["action"] for a in audit[:2]] == ["activate", "import"]
-    assert audit[0]["who"] == "technician"
+    assert re.fullmatch(r"technician \(key api\.keys#\d, testclient\)", audit[0]["who"])
 
 
 def test_bad_calibration_document_is_422_naming_the_field(client) -> None:

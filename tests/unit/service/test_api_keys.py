@@ -49,6 +49,9 @@ def test_the_service_takes_a_hashed_key_for_its_role_until_it_is_removed(tmp_pat
     with TestClient(create_app(gauge)) as c:
         put = {"json": {"shadow": True}, "headers": {"X-API-Key": key}}
         assert c.put("/api/v1/compensation/shadow", **put).status_code == 200
+        log = c.get("/api/v1/compensation/log", params={"kinds": "settings"}).json()["items"]
+        # the audit names the key by its id and the client, never the key
+        assert log[0]["who"] == f"api:technician (key {entry.id}, testclient)"
         _, op_key = api_keys.add(path, "operator")
         r = c.put("/api/v1/compensation/shadow", json={"shadow": True},
                   headers={"X-API-Key": op_key})

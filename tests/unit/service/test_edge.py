@@ -4,6 +4,7 @@ runtime settings that survive a restart."""
 
 from __future__ import annotations
 
+import re
 import struct
 import time
 import zlib
@@ -138,7 +139,9 @@ def test_runtime_settings_survive_a_restart_and_are_audited(tmp_path) -> None:
                      json={"part_temp_c": 31.5}).status_code == 200
         seq_before = latest_seq(c)
         log = c.get("/api/v1/compensation/log", params={"kinds": "settings"}).json()["items"]
-        assert all(r["who"] == "api:technician" for r in log) and len(log) == 3
+        assert len(log) == 3 and all(
+            re.fullmatch(r"api:technician \(key api\.keys#\d, testclient\)", r["who"])
+            for r in log)
         assert "nominal_mm=25.0" in log[1]["reason"]
     again, _ = build(s, Children())  # a power cycle: same config file, same store
     with TestClient(create_app(again)) as c:
