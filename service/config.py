@@ -185,6 +185,15 @@ class ApiSettings(_Section):
     key_file: Path | None = None
     """The API keys kept as hashes (``shaftgauge api-key add`` makes one and prints it once;
     an installation's way: ``/etc/shaftgauge/api-keys.json``)."""
+    tls_certfile: Path | None = None
+    """HTTPS: the server's certificate (PEM, with its chain); with ``tls_keyfile``. None:
+    plain HTTP (on a plant network keys then cross it readable)."""
+    tls_keyfile: Path | None = None
+    """HTTPS: the certificate's private key (PEM)."""
+    tls_self_signed: bool = False
+    """Make a self-signed certificate on first start where ``tls_certfile``/``tls_keyfile``
+    name no file (beside the store when they are not set); its SHA-256 fingerprint is printed
+    at every start, for the operator to compare with what the browser shows."""
     keys: dict[str, Literal["operator", "technician", "admin"]] = {}
     """API key -> role, in plain: for development and tests (an installation uses
     ``key_file``). Roles: operator reads where reading is not open; technician: calibrations,
@@ -209,6 +218,13 @@ class ApiSettings(_Section):
             raise ValueError(f"API keys must be at least 16 characters: {short} of the "
                              f"{len(v)} are shorter")
         return v
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> ApiSettings:
+        if (self.tls_certfile is None) != (self.tls_keyfile is None):
+            raise ValueError("tls_certfile and tls_keyfile go together: set both, or neither "
+                             "(with tls_self_signed = true, neither puts them beside the store)")
+        return self
 
 
 class StoreSettings(_Section):
@@ -370,6 +386,16 @@ class OpcUaSettings(_Section):
     certificate_dir: Path | None = None
     """Where the server's certificate and key are kept (made on first start); None: beside
     the store."""
+    none_security: bool | None = None
+    """The unsecured endpoint (security policy None: anonymous reading, and a technician's
+    password encrypted with the server's certificate but the session unsigned). None: on for
+    the embedded default (a simulated camera), off on an installation, where only the signed
+    and encrypted endpoint (Basic256Sha256) is offered."""
+    trusted_dir: Path | None = None
+    """The trust list: client certificates (PEM or DER), or the certificates of the
+    authorities that issued them, that may open a secure channel; any other client
+    certificate is refused, logged with its name. Read again at every connection. None:
+    ``trusted`` in the certificate directory."""
 
 
 # The compensation settings are the controller's own dataclass, validated here at the edge

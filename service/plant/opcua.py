@@ -14,14 +14,19 @@ Address space (namespace ``urn:shaftgauge``; ``docs/opcua.md``), named after OPC
 
 Anonymous users read, browse and subscribe; users of ``opcua.technicians`` (user name and
 password, sent encrypted with the server's certificate) may also call the methods. Nobody
-writes variables. The server's certificate is made on first start and kept.
+writes variables. The server's certificate is made on first start and kept, its key readable
+by the service alone. On an installation only the signed and encrypted endpoint is offered,
+and a client's certificate must be in the trust list (``opcua.trusted_dir``); a certificate
+refused and a login refused are logged and counted.
 """
 
 from __future__ import annotations
 
 import asyncio
+import hmac
 import logging
 import math
+import os
 import socket
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
@@ -29,10 +34,14 @@ from pathlib import Path
 from typing import Any
 
 from asyncua import Server, ua
+from asyncua.common.utils import ServiceError
 from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 from asyncua.server.user_managers import UserManager
-from cryptography.x509.oid import ExtendedKeyUsageOID
+from cryptography import x509
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from service.config import OpcUaSettings
 
@@ -63,6 +72,11 @@ def _same(a: Any, b: Any) -> bool:
     return nan or (type(a) is type(b) and a == b)
 
 
+def _code_name(err: ua.UaError) -> str:
+    code = getattr(err, "code", None)
+    return ua.StatusCode(code).name if isinstance(code, int) else type(err).__name__
+
+
 class TechnicianRoles(PermissionRuleset):
     """Anonymous: read, browse, subscribe. Technicians: that, and call methods. Writes: no
     one (the gauge's settings change through its REST API, logged with who)."""
@@ -81,14 +95,22 @@ class Technicians(UserManager):
 
     def __init__(self, passwords: dict[str, str]) -> None:
         self._passwords = dict(passwords)
+        self.refused = 0
+        self.last_refused = ""
 
     def get_user(self, iserver: Any, username: str | None = None,
                  password: str | None = None, certificate: Any = None) -> User | None:
         if username is None:  # anonymous (a channel certificate alone is no user)
             return User(role=UserRole.Anonymous)
-        if username is not None and self._passwords.get(username) == password:
+        known = self._passwords.get(username)
+        if known is not None and hmac.compare_digest(known.encode(), (password or "").encode()):
             return User(role=UserRole.User, name=username)
-        return None  # a wrong password or an unknown user: refused
+        # a wrong password or an unknown user: refused, and said (never the password)
+        self.refused += 1
+        self.last_refused = f"login of {username!r} refused: " + (
+            "wrong password" if known is not None else "no such technician")
+        log.warning("OPC UA %s (%d refused so far)", self.last_refused, self.refused)
+        return None
 
 
 @dataclass(frozen=True)
@@ -129,6 +151,10 @@ class OpcUaServer:
         self.server: Server | None = None
         self.port: int | None = None
         self.problem = ""
+        self.trusted_dir = settings.trusted_dir or self.certificate_dir / "trusted"
+        self.users = Technicians(settings.technicians)
+        self.refused_certificates = 0
+        self.last_refused_certificate = ""
         self._nodes: dict[str, Any] = {}
         self._written: dict[str, Any] = {}
         self.calls = {"MeasureNow": 0, "ResetCompensation": 0}
@@ -145,23 +171,49 @@ class OpcUaServer:
         await setup_self_signed_certificate(
             key, cert, NAMESPACE, host, [ExtendedKeyUsageOID.SERVER_AUTH],
             {"commonName": f"shaftgauge@{host}", "organizationName": "shaftgauge"})
+        os.chmod(key, 0o600)  # asyncua writes it with the process's umask
         return key, cert
+
+    async def _validate(self, cert: x509.Certificate, app: ua.ApplicationDescription) -> None:
+        """A client's certificate: in date, naming the client's application URI, and in the
+        trust list (itself or its issuer; read again each time, so a certificate put there
+        counts at the next connection). Refused: logged with its name, and raised."""
+        self.trusted_dir.mkdir(parents=True, exist_ok=True)
+        store = TrustStore([self.trusted_dir], [])
+        options = (CertificateValidatorOptions.TIME_RANGE | CertificateValidatorOptions.URI
+                   | CertificateValidatorOptions.TRUSTED)
+        try:
+            try:
+                await store.load()
+            except ValueError:  # no certificate there at all (cryptography's empty store)
+                raise ServiceError(ua.StatusCodes.BadCertificateUntrusted) from None
+            await CertificateValidator(options, store).validate(cert, app)
+        except ua.UaError as err:
+            names = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+            name = str(names[0].value) if names else cert.subject.rfc4514_string()
+            self.refused_certificates += 1
+            self.last_refused_certificate = (
+                f"client certificate {name!r} of {app.ApplicationUri} refused: "
+                f"{_code_name(err)} (trust it by putting it into {self.trusted_dir})")
+            log.warning("OPC UA %s", self.last_refused_certificate)
+            raise
 
     async def start(self) -> None:
         """Start serving (a port in use or a bad certificate: a problem, not a crash)."""
         s = self.settings
         try:
-            server = Server(user_manager=Technicians(s.technicians))
+            server = Server(user_manager=self.users)
             await server.init()
             server.set_server_name("shaftgauge")
             await server.set_application_uri(NAMESPACE)
             key, cert = await self._certificate()
             await server.load_certificate(str(cert))
             await server.load_private_key(str(key))
-            server.set_security_policy(
-                [ua.SecurityPolicyType.NoSecurity,
-                 ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt],
-                permission_ruleset=TechnicianRoles())
+            policies = [ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt]
+            if s.none_security:
+                policies.insert(0, ua.SecurityPolicyType.NoSecurity)
+            server.set_security_policy(policies, permission_ruleset=TechnicianRoles())
+            server.set_certificate_validator(self._validate)
             server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
             server.set_endpoint(f"opc.tcp://{s.host}:{s.port}/")
             await self._build(server)
@@ -227,6 +279,11 @@ class OpcUaServer:
         """Endpoint and state, JSON-ready."""
         return {"endpoint": self.endpoint, "running": self.server is not None,
                 "problem": self.problem or None, "technicians": len(self.settings.technicians),
+                "none_security": bool(self.settings.none_security),
+                "refused_logins": self.users.refused,
+                "last_refused_login": self.users.last_refused or None,
+                "refused_certificates": self.refused_certificates,
+                "last_refused_certificate": self.last_refused_certificate or None,
                 "calls": dict(self.calls)}
 
     def problems(self) -> list[tuple[str, str]]:

@@ -120,8 +120,12 @@ def make_plant_links(settings: Settings, feed: MeasurementFeed,
         compensation.on_decision(mqtt.decision)
         links.append(mqtt)
     ua = settings.opcua
-    if ua.enabled or (ua.enabled is None and settings.camera.source == "sim"):
+    embedded = settings.camera.source == "sim"
+    if ua.enabled or (ua.enabled is None and embedded):
         from service.plant.opcua import GaugeView, OpcUaServer
+
+        if ua.none_security is None:
+            ua = ua.model_copy(update={"none_security": embedded})
 
         values = OpcUaValues(feed, compensation, camera, writer)
         links.append(OpcUaServer(ua, GaugeView(

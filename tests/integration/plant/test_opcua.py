@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from asyncua import Client, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from service.config import OpcUaSettings
 from service.plant.opcua import GaugeView, OpcUaServer
@@ -36,7 +37,8 @@ class FakeGauge:
 async def served(tmp_path: Path):
     gauge = FakeGauge()
     port = free_port()
-    server = OpcUaServer(OpcUaSettings(port=port, technicians={"anna": "s3cret"}),
+    server = OpcUaServer(OpcUaSettings(port=port, technicians={"anna": "s3cret"},
+                                       none_security=True),  # as the embedded default
                          GaugeView(lambda: gauge.values, gauge.measure_now, gauge.reset,
                                    serial_number="sim-1"), tmp_path / "opcua")
     task = asyncio.create_task(server.run())
@@ -115,6 +117,107 @@ async def test_a_wrong_password_is_refused(served) -> None:
         async with client:
             pass
     assert "BadUserAccessDenied" in type(err.value).__name__ + str(err.value)
+
+
+async def test_a_wrong_password_is_logged_naming_the_user_not_the_password(served,
+                                                                          caplog) -> None:
+    server, _, url = served
+    client = Client(url)
+    client.set_user("anna")
+    client.set_password("guess-0123")
+    with caplog.at_level("WARNING", logger="shaftgauge.opcua"), \
+            pytest.raises(ua.UaStatusCodeError):
+        async with client:
+            pass
+    said = [r.getMessage() for r in caplog.records if r.name == "shaftgauge.opcua"]
+    assert any("'anna'" in line and "wrong password" in line for line in said), said
+    assert not any("guess-0123" in line for line in caplog.text.splitlines())
+    assert server.status()["refused_logins"] == 1
+
+
+def test_the_server_key_is_readable_by_the_service_alone(served) -> None:
+    server, _, _ = served
+    key = server.certificate_dir / "server-key.pem"
+    assert key.stat().st_mode & 0o777 == 0o600
+
+
+async def _client_certificate(where: Path, uri: str) -> tuple[Path, Path]:
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    key, cert = where / "client-key.pem", where / "client.der"
+    await setup_self_signed_certificate(key, cert, uri, "plant-scada",
+                                        [ExtendedKeyUsageOID.CLIENT_AUTH],
+                                        {"commonName": "plant-scada"})
+    return key, cert
+
+
+async def _secure_client(url: str, key: Path, cert: Path, uri: str) -> Client:
+    client = Client(url)
+    client.application_uri = uri
+    await client.set_security(SecurityPolicyBasic256Sha256, str(cert), str(key),
+                              mode=ua.MessageSecurityMode.SignAndEncrypt)
+    return client
+
+
+@pytest.fixture
+async def installed(tmp_path: Path):
+    """The server as an installation runs it: no unsecured endpoint."""
+    port = free_port()
+    gauge = FakeGauge()
+    server = OpcUaServer(OpcUaSettings(port=port, technicians={"anna": "s3cret"},
+                                       none_security=False),
+                         GaugeView(lambda: gauge.values, gauge.measure_now, gauge.reset),
+                         tmp_path / "opcua")
+    task = asyncio.create_task(server.run())
+    for _ in range(200):
+        if server.server is not None or server.problem:
+            break
+        await asyncio.sleep(0.05)
+    assert server.server is not None, server.problem
+    yield server, gauge, f"opc.tcp://127.0.0.1:{port}/"
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    await server.close()
+
+
+async def test_an_installation_offers_no_unsecured_endpoint(installed) -> None:
+    server, _, url = installed
+    endpoints = await Client(url).connect_and_get_server_endpoints()  # discovery: answered
+    assert endpoints and {e.SecurityMode for e in endpoints} == {
+        ua.MessageSecurityMode.SignAndEncrypt}
+    with pytest.raises(ua.UaError, match="No matching endpoints"):
+        async with Client(url):  # an unsecured session: there is no endpoint for it
+            pass
+    assert server.status()["none_security"] is False
+
+
+async def test_an_untrusted_client_certificate_is_refused_until_trusted(installed,
+                                                                       tmp_path: Path,
+                                                                       caplog) -> None:
+    server, gauge, url = installed
+    uri = "urn:plant:scada"
+    key, cert = await _client_certificate(tmp_path, uri)
+    client = await _secure_client(url, key, cert, uri)
+    with caplog.at_level("WARNING", logger="shaftgauge.opcua"), \
+            pytest.raises(ua.UaStatusCodeError) as err:
+        async with client:
+            pass
+    assert "BadCertificateUntrusted" in type(err.value).__name__ + str(err.value)
+    assert server.status()["refused_certificates"] == 1
+    refused = server.status()["last_refused_certificate"]
+    assert "urn:plant:scada" in refused and "BadCertificateUntrusted" in refused
+    assert refused in caplog.text and str(server.trusted_dir) in refused
+
+    (server.trusted_dir / "plant-scada.der").write_bytes(cert.read_bytes())
+    client = await _secure_client(url, key, cert, uri)
+    client.set_user("anna")
+    client.set_password("s3cret")
+    async with client:  # trusted now: signed, encrypted, and the technician's methods
+        gauge_obj = await _node(client, "Shaftgauge")
+        idx = await client.get_namespace_index("urn:shaftgauge")
+        assert await gauge_obj.call_method(f"{idx}:ResetCompensation") == "reset"
+    assert gauge.resets == ["opcua:technician"]
 
 
 async def test_a_port_in_use_is_a_problem_not_a_crash(tmp_path: Path) -> None:
