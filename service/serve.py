@@ -35,6 +35,7 @@ from drivers.plc.registers import RegisterBank, WordOrder
 from service.api.app import create_app
 from service.calibrate.session import CalibrationSessions
 from service.config import CameraSettings, Settings
+from service.https import https_files
 from service.measure.diameter import MeasureParams
 from service.measure.result import Method
 from service.measure.stripe import StripeParams
@@ -293,6 +294,7 @@ class _Server(uvicorn.Server):
 
 async def serve(settings: Settings) -> int:
     """Run until SIGINT or SIGTERM."""
+    tls = https_files(settings.api, settings.store.path.parent)
     children = Children()
     try:
         gauge, extras = build(settings, children)
@@ -303,7 +305,9 @@ async def serve(settings: Settings) -> int:
     server = _Server(gauge.feed, uvicorn.Config(app, host=settings.api.host, port=settings.api.port,
                                            log_level=settings.log_level, access_log=False,
                                            limit_concurrency=settings.api.max_connections,
-                                           timeout_graceful_shutdown=settings.api.shutdown_s))
+                                           timeout_graceful_shutdown=settings.api.shutdown_s,
+                                           ssl_certfile=tls and str(tls.certfile),
+                                           ssl_keyfile=tls and str(tls.keyfile)))
 
     async def announce() -> None:
         while not server.started:
@@ -311,13 +315,17 @@ async def serve(settings: Settings) -> int:
         port = server.servers[0].sockets[0].getsockname()[1] if server.servers else \
             settings.api.port
         host = settings.api.host if settings.api.host not in ("0.0.0.0", "::") else "127.0.0.1"
-        base = f"http://{host}:{port}"
-        print(json.dumps({"event": "ready", "url": base, "api_port": port,
+        base = f"{'https' if tls else 'http'}://{host}:{port}"
+        https = {"tls_sha256": tls.sha256} if tls else {}
+        print(json.dumps({"event": "ready", "url": base, "api_port": port, **https,
                           "modbus_port": gauge.modbus.port if settings.modbus.enabled
                           else None, **extras}), flush=True)
         print(f"shaftgauge is up. Dashboard: {base}/ui/  API docs: {base}/docs  "
               f"Modbus TCP: {settings.modbus.host}:{gauge.modbus.port}", file=sys.stderr,
               flush=True)
+        if tls:
+            print(f"HTTPS certificate {tls.certfile}: SHA-256 fingerprint {tls.sha256} "
+                  "(compare it with what the browser shows)", file=sys.stderr, flush=True)
         # What start-up built (modules, the app, the OPC UA address space: 400,000 objects)
         # lives as long as the process: out of the collector's full passes, which otherwise
         # walk all of it and stop the event loop for 25-200 ms each (frames dropped, the

@@ -32,9 +32,12 @@ class Service:
     control_port: int
     data: Path
     log: Path
+    tls_sha256: str = ""
+    verify: str | bool = True
+    """What httpx checks the server's certificate against (over HTTPS: its own file)."""
 
     def get(self, path: str, **kw) -> httpx.Response:
-        return httpx.get(self.url + path, timeout=10, **kw)
+        return httpx.get(self.url + path, timeout=10, verify=self.verify, **kw)
 
     def stderr(self) -> str:
         """What the service wrote to its standard error so far."""
@@ -62,8 +65,8 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   env: dict[str, str] | None = None, nominal: float | None = 30.0,
                   opcua_port: int | None = None, embedded: bool = False,
                   processes: bool = False, camera_toml: str = "", modbus_toml: str = "",
-                  compensation_toml: str | None = None, executable: str = SHAFTGAUGE
-                  ) -> Service:
+                  compensation_toml: str | None = None, executable: str = SHAFTGAUGE,
+                  api_toml: str = "") -> Service:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
     ``nominal`` None leaves the feature unset; the OPC UA server only on ``opcua_port`` or
@@ -72,9 +75,9 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     server (``camera.sim_feature``), no nominal of the test's; ``processes``: measured in
     worker processes as an installation does (a spawned worker costs about 3 s of CPU at
     start, and the suites start the service dozens of times: threads unless asked);
-    ``camera_toml`` and ``modbus_toml`` more lines of those tables, ``compensation_toml`` the whole
-    ``[compensation]`` table in place of the tests' own; ``executable`` another installed
-    ``shaftgauge`` (an installed wheel's)."""
+    ``camera_toml``, ``modbus_toml`` and ``api_toml`` more lines of those tables,
+    ``compensation_toml`` the whole ``[compensation]`` table in place of the tests' own;
+    ``executable`` another installed ``shaftgauge`` (an installed wheel's)."""
     api, modbus = free_port(), free_port()
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
@@ -98,6 +101,7 @@ port = {modbus}
 [api]
 port = {api}
 keys = {{ "{TECH_KEY}" = "technician", "{ADMIN_KEY}" = "admin" }}
+{api_toml}
 [store]
 path = "{data / 'gauge.db'}"
 [opcua]
@@ -120,8 +124,10 @@ path = "{data / 'gauge.db'}"
     if not line:
         raise RuntimeError(f"serve did not start: {log.read_text(errors='replace')[-3000:]}")
     ready = json.loads(line)
+    https = data / "https" / "certificate.pem"  # a self-signed certificate's place
     return Service(proc, ready["url"], ready["modbus_port"], plc,
-                   ready.get("sim_camera_control_port", 0), data, log)
+                   ready.get("sim_camera_control_port", 0), data, log,
+                   ready.get("tls_sha256", ""), str(https) if https.exists() else True)
 
 
 def stop_service(svc: Service) -> None:

@@ -6,16 +6,19 @@ Screenshots land in test-artifacts/screenshots/."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import signal
+import ssl
 import time
 from pathlib import Path
 
+import httpx
 import pytest
 from playwright.sync_api import Page, expect, sync_playwright
 
-from tests.e2e.conftest import TECH_KEY, wait_for_js
+from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_for_js, wait_ready
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -33,8 +36,10 @@ def browser():
         b.close()
 
 
-def open_page(browser, url: str, width: int = 1280, height: int = 800) -> Page:
-    page = browser.new_page(viewport={"width": width, "height": height})
+def open_page(browser, url: str, width: int = 1280, height: int = 800,
+              ignore_https_errors: bool = False) -> Page:
+    page = browser.new_page(viewport={"width": width, "height": height},
+                            ignore_https_errors=ignore_https_errors)
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.errors = errors  # type: ignore[attr-defined]
@@ -176,6 +181,38 @@ def test_compensation_view_and_shadow_switch(service, browser) -> None:
     expect(page.locator("#shadow")).to_be_checked()
     expect(page.locator("#comp-held")).to_contain_text("shadow", timeout=5000)
     shot(page, "compensation")
+
+
+def test_the_dashboard_and_api_over_https(tmp_path, browser) -> None:
+    """A self-signed certificate made on first start: its fingerprint printed is the one
+    served, plain HTTP gets nothing, the API takes a key over it, the dashboard is live and
+    a technician's switch works in the browser (which, as an operator would after comparing
+    the fingerprint, accepts the certificate)."""
+    svc = start_service(tmp_path, api_toml="tls_self_signed = true")
+    try:
+        assert wait_ready(svc) and svc.url.startswith("https://127.0.0.1:")
+        port = int(svc.url.rsplit(":", 1)[1])
+        served = ssl.PEM_cert_to_DER_cert(ssl.get_server_certificate(("127.0.0.1", port)))
+        sha = ":".join(f"{b:02X}" for b in hashlib.sha256(served).digest())
+        assert svc.tls_sha256 == sha and sha in svc.stderr()
+        assert (svc.data / "https" / "key.pem").stat().st_mode & 0o777 == 0o600
+        with pytest.raises(httpx.HTTPError):  # no plain HTTP beside it
+            httpx.get(f"http://127.0.0.1:{port}/api/v1/status", timeout=5)
+        r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": False},
+                      headers={"X-API-Key": TECH_KEY}, verify=svc.verify, timeout=10)
+        assert r.status_code == 200  # the key crossed encrypted, checked against the file
+        page = open_page(browser, svc.url + "/ui/#operator", ignore_https_errors=True)
+        expect(page.locator("#link")).to_have_text("live", timeout=15000)
+        expect(page.locator("#diameter")).to_contain_text("mm")
+        page.goto(svc.url + "/ui/#technician")
+        enter_key(page)
+        page.goto(svc.url + "/ui/#compensation")
+        page.locator("#shadow").click()
+        expect(page.locator("#shadow-msg")).to_contain_text("shadow mode on")
+        assert svc.get("/api/v1/compensation").json()["settings"]["shadow"] is True
+        assert not page.errors  # type: ignore[attr-defined]
+    finally:
+        stop_service(svc)
 
 
 def test_calibration_wizard_from_rendered_images(service, browser, calibration_images) -> None:
