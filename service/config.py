@@ -96,6 +96,15 @@ class CameraSettings(_Section):
         return self.source in ("sim", "rig") if self.auto_roi is None else self.auto_roi
 
 
+class TlsSettings(_Section):
+    """Modbus/TCP Security (TLS, port 802 by convention): this end's certificate and key,
+    and the authority whose certificates the other end must show (PEM files)."""
+
+    certfile: Path
+    keyfile: Path
+    cafile: Path
+
+
 class PlcSettings(_Section):
     """The CNC/PLC the offsets go to: ``modbus`` writes them to its registers (``sim``: to
     the simulated PLC), ``pull`` posts them in the gauge's own registers for a CNC that polls
@@ -111,6 +120,17 @@ class PlcSettings(_Section):
     word_order: Literal["big", "little"] = "big"
     ack_timeout_s: float = Field(3.0, gt=0, le=60)
     sim_ack_delay_s: float = Field(0.05, ge=0)
+    tls: TlsSettings | None = None
+    """``source = "modbus"`` over Modbus/TCP Security: the CNC's certificate must come from
+    ``tls.cafile``'s authority and name ``host``; the gauge shows ``tls.certfile``. None:
+    plain Modbus TCP."""
+
+    @model_validator(mode="after")
+    def _tls_for_a_real_cnc(self) -> PlcSettings:
+        if self.tls is not None and self.source != "modbus":
+            raise ValueError(f"plc.tls is for a CNC the gauge writes to (source = \"modbus\"),"
+                             f" not for source = \"{self.source}\"")
+        return self
 
 
 class ModbusSettings(_Section):
@@ -140,6 +160,10 @@ class ModbusSettings(_Section):
     and change nothing."""
     max_connections: int = Field(16, ge=1, le=1000)
     """Clients connected at once; one more is disconnected."""
+    tls: TlsSettings | None = None
+    """Serve Modbus/TCP Security instead of plain Modbus TCP (set ``port = 802``): clients
+    must show a certificate from ``tls.cafile``'s authority; the address checks above still
+    apply. None: plain Modbus TCP."""
 
     @field_validator("allowed_clients", "writers")
     @classmethod

@@ -32,6 +32,7 @@ from drivers.plc.client import OffsetWriter
 from drivers.plc.offsets import PlcOffsetMap
 from drivers.plc.pull import PullCnc
 from drivers.plc.registers import RegisterBank, WordOrder
+from drivers.plc.tls import TlsFiles, client_context
 from service.api.app import create_app
 from service.calibrate.session import CalibrationSessions
 from service.config import CameraSettings, Settings
@@ -205,7 +206,9 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     if plc.source in ("sim", "modbus"):
         writer = OffsetWriter(plc.host, plc.port, PlcOffsetMap(
             plc.offset_address, plc.ack_address, plc.total_address, plc.unit_id,
-            WordOrder(plc.word_order)), ack_timeout_s=plc.ack_timeout_s)
+            WordOrder(plc.word_order)), ack_timeout_s=plc.ack_timeout_s,
+            sslctx=client_context(TlsFiles(plc.tls.certfile, plc.tls.keyfile, plc.tls.cafile))
+            if plc.tls else None)
 
     if store is not None and sim_cal is not None and not store.list():
         store.add(sim_cal, by="shaftgauge", note="simulated rig (embedded default)",

@@ -13,10 +13,11 @@ from __future__ import annotations
 import asyncio
 import enum
 import logging
+import ssl
 import time
 from dataclasses import dataclass
 
-from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.client import AsyncModbusTcpClient, AsyncModbusTlsClient
 from pymodbus.exceptions import ModbusException
 
 from drivers.plc.offsets import PlcOffsetMap
@@ -65,12 +66,17 @@ class OffsetWriter:
         Timeout of one Modbus request.
     reconnect_initial_s, reconnect_max_s : float
         Backoff between connection attempts.
+    sslctx : ssl.SSLContext, optional
+        Modbus/TCP Security (``drivers.plc.tls.client_context``): the CNC over TLS, each end
+        showing its certificate. None: plain Modbus TCP.
     """
 
     def __init__(self, host: str, port: int, offsets: PlcOffsetMap | None = None,
                  ack_timeout_s: float = 3.0, request_timeout_s: float = 1.0,
-                 reconnect_initial_s: float = 0.5, reconnect_max_s: float = 10.0) -> None:
+                 reconnect_initial_s: float = 0.5, reconnect_max_s: float = 10.0,
+                 sslctx: ssl.SSLContext | None = None) -> None:
         self.host, self.port = host, port
+        self.sslctx = sslctx
         self.map = offsets or PlcOffsetMap()
         self.ack_timeout_s = ack_timeout_s
         self.request_timeout_s = request_timeout_s
@@ -94,14 +100,23 @@ class OffsetWriter:
             return False
         if self._client is not None:
             self._client.close()
-        self._client = AsyncModbusTcpClient(
-            self.host, port=self.port, timeout=self.request_timeout_s, retries=0,
-            reconnect_delay=0, reconnect_delay_max=0)
+        if self.sslctx is not None:
+            self._client = AsyncModbusTlsClient(
+                self.host, sslctx=self.sslctx, port=self.port, timeout=self.request_timeout_s,
+                retries=0, reconnect_delay=0, reconnect_delay_max=0)
+        else:
+            self._client = AsyncModbusTcpClient(
+                self.host, port=self.port, timeout=self.request_timeout_s, retries=0,
+                reconnect_delay=0, reconnect_delay_max=0)
         ok = False
         try:
             ok = bool(await self._client.connect())
         except (OSError, ModbusException) as err:
             self.last_error = f"cannot connect to {self.host}:{self.port}: {err}"
+        if not ok and self.sslctx is not None and not self.last_error:
+            self.last_error = (f"cannot connect to {self.host}:{self.port} over TLS (is it "
+                               "listening, and does its certificate come from plc.tls.cafile "
+                               "and name the host?)")
         if ok:
             if not self.connected:
                 log.info("PLC %s:%d connected", self.host, self.port)

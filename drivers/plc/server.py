@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
-from pymodbus.server import ModbusTcpServer
+from pymodbus.server import ModbusTcpServer, ModbusTlsServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.simulator.simcore import SimCore
@@ -39,6 +39,7 @@ from drivers.plc.registers import (
     RegisterBank,
     from_words,
 )
+from drivers.plc.tls import CountedRefusals, TlsFiles, peer_name, server_context
 
 log = logging.getLogger("shaftgauge.modbus")
 # Refusals come as fast as a client sends: their own logger, rate-limited (RateLimited).
@@ -211,6 +212,7 @@ class _Handler(ServerRequestHandler):
         owner: _TcpServer = self.server
         peer = self.transport.get_extra_info("peername") if self.transport else None
         self.peer = str(peer[0]) if peer else ""
+        self.name = peer_name(self.transport)  # its certificate's name over TLS
         gauge = owner.gauge
         if not gauge.access.may_connect(self.peer):
             gauge.refuse(self, f"{self.peer} may not connect (not in modbus.allowed_clients)")
@@ -219,11 +221,19 @@ class _Handler(ServerRequestHandler):
                          "already (modbus.max_connections)")
 
     async def handle_request(self) -> None:
-        _PEER.set(getattr(self, "peer", ""))
+        peer, name = getattr(self, "peer", ""), getattr(self, "name", "")
+        _PEER.set(f"{peer} ({name})" if name else peer)
         await super().handle_request()
 
 
 class _TcpServer(ModbusTcpServer):
+    gauge: GaugeModbusServer
+
+    def callback_new_connection(self) -> _Handler:
+        return _Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+
+class _TlsServer(ModbusTlsServer):
     gauge: GaugeModbusServer
 
     def callback_new_connection(self) -> _Handler:
@@ -251,14 +261,22 @@ class GaugeModbusServer:
         together. Such a write gets exception 0x03 and changes nothing.
     access : ModbusAccess, optional
         Who may connect and write (loopback by default).
+    tls : TlsFiles, optional
+        Serve Modbus/TCP Security instead of plain Modbus TCP: TLS, and a client certificate
+        from ``tls.cafile``'s authority required (``drivers.plc.tls``); the address checks
+        above still apply.
     """
 
     def __init__(self, bank: RegisterBank, host: str = "127.0.0.1", port: int = 5020,
                  unit_id: int = 1,
                  on_write: Callable[[list[tuple[str, int]], str], None] | None = None,
                  check: Callable[[list[tuple[str, int]]], str] | None = None,
-                 access: ModbusAccess | None = None) -> None:
+                 access: ModbusAccess | None = None, tls: TlsFiles | None = None) -> None:
         self.bank, self.host, self.port, self.unit_id = bank, host, port, unit_id
+        self.tls = tls
+        self.tls_refusals = CountedRefusals()
+        # made now: a missing or broken file stops the gauge's start, naming it
+        self._sslctx = server_context(tls, self.tls_refusals) if tls is not None else None
         self.on_write, self.check = on_write, check
         self.access = access or ModbusAccess()
         self.requests = 0
@@ -288,7 +306,7 @@ class GaugeModbusServer:
             self.exceptions += 1
             return ExcCodes.ILLEGAL_FUNCTION
         peer = _PEER.get()
-        if not self.access.may_write(peer):
+        if not self.access.may_write(peer.split(" ", 1)[0]):
             self.exceptions += 1
             self.refused_writes += 1
             self.last_refused = f"a write from {peer or 'an unknown peer'} (not in " \
@@ -331,7 +349,12 @@ class GaugeModbusServer:
     async def start(self) -> int:
         """Listen in the background on the running event loop; return the bound port."""
         quiet_logs()
-        server = _TcpServer(self._device(), address=(self.host, self.port))
+        server: _TcpServer | _TlsServer
+        if self._sslctx is not None:
+            server = _TlsServer(self._device(), address=(self.host, self.port),
+                                sslctx=self._sslctx)
+        else:
+            server = _TcpServer(self._device(), address=(self.host, self.port))
         server.gauge = self
         server.context = _OneUnit(self._device())
         await server.serve_forever(background=True)
@@ -339,7 +362,8 @@ class GaugeModbusServer:
         sockets = getattr(server.transport, "sockets", None) or []
         if sockets:
             self.port = sockets[0].getsockname()[1]
-        log.info("modbus server on %s:%d unit %d", self.host, self.port, self.unit_id)
+        log.info("modbus %sserver on %s:%d unit %d", "TLS " if self.tls else "", self.host,
+                 self.port, self.unit_id)
         return self.port
 
     async def stop(self) -> None:

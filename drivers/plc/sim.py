@@ -16,12 +16,13 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import ssl
 import time
 from pathlib import Path
 from typing import Any
 
 from pymodbus.constants import ExcCodes
-from pymodbus.server import ModbusTcpServer
+from pymodbus.server import ModbusTcpServer, ModbusTlsServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.plc.offsets import PlcOffsetMap
@@ -45,13 +46,16 @@ class SimPlc:
         JSON-lines log of writes and applications; JSON state kept across restarts.
     never_ack : bool
         Keep requests, apply and acknowledge none.
+    sslctx : ssl.SSLContext, optional
+        Speak Modbus/TCP Security (``drivers.plc.tls.server_context``), as a CNC that does.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 5021,
                  offsets: PlcOffsetMap | None = None, ack_delay_s: float = 0.0,
                  log_path: Path | None = None, state_path: Path | None = None,
-                 never_ack: bool = False) -> None:
+                 never_ack: bool = False, sslctx: ssl.SSLContext | None = None) -> None:
         self.host, self.port = host, port
+        self.sslctx = sslctx
         self.map = offsets or PlcOffsetMap()
         self.ack_delay_s = ack_delay_s
         self.never_ack = never_ack
@@ -143,7 +147,9 @@ class SimPlc:
 
     async def start(self) -> int:
         """Listen on the running loop; return the bound port."""
-        server = ModbusTcpServer(self._device(), address=(self.host, self.port))
+        server = ModbusTcpServer(self._device(), address=(self.host, self.port)) \
+            if self.sslctx is None else \
+            ModbusTlsServer(self._device(), address=(self.host, self.port), sslctx=self.sslctx)
         await server.serve_forever(background=True)
         self._server = server
         sockets = getattr(server.transport, "sockets", None) or []

@@ -82,6 +82,8 @@ class StatusCollector(Collector):
                            st["modbus"]["refused_connections"])
         yield from counter("modbus_refused_writes", "Modbus writes from clients that may not "
                            "write", st["modbus"]["refused_writes"])
+        yield from counter("modbus_refused_handshakes", "Modbus/TCP Security clients refused "
+                           "at the TLS handshake", st["modbus"]["refused_handshakes"])
         mqtt = st["plant"].get("mqtt")
         if mqtt is not None:
             yield from gauge("mqtt_connected", "1 while the MQTT broker is connected",

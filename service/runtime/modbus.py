@@ -19,6 +19,7 @@ from drivers.plc.registers import (
     units_to_mm,
 )
 from drivers.plc.server import GaugeModbusServer, ModbusAccess, run_heartbeat
+from drivers.plc.tls import TlsFiles
 from service.compensation import CompensationSettings, Decision, State
 from service.config import ModbusSettings
 from service.record import MeasurementRecord
@@ -123,7 +124,9 @@ class ModbusFacade:
         self.server = GaugeModbusServer(
             self.bank, settings.host, settings.port, settings.unit_id, on_write=self._on_write,
             check=self._check_feature, access=ModbusAccess.of(
-                settings.allowed_clients, settings.writers, settings.max_connections))
+                settings.allowed_clients, settings.writers, settings.max_connections),
+            tls=TlsFiles(settings.tls.certfile, settings.tls.keyfile, settings.tls.cafile)
+            if settings.tls else None)
         self._tasks: set[asyncio.Task] = set()
         compensation.on_decision(self.decided)
         compensation.on_settings(self.set_feature)

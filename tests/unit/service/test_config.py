@@ -35,6 +35,10 @@ def test_file_and_environment(tmp_path, monkeypatch) -> None:
     ("[compensation]\nsurprise = 1\n", "compensation.surprise"),
     ("[compensation]\nmax_step_mm = 0.5\nmax_total_mm = 0.1\n", "max_step_mm"),
     ("[modbus\nport = 1\n", "not valid TOML"),
+    ("[plc]\ntls = {certfile = 'a', keyfile = 'b', cafile = 'c'}\n", "source = \"modbus\""),
+    ("[modbus]\ntls = {certfile = 'a', keyfile = 'b'}\n", "modbus.tls.cafile"),
+    ("[api]\ntls_keyfile = 'k.pem'\n", "tls_certfile and tls_keyfile go together"),
+    ("[opcua]\nnone_security = 'sometimes'\n", "opcua.none_security"),
 ])
 def test_bad_settings_name_the_setting(tmp_path, toml, words) -> None:
     f = tmp_path / "c.toml"
