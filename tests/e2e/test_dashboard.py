@@ -57,6 +57,16 @@ def enter_key(page: Page) -> None:
     assert page.evaluate("sessionStorage.getItem('shaftgauge-key')") == TECH_KEY
 
 
+def shadow_on_with_the_key(page: Page, svc) -> None:
+    """A technician enters the key and switches shadow mode on; the service has it."""
+    page.goto(svc.url + "/ui/#technician")
+    enter_key(page)
+    page.goto(svc.url + "/ui/#compensation")
+    page.locator("#shadow").click()
+    expect(page.locator("#shadow-msg")).to_contain_text("shadow mode on")
+    assert svc.get("/api/v1/compensation").json()["settings"]["shadow"] is True
+
+
 def shot(page: Page, name: str) -> None:
     SHOTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(SHOTS / f"{name}.png"))
@@ -171,12 +181,7 @@ def test_compensation_view_and_shadow_switch(service, browser) -> None:
     box.click()  # no key yet: refused, said, and the switch goes back
     expect(page.locator("#shadow-msg")).to_contain_text("technician key")
     expect(box).not_to_be_checked()
-    page.goto(service.url + "/ui/#technician")
-    enter_key(page)
-    page.goto(service.url + "/ui/#compensation")
-    page.locator("#shadow").click()
-    expect(page.locator("#shadow-msg")).to_contain_text("shadow mode on")
-    assert service.get("/api/v1/compensation").json()["settings"]["shadow"] is True
+    shadow_on_with_the_key(page, service)
     page.wait_for_timeout(1500)  # the status poll keeps the switch as the service has it
     expect(page.locator("#shadow")).to_be_checked()
     expect(page.locator("#comp-held")).to_contain_text("shadow", timeout=5000)
@@ -204,12 +209,7 @@ def test_the_dashboard_and_api_over_https(tmp_path, browser) -> None:
         page = open_page(browser, svc.url + "/ui/#operator", ignore_https_errors=True)
         expect(page.locator("#link")).to_have_text("live", timeout=15000)
         expect(page.locator("#diameter")).to_contain_text("mm")
-        page.goto(svc.url + "/ui/#technician")
-        enter_key(page)
-        page.goto(svc.url + "/ui/#compensation")
-        page.locator("#shadow").click()
-        expect(page.locator("#shadow-msg")).to_contain_text("shadow mode on")
-        assert svc.get("/api/v1/compensation").json()["settings"]["shadow"] is True
+        shadow_on_with_the_key(page, svc)
         assert not page.errors  # type: ignore[attr-defined]
     finally:
         stop_service(svc)

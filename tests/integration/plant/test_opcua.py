@@ -33,12 +33,12 @@ class FakeGauge:
         return "reset"
 
 
-@pytest.fixture
-async def served(tmp_path: Path):
+async def _running(tmp_path: Path, none_security: bool):
+    """A server for a ``FakeGauge`` on a free port, until the test is done."""
     gauge = FakeGauge()
     port = free_port()
     server = OpcUaServer(OpcUaSettings(port=port, technicians={"anna": "s3cret"},
-                                       none_security=True),  # as the embedded default
+                                       none_security=none_security),
                          GaugeView(lambda: gauge.values, gauge.measure_now, gauge.reset,
                                    serial_number="sim-1"), tmp_path / "opcua")
     task = asyncio.create_task(server.run())
@@ -51,6 +51,13 @@ async def served(tmp_path: Path):
     task.cancel()
     await asyncio.gather(task, return_exceptions=True)
     await server.close()
+
+
+@pytest.fixture
+async def served(tmp_path: Path):
+    """As the embedded default runs it: the unsecured endpoint beside the secure one."""
+    async for running in _running(tmp_path, none_security=True):
+        yield running
 
 
 async def _node(client: Client, *path: str):
@@ -163,22 +170,8 @@ async def _secure_client(url: str, key: Path, cert: Path, uri: str) -> Client:
 @pytest.fixture
 async def installed(tmp_path: Path):
     """The server as an installation runs it: no unsecured endpoint."""
-    port = free_port()
-    gauge = FakeGauge()
-    server = OpcUaServer(OpcUaSettings(port=port, technicians={"anna": "s3cret"},
-                                       none_security=False),
-                         GaugeView(lambda: gauge.values, gauge.measure_now, gauge.reset),
-                         tmp_path / "opcua")
-    task = asyncio.create_task(server.run())
-    for _ in range(200):
-        if server.server is not None or server.problem:
-            break
-        await asyncio.sleep(0.05)
-    assert server.server is not None, server.problem
-    yield server, gauge, f"opc.tcp://127.0.0.1:{port}/"
-    task.cancel()
-    await asyncio.gather(task, return_exceptions=True)
-    await server.close()
+    async for running in _running(tmp_path, none_security=False):
+        yield running
 
 
 async def test_an_installation_offers_no_unsecured_endpoint(installed) -> None:
