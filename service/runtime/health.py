@@ -9,6 +9,7 @@ from typing import Any
 from drivers.camera.base import Camera, CameraState
 from drivers.plc.client import OffsetWriter
 from drivers.plc.pull import PullCnc
+from service.api.attempts import attempts_for  # a counter, no router
 from service.compensation import State
 from service.config import Settings
 from service.runtime.calibration import CalibrationContext
@@ -173,6 +174,9 @@ class HealthReport:
                          "latency": feed.latency_summary(), "axis_tracking": tracker},
             "calibration": info, "store_error": ctx.store_error or None,
             "plc": self._plc(),
+            "api": {"https": self.settings.api.tls_certfile is not None
+                             or self.settings.api.tls_self_signed,
+                    "wrong_keys": attempts_for(self.settings.api).refused},
             "modbus": {"enabled": m.enabled, "host": m.host, "port": self.modbus.port,
                        "unit_id": m.unit_id, "requests": self.modbus.server.requests,
                        "exceptions": self.modbus.server.exceptions,

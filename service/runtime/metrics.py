@@ -82,6 +82,8 @@ class StatusCollector(Collector):
                            st["modbus"]["refused_connections"])
         yield from counter("modbus_refused_writes", "Modbus writes from clients that may not "
                            "write", st["modbus"]["refused_writes"])
+        yield from counter("api_wrong_keys", "API requests with a wrong key",
+                           st["api"]["wrong_keys"])
         yield from counter("modbus_refused_handshakes", "Modbus/TCP Security clients refused "
                            "at the TLS handshake", st["modbus"]["refused_handshakes"])
         mqtt = st["plant"].get("mqtt")

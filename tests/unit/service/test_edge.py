@@ -203,6 +203,8 @@ def test_twenty_wrong_keys_in_a_row_get_429_and_the_log_names_the_address(tmp_pa
                   headers={H: TECHNICIAN})
         assert r.status_code == 429, r.text
         assert int(r.headers["Retry-After"]) > 0 and "testclient" in r.json()["detail"]
+        assert c.get("/api/v1/status").json()["api"]["wrong_keys"] == MAX_FAILURES
+        assert f"shaftgauge_api_wrong_keys_total {MAX_FAILURES:.1f}" in c.get("/metrics").text
     lines = [rec.getMessage() for rec in caplog.records if rec.name == "shaftgauge.api"]
     assert len(lines) == MAX_FAILURES and all("testclient" in line for line in lines)
     assert not any(wrong in line for line in lines)
