@@ -83,12 +83,6 @@ def identify(api: ApiSettings, key: str | None) -> tuple[Role, str] | None:
     return found
 
 
-def role_of(api: ApiSettings, key: str | None) -> Role | None:
-    """The role of a key (``identify`` without the id)."""
-    found = identify(api, key)
-    return found[0] if found else None
-
-
 def _client_may_read(api: ApiSettings, request: Request) -> bool:
     if not api.open_read:
         return False
