@@ -6,6 +6,7 @@ import contextlib
 import json
 import os
 import signal
+import ssl
 import subprocess
 import time
 from collections.abc import Iterator
@@ -33,7 +34,7 @@ class Service:
     data: Path
     log: Path
     tls_sha256: str = ""
-    verify: str | bool = True
+    verify: ssl.SSLContext | bool = True
     """What httpx checks the server's certificate against (over HTTPS: its own file)."""
 
     def get(self, path: str, **kw) -> httpx.Response:
@@ -127,7 +128,8 @@ path = "{data / 'gauge.db'}"
     https = data / "https" / "certificate.pem"  # a self-signed certificate's place
     return Service(proc, ready["url"], ready["modbus_port"], plc,
                    ready.get("sim_camera_control_port", 0), data, log,
-                   ready.get("tls_sha256", ""), str(https) if https.exists() else True)
+                   ready.get("tls_sha256", ""),
+                   ssl.create_default_context(cafile=https) if https.exists() else True)
 
 
 def stop_service(svc: Service) -> None:

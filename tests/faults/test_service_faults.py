@@ -218,7 +218,8 @@ def test_slow_consumer(fast_camera_rig: Rig) -> None:
         assert st["pipeline"]["rate_hz"] > 5.0, st["pipeline"]
         assert st["pipeline"]["latest_age_s"] < 1.0, st["pipeline"]
         assert st["camera"]["state"] == "streaming"
-        assert rig.svc.get("/readyz").status_code == 200
+        ready = rig.svc.get("/readyz")
+        assert ready.status_code == 200, ready.text  # the problems it names, if not
         with httpx.stream("GET", rig.svc.url + "/api/v1/stream", timeout=10) as live:
             first = itertools.islice(live.iter_lines(), 20)
             assert any(line.startswith("event: measurement") for line in first)
