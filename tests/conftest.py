@@ -11,30 +11,52 @@ from pathlib import Path
 import pytest
 
 from drivers.sim.rig import RigConfig, ShaftRenderer
+from tests import netns
 
 RIG_DIRS = ("tests/e2e/", "tests/faults/", "tests/integration/linuxcnc/")
 RIG_MARKS = ("start_service", "sim_camera", "drivers.sim.gige", "drivers.camera.aravis",
              "test_speed_guard")
-"""What needs the one simulated GigE camera's port (3956 on 127.0.0.1), LinuxCNC, or the
-machine to itself (services timed against their baseline): those run one after another on
-one worker of ``pytest -n`` (``xdist_group``); the rest share the other cores."""
+"""What needs the simulated GigE camera's port (3956 on 127.0.0.1), LinuxCNC, or the machine
+to itself (services timed against their baseline)."""
+MACHINE_DIRS = ("tests/integration/linuxcnc/",)
+MACHINE_MARKS = ("test_speed_guard",)
+"""Of those, what no loopback of its own separates: LinuxCNC's realtime and shared memory
+are the host's, and the timed services should not meet each other."""
 
 
-_RIG: dict[Path, bool] = {}
+def pytest_configure(config: pytest.Config) -> None:
+    # The controller finds out once whether workers can each have a loopback of their own
+    # (tests/netns.py) and tells them through the environment they inherit, so that every
+    # worker groups the tests alike; SHAFTGAUGE_TEST_NETNS=0 keeps the host's for all.
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is None and (config.getoption("numprocesses", None) or 0):
+        if os.environ.get(netns.ENV) != "0":
+            os.environ[netns.ENV] = "1" if netns.can_unshare() else "0"
+    elif worker is not None and os.environ.get(netns.ENV) == "1":
+        netns.enter_own_loopback()
 
 
-def _needs_the_rig(path: Path) -> bool:
-    if path not in _RIG:
+_GROUP: dict[Path, str | None] = {}
+
+
+def _group_of(path: Path) -> str | None:
+    """The ``xdist_group`` a test file's tests run in: ``machine`` for what must run one after
+    another (every rig test without loopbacks of their own), else the file's own group, so
+    that a module's fixtures (a rendered session, a started service) are made once, not once
+    on each worker that would take one of its tests."""
+    if path not in _GROUP:
         rel = path.relative_to(Path(__file__).resolve().parents[1]).as_posix()
-        _RIG[path] = rel.startswith(RIG_DIRS) or any(
-            mark in rel or mark in path.read_text() for mark in RIG_MARKS)
-    return _RIG[path]
+        rig = rel.startswith(RIG_DIRS) or any(m in rel or m in path.read_text()
+                                              for m in RIG_MARKS)
+        machine = rel.startswith(MACHINE_DIRS) or any(m in rel for m in MACHINE_MARKS)
+        _GROUP[path] = "machine" if machine or (rig and os.environ.get(netns.ENV) != "1") \
+            else rel
+    return _GROUP[path]
 
 
 def pytest_itemcollected(item: pytest.Item) -> None:
     # As each test is collected: xdist reads the groups into the test ids after collection.
-    if _needs_the_rig(Path(item.fspath)):
-        item.add_marker(pytest.mark.xdist_group("rig"))
+    item.add_marker(pytest.mark.xdist_group(_group_of(Path(item.fspath))))
 
 
 @pytest.fixture(scope="session")
