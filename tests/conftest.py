@@ -36,10 +36,10 @@ def pytest_configure(config: pytest.Config) -> None:
         netns.enter_own_loopback()
 
 
-_GROUP: dict[Path, str | None] = {}
+_GROUP: dict[Path, str] = {}
 
 
-def _group_of(path: Path) -> str | None:
+def _group_of(path: Path) -> str:
     """The ``xdist_group`` a test file's tests run in: ``machine`` for what must run one after
     another (every rig test without loopbacks of their own), else the file's own group, so
     that a module's fixtures (a rendered session, a started service) are made once, not once
