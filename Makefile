@@ -26,7 +26,7 @@ linuxcnc-demo: setup
 test: setup docs
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
-	$(PY) -m pytest -m "not slow and not wheel" -q -n 3 --dist loadgroup --durations=20
+	$(PY) -m pytest -m "not slow and not wheel" -q -n 2 --dist loadgroup --durations=20
 
 ## make check: the fast layer for a developer's loop (lint, unit and property tests, on both
 ## cores): under two minutes.
