@@ -41,6 +41,11 @@ PUBLISH_TIMEOUT_S = 10.0
 """How long a QoS 1 publication may wait for its acknowledgement before the connection is
 taken as lost (the decision stays in the outbox)."""
 
+CONNECT_TIMEOUT_S = 4.0
+"""How long the broker may take to accept a connection (CONNACK). aiomqtt does not see a
+connection closed before it: plain MQTT to a TLS listener, reset by the broker, waited for
+the publication timeout before it was reported."""
+
 
 def gauge_identity(settings: MqttSettings) -> tuple[str, str, str]:
     """The gauge id, topic prefix and client id the settings give (host name by default)."""
@@ -190,7 +195,7 @@ class MqttPublisher:
                 cert_reqs=ssl.CERT_REQUIRED, tls_version=ssl.PROTOCOL_TLS_CLIENT)
         return aiomqtt.Client(
             s.host or "", s.port, username=s.username, password=s.password,
-            identifier=self.client_id, keepalive=s.keepalive_s, timeout=PUBLISH_TIMEOUT_S,
+            identifier=self.client_id, keepalive=s.keepalive_s, timeout=CONNECT_TIMEOUT_S,
             will=aiomqtt.Will(self.topic("state"), b"offline", qos=s.qos_state, retain=True),
             tls_params=tls)
 
@@ -205,15 +210,19 @@ class MqttPublisher:
                     log.info("MQTT broker %s:%d connected", s.host, s.port)
                     try:
                         await client.publish(self.topic("state"), b"online", qos=s.qos_state,
-                                             retain=True)
+                                             retain=True, timeout=PUBLISH_TIMEOUT_S)
                         await self._serve(client)
                     except asyncio.CancelledError:  # a clean stop: say so, then go
                         await asyncio.shield(self._goodbye(client))
                         raise
             except (aiomqtt.MqttError, OSError) as err:
+                why = str(err)
+                if not self.connected and "timed out" in why:  # aiomqtt's words for no CONNACK
+                    why = (f"no answer to the connection within {CONNECT_TIMEOUT_S:g} s "
+                           "(TLS on one side only?)")
                 if self.connected or not self.problem:
-                    log.warning("MQTT broker %s:%d: %s", s.host, s.port, err)
-                self.problem = f"MQTT broker {s.host}:{s.port}: {err}"
+                    log.warning("MQTT broker %s:%d: %s", s.host, s.port, why)
+                self.problem = f"MQTT broker {s.host}:{s.port}: {why}"
             finally:
                 self.connected = False
             await asyncio.sleep(s.reconnect_s)
@@ -238,7 +247,7 @@ class MqttPublisher:
                 if now >= due:
                     await client.publish(self.topic("measurement"), json.dumps(
                         measurement_payload(latest, self.gauge_id)).encode(),
-                        qos=s.qos_measurement)
+                        qos=s.qos_measurement, timeout=PUBLISH_TIMEOUT_S)
                     self._sent_seq, self._last_measurement_s = latest.seq, now
                     self.counters["measurements"] += 1
                 else:
@@ -246,7 +255,7 @@ class MqttPublisher:
             if now >= next_health:
                 await client.publish(self.topic("health"), json.dumps(
                     {"gauge_id": self.gauge_id, "time": time.time(), **self._health()},
-                    default=str).encode(), qos=0)
+                    default=str).encode(), qos=0, timeout=PUBLISH_TIMEOUT_S)
                 self.counters["health"] += 1
                 next_health = now + s.health_s
                 wait_s = s.health_s
