@@ -14,12 +14,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from calib_store.model import CalibrationError, load_calibration
-from service.measure.diameter import DEFAULT_METHOD, MeasureParams
-from service.measure.result import Method
+from service.measure.result import DEFAULT_METHOD, MAX_UNCERTAINTY_MM, Method
 from service.version import describe
 
 if TYPE_CHECKING:
     from drivers.sim.lathe import LatheConfig
+    from service.measure.params import MeasureParams
+
+# What a command needs it imports itself: every simulator the service starts is a
+# `shaftgauge` command too, and the measurement's modules took each of them a second of CPU.
 
 # The shafts of the reference paper's Tables 3-6 (mm).
 PAPER_DIAMETERS_MM = (47.062, 39.76, 34.924, 29.8,
@@ -35,6 +38,7 @@ def _fail(message: str) -> int:
 
 def cmd_measure(args: argparse.Namespace) -> int:
     """Print one JSON line per image (or one fused line); exit 2 on bad input files."""
+    from service.measure.params import MeasureParams
     from service.offline import (
         CorrectionError,
         ImageError,
@@ -124,6 +128,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     """A type-1 gauge study on image files of the master: one value per ``--frames-per-value``
     consecutive images (fused), printed as JSON."""
     from service.measure.fuse import fuse
+    from service.measure.params import MeasureParams
     from service.offline import CorrectionError, ImageError, load_correction, measure_images
     from service.quality.gauge_study import type1_study
 
@@ -584,7 +589,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the master correction (`calibrate master --output`), applied as the "
                    "service applies it")
     p.add_argument("--max-uncertainty-um", type=float,
-                   default=MeasureParams().max_uncertainty_mm * 1000.0, metavar="UM",
+                   default=MAX_UNCERTAINTY_MM * 1000.0, metavar="UM",
                    help="refuse a diameter more uncertain than this (status `uncertain`; "
                    "default %(default)g um; `inf` reports every fit)")
     p.add_argument("--fps", type=float, default=10.0, metavar="HZ",

@@ -13,7 +13,7 @@ from service.measure import fit as fits
 from service.measure.geometry import RigGeometry
 from service.measure.params import MeasureParams
 from service.measure.reflection import Reflection, fit_reflection
-from service.measure.result import Measurement, Method, Status
+from service.measure.result import DEFAULT_METHOD, Measurement, Method, Status
 from service.measure.robust import median
 from service.measure.section import (
     SectionPoints,
@@ -30,9 +30,6 @@ from service.measure.stripe import (
     with_scale,
 )
 from service.measure.triangulate import triangulate
-
-DEFAULT_METHOD = Method.AXIS
-"""The most accurate method (see README's accuracy table)."""
 
 
 def check_image(image: np.ndarray, geometry: RigGeometry,

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from service.measure.reflection import ReflectionParams
+from service.measure.result import MAX_UNCERTAINTY_MM
 from service.measure.stripe import StripeParams
 
 
@@ -90,7 +91,7 @@ class MeasureParams:
     free_fit: bool = False
     sheet_correction: bool = True
     sheet_sigma_mm: float | None = None
-    max_uncertainty_mm: float = 0.0065
+    max_uncertainty_mm: float = MAX_UNCERTAINTY_MM
     max_side_balance: float = 0.05
     reflection: ReflectionParams = field(default_factory=ReflectionParams)
     reflection_check: bool = True

@@ -35,6 +35,14 @@ class Method(enum.StrEnum):
     AXIS = "axis"
 
 
+DEFAULT_METHOD = Method.AXIS
+"""The most accurate method (see the manual's accuracy table)."""
+
+MAX_UNCERTAINTY_MM = 0.0065
+"""A diameter more uncertain than this (standard uncertainty) is refused as ``uncertain``
+(``MeasureParams.max_uncertainty_mm``): three of them must stay within 20 um."""
+
+
 @dataclass(frozen=True)
 class Measurement:
     """One diameter measurement, or the reason there is none.
