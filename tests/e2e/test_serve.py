@@ -128,14 +128,15 @@ def test_sigterm_stops_the_service_with_a_live_stream_open(tmp_path) -> None:
 def test_ctrl_c_stops_the_service_and_its_simulators_at_once(tmp_path) -> None:
     """Ctrl-C in a terminal signals the whole process group: the simulated camera dies with
     the service, which must not wait for it to answer (Aravis's retries took 12 s), and the
-    service ends without a traceback."""
+    service ends without a traceback. 1.4 s on a quiet machine, 6.4 s once in CI on two busy
+    workers: the bound is below the 12 s of Aravis's retries, not a speed target."""
     svc = start_service(tmp_path)
     try:
         assert wait_ready(svc)
         t0 = time.monotonic()
         os.killpg(svc.proc.pid, signal.SIGINT)
         assert svc.proc.wait(20) == 130
-        assert time.monotonic() - t0 < 6.0
+        assert time.monotonic() - t0 < 10.0
         err = svc.stderr()
         assert "Traceback" not in err, err[-2000:]
     finally:

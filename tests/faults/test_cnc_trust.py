@@ -28,7 +28,9 @@ from tests.e2e.conftest import TECH_KEY, start_service, stop_service
 from tests.faults.test_service_faults import H, applied_in, until
 from tests.integration.conftest import sim_camera_process
 
-KILLS = int(os.environ.get("SHAFTGAUGE_KILLS", "20"))
+KILLS_SHORT = 6
+KILLS_LONG = int(os.environ.get("SHAFTGAUGE_KILLS", "20"))
+"""Kills in ``make test`` and in ``make soak`` (a start and its checks take about 7 s)."""
 
 
 def figures(name: str, **values) -> None:
@@ -85,8 +87,11 @@ def rss_kib(pid: int) -> int:
 
 # ---- kill -9 ---------------------------------------------------------------------------
 
-def test_killed_at_random_moments(tmp_path, sim_plc_factory) -> None:
-    """``serve`` killed with SIGKILL ``KILLS`` times, every other time right after an offset
+@pytest.mark.parametrize("kills", [
+    pytest.param(KILLS_SHORT, id="short"),
+    pytest.param(KILLS_LONG, id="long", marks=pytest.mark.slow)])
+def test_killed_at_random_moments(tmp_path, sim_plc_factory, kills: int) -> None:
+    """``serve`` killed with SIGKILL ``kills`` times, every other time right after an offset
     reached the CNC and before its acknowledgement: no offset applied twice, none missing
     from the log, the CNC's total equal to the log's, the measurement sequence never going
     back, compensation deciding again within 10 s of each start."""
@@ -98,7 +103,7 @@ def test_killed_at_random_moments(tmp_path, sim_plc_factory) -> None:
     last_seq, kills_mid_write, starts_s = 0, 0, []
     svc = None
     try:
-        for life in range(KILLS + 1):
+        for life in range(kills + 1):
             t0 = time.monotonic()
             wall0 = time.time()
             svc = start_service(tmp_path, camera_device=camera.device_id, plc_port=plc.port,
@@ -121,7 +126,7 @@ def test_killed_at_random_moments(tmp_path, sim_plc_factory) -> None:
             assert not [r for r in since if r["code"] == "out_of_order"], since
             seq = read_register(svc.modbus_port, "measurement_seq")
             assert seq > last_seq, (seq, last_seq)  # the register never goes back
-            if life == KILLS:
+            if life == kills:
                 break
             # Keep offsets flowing both ways around the CNC's start.
             diameter = 29.988 if plc_total_mm(state) < -0.05 else \
@@ -153,7 +158,7 @@ def test_killed_at_random_moments(tmp_path, sim_plc_factory) -> None:
         doubled = len(applied_seqs) - len(set(applied_seqs)) + sum(
             e["event"] == "duplicate" for e in events)
         lost = len(set(applied_seqs) - set(log_seqs))
-        figures("killed_at_random_moments", runs=1, kills=KILLS,
+        figures("killed_at_random_moments", runs=1, kills=kills,
                 kills_between_write_and_ack=kills_mid_write, offsets_written=len(written),
                 applied=len(applied_seqs), lost_from_log=lost, doubled=doubled,
                 cnc_total_mm=round(plc_total_mm(state), 7), log_total_mm=round(log_total, 7),
@@ -163,8 +168,8 @@ def test_killed_at_random_moments(tmp_path, sim_plc_factory) -> None:
         assert doubled == 0 and lost == 0
         assert sorted(applied_seqs) == log_seqs
         assert plc_total_mm(state) == pytest.approx(log_total, abs=1e-7)
-        assert len(applied_seqs) >= KILLS // 2, "too few offsets to prove anything"
-        assert kills_mid_write >= KILLS // 4
+        assert len(applied_seqs) >= kills // 2, "too few offsets to prove anything"
+        assert kills_mid_write >= kills // 4
     finally:
         if svc is not None:
             stop_service(svc)

@@ -17,34 +17,32 @@ def run(*args, cwd=None) -> subprocess.CompletedProcess:
                           timeout=300, cwd=cwd)
 
 
-@pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    out = tmp_path_factory.mktemp("calib")
-    r = run("calibrate", "render", "--output", out)
-    assert r.returncode == 0, r.stderr
-    return out
+@pytest.fixture
+def session(calibration_images):
+    """``shaftgauge calibrate render``'s session (rendered once a run, read only)."""
+    return calibration_images
 
 
-def test_the_whole_chain(session) -> None:
-    s = session
+def test_the_whole_chain(session, tmp_path) -> None:
+    s, w = session, tmp_path
     views = sorted(str(p) for p in (s / "views").glob("*.png"))
-    assert run("calibrate", "intrinsics", "--output", s / "i.json", *views).returncode == 0
+    assert run("calibrate", "intrinsics", "--output", w / "i.json", *views).returncode == 0
     pairs = [str(s / "plane" / f"pose{i}_{k}.png") for i in range(4) for k in ("off", "on")]
-    assert run("calibrate", "plane", "--intrinsics", s / "i.json", "--output", s / "p.json",
+    assert run("calibrate", "plane", "--intrinsics", w / "i.json", "--output", w / "p.json",
                *pairs).returncode == 0
     axis = sorted(str(p) for p in (s / "axis").glob("*.png"))
-    assert run("calibrate", "axis", "--intrinsics", s / "i.json", "--plane", s / "p.json",
-               "--output", s / "a.json", *axis).returncode == 0
-    r = run("calibrate", "build", "--intrinsics", s / "i.json", "--plane", s / "p.json",
-            "--axis", s / "a.json", "--output", s / "cal.json", "--report", s / "rep.json")
+    assert run("calibrate", "axis", "--intrinsics", w / "i.json", "--plane", w / "p.json",
+               "--output", w / "a.json", *axis).returncode == 0
+    r = run("calibrate", "build", "--intrinsics", w / "i.json", "--plane", w / "p.json",
+            "--axis", w / "a.json", "--output", w / "cal.json", "--report", w / "rep.json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["verdict"] in ("good", "marginal")
-    cal, truth = load_calibration(s / "cal.json"), load_calibration(s / "truth.json")
+    cal, truth = load_calibration(w / "cal.json"), load_calibration(s / "truth.json")
     assert np.allclose(cal.camera_matrix[0][0], truth.camera_matrix[0][0], rtol=0.002)
-    r = run("calibrate", "master", "--calibration", s / "cal.json",
+    r = run("calibrate", "master", "--calibration", w / "cal.json",
             "--master", 30, *sorted((s / "master30").glob("*.png")),
             "--master", 40, *sorted((s / "master40").glob("*.png")),
-            "--output", s / "master.json")
+            "--output", w / "master.json")
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout)
     assert abs(m["scale"] - 1) < 0.001 and abs(m["offset_mm"]) < 0.05
@@ -53,9 +51,9 @@ def test_the_whole_chain(session) -> None:
     # The offline chain is the service's: calibrate, master, measure with the correction.
     for certified in (30, 40):
         images = sorted((s / f"master{certified}").glob("*.png"))
-        plain, fixed = (json.loads(run("measure", "--calibration", s / "cal.json", "--fuse",
+        plain, fixed = (json.loads(run("measure", "--calibration", w / "cal.json", "--fuse",
                                        *extra, *images).stdout)
-                        for extra in ((), ("--correction", s / "master.json")))
+                        for extra in ((), ("--correction", w / "master.json")))
         assert fixed["diameter_mm"] == pytest.approx(
             m["scale"] * plain["diameter_mm"] + m["offset_mm"], abs=2e-6)
         assert abs(fixed["diameter_mm"] - certified) < 0.001
