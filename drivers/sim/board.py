@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drivers.sim.board_kernels import integrate_pixels
 from drivers.sim.rig import RigConfig, ShaftRenderer, _rotation
 from service.calibrate.board import DEFAULT_BOARD, Board, parse_board
 
@@ -96,26 +97,6 @@ class BoardRenderer:
         y1 = int(np.clip(np.ceil(img[:, 1].max()) + 8, 0, h))
         return x0, y0, max(x0, x1), max(y0, y1)
 
-    def _sample(self, pose: BoardPose, rx: np.ndarray, ry: np.ndarray,
-                laser: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Reflectance of the board (0 off it) and the laser light on it, for rays (rx, ry)."""
-        n = pose.normal
-        denom = n[0] * rx + n[1] * ry + n[2]
-        s = float(n @ pose.t) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
-        X = np.stack([rx * s, ry * s, s], axis=-1)
-        local = (X - pose.t) @ pose.R  # board coordinates
-        u, v = local[..., 0] / self.board.square_mm, local[..., 1] / self.board.square_mm
-        m, b = self.board.margin_squares, self.board
-        inside = (u > -1 - m) & (u < b.cols + m) & (v > -1 - m) & (v < b.rows + m) & (s > 0)
-        checker = (u > -1) & (u < b.cols) & (v > -1) & (v < b.rows)
-        white = ~checker | ((np.floor(u) + np.floor(v)) % 2 == 0)  # white margin
-        refl = np.where(inside, np.where(white, 1.0, 0.12), 0.0)
-        if not laser:
-            return refl, np.zeros_like(refl)
-        p = self._pose
-        dist = X @ p.plane_normal - p.plane_d
-        return refl, refl * np.exp(-0.5 * (dist / self.cfg.sheet_sigma_mm) ** 2)
-
     def render(self, pose: BoardPose, laser: bool = False, frame_index: int = 0,
                ambient_dn: float = 90.0) -> np.ndarray:
         """One 8-bit image of the board at ``pose`` (with the laser line when asked).
@@ -161,16 +142,16 @@ class BoardRenderer:
                    ss: int, laser: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Mean reflectance and laser light over the pixels whose centre rays are (rx, ry),
         from ``ss x ss`` samples each, and where the samples of a pixel disagree."""
-        acc = np.zeros(rx.shape, np.float32)
-        lit = np.zeros(rx.shape, np.float32)
-        lo = np.full(rx.shape, np.inf)
-        hi = np.full(rx.shape, -np.inf)
-        for ox, oy in _offsets(ss):
-            r, li = self._sample(pose, rx + ox / K[0, 0], ry + oy / K[1, 1], laser)
-            acc += r.astype(np.float32)
-            lit += li.astype(np.float32)
-            lo, hi = np.minimum(lo, r), np.maximum(hi, r)
-        return acc / ss**2, lit / ss**2, hi != lo
+        offsets = np.array(_offsets(ss)) / [K[0, 0], K[1, 1]]
+        b, p = self.board, self._pose
+        board = np.array([b.square_mm, b.cols, b.rows, b.margin_squares], float)
+        sheet = np.array([*p.plane_normal, p.plane_d, self.cfg.sheet_sigma_mm], float)
+        shape = rx.shape
+        acc, lit, edge = integrate_pixels(
+            np.ascontiguousarray(rx, float).ravel(), np.ascontiguousarray(ry, float).ravel(),
+            offsets, np.ascontiguousarray(pose.R, float), np.asarray(pose.t, float), board,
+            sheet, laser)
+        return acc.reshape(shape), lit.reshape(shape), edge.reshape(shape)
 
 
 def _offsets(ss: int) -> list[tuple[float, float]]:
