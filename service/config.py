@@ -87,8 +87,9 @@ class CameraSettings(_Section):
     sim_seed: int = 0
     sim_replay_frames: int = Field(32, ge=0, le=1000)
     """The simulated GigE camera renders a ring of this many frames at start and then only
-    sends them (re-rendered in the background when the diameter changes); 0 renders every
-    frame it sends."""
+    sends them (re-rendered in the background when the diameter changes); the in-process rig
+    renders each when it first sends it (and again after a change of diameter); 0 renders
+    every frame sent."""
 
     @property
     def roi_enabled(self) -> bool:

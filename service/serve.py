@@ -169,7 +169,8 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     if cam_cfg.source == "rig":
         from drivers.camera.rig import RigCamera
 
-        camera = RigCamera(cam_cfg.sim_diameter_mm, config, seed=cam_cfg.sim_seed)
+        camera = RigCamera(cam_cfg.sim_diameter_mm, config, seed=cam_cfg.sim_seed,
+                           replay_frames=cam_cfg.sim_replay_frames)
         sim_cal = camera.renderer.calibration
     else:
         from drivers.camera.aravis import AravisCamera

@@ -4,6 +4,12 @@ For unit tests of consumers (the pipeline) and for machines without Aravis. It h
 frame rate, the trigger mode (``software``: one frame per trigger), Mono8 or Mono16 frames,
 a region of interest (``set_region``), and can be told to vanish and come back (``unplug`` /
 ``plug``) to exercise loss handling.
+
+With ``replay_frames`` it renders each of that many frames once per diameter (frame ``k`` is
+slot ``k % replay_frames``, rendered when first sent and again when ``diameter_mm`` has
+changed since) and then sends it again: rendering costs tens of milliseconds a frame, about
+two thirds of a core at 20 frames/s, which a test of the gauge's consumers does not need to
+pay for every frame.
 """
 
 from __future__ import annotations
@@ -29,10 +35,12 @@ class RigCamera(ThreadedCamera):
 
     def __init__(self, diameter_mm: float = 30.0, config: CameraConfig | None = None,
                  rig: RigConfig | None = None, seed: int = 0,
-                 device_id: str = "sim-rig") -> None:
+                 device_id: str = "sim-rig", replay_frames: int = 0) -> None:
         super().__init__(device_id, config or CameraConfig(frame_rate_hz=10.0))
         self.renderer = ShaftRenderer(rig or RigConfig(), seed=seed)
         self.diameter_mm = diameter_mm
+        self.replay_frames = max(0, int(replay_frames))
+        self._ring: dict[int, tuple[float, np.ndarray]] = {}  # slot -> (diameter, frame)
         self._trigger = threading.Semaphore(0)
         self._plugged = threading.Event()
         self._plugged.set()
@@ -89,7 +97,7 @@ class RigCamera(ThreadedCamera):
             if request is not NO_REGION_REQUEST:
                 self._region = self._fit_region(request)  # type: ignore[arg-type]
                 self._region_applied(self._region)
-            image = self.renderer.render(self.diameter_mm, self._frame_id)
+            image = self._image(self._frame_id)
             origin = None
             if self._region is not None:
                 x, y, w, h = self._region
@@ -100,3 +108,16 @@ class RigCamera(ThreadedCamera):
                           origin)
             self._frame_id += 1
             self._deliver(frame)
+
+    def _image(self, frame_id: int) -> np.ndarray:
+        """The full-sensor frame ``frame_id`` at the current diameter (not to be written to)."""
+        diameter = self.diameter_mm
+        if not self.replay_frames:
+            return self.renderer.render(diameter, frame_id)
+        slot = frame_id % self.replay_frames
+        held = self._ring.get(slot)
+        if held is None or held[0] != diameter:
+            image = self.renderer.render(diameter, frame_id)
+            image.flags.writeable = False
+            held = self._ring[slot] = (diameter, image)
+        return held[1]
