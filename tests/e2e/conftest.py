@@ -83,9 +83,13 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
     cfg = tmp_path / "gauge.toml"
+    # A ring of 8 frames, not 32: rendering them is most of the simulated camera's start
+    # (a second of CPU for 32), and the suites start the service dozens of times; the
+    # embedded default keeps its own, as ``make run`` starts it.
+    ring = "" if embedded or "sim_replay_frames" in camera_toml else "sim_replay_frames = 8\n"
     camera = (f'source = "gige"\ndevice_id = "{camera_device}"' if camera_device else
               f'source = "sim"\nsim_serial = "E2E001"\nsim_diameter_mm = {diameter}\n'
-              f'sim_feature = {"true" if embedded else "false"}\n{camera_toml}')
+              f'sim_feature = {"true" if embedded else "false"}\n{ring}{camera_toml}')
     if embedded:
         nominal = None
     cfg.write_text(f"""
