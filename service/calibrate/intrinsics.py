@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import cv2
@@ -21,8 +24,39 @@ class Corners:
     reason: str = ""
 
 
+KEPT_DETECTIONS = 128
+"""Detections kept by ``find_corners`` (a few kB each): a calibration session's steps read
+the same images again (the intrinsics every board image, the plane its laser-off images, the
+axis its spindle rotations), and a step run again after one more capture reads them all."""
+
+_kept: OrderedDict[tuple, Corners] = OrderedDict()
+_kept_lock = threading.Lock()
+
+
 def find_corners(image: np.ndarray, board: Board) -> Corners:
-    """Sub-pixel inner corners of the chessboard in a grey image."""
+    """Sub-pixel inner corners of the chessboard in a grey image.
+
+    The detector takes about half a second an image; a detection of the same pixels (their
+    digest) and board is given again from memory (the last ``KEPT_DETECTIONS``)."""
+    pixels = np.ascontiguousarray(image)
+    key = (pixels.shape, pixels.dtype.str, hashlib.blake2b(pixels.data, digest_size=16)
+           .digest(), board)
+    with _kept_lock:
+        found = _kept.get(key)
+        if found is not None:
+            _kept.move_to_end(key)
+            return found
+    found = _detect_corners(pixels, board)
+    if found.points is not None:
+        found.points.flags.writeable = False
+    with _kept_lock:
+        _kept[key] = found
+        while len(_kept) > KEPT_DETECTIONS:
+            _kept.popitem(last=False)
+    return found
+
+
+def _detect_corners(image: np.ndarray, board: Board) -> Corners:
     size = (board.cols, board.rows)
     missing = Corners(None, f"board of {board.cols}x{board.rows} inner corners not found")
     try:
