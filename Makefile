@@ -23,13 +23,13 @@ linuxcnc-demo: setup
 	bash deploy/linuxcnc/demo.sh
 
 ## make test: lint, then the whole suite (short fault runs included, long soak runs left out):
-## first the tests timed against a rate or a baseline, alone; then the rest on three workers
-## (many tests wait on a service they started: three keep both cores busy).
+## first the tests timed against a rate or a baseline, alone; then the rest on four workers
+## (many tests wait on a service, LinuxCNC or a lathe they started: four keep both cores busy).
 test: setup docs
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
 	$(PY) -m pytest -m "alone and not slow" -q; alone=$$?; \
-	$(PY) -m pytest -m "not slow and not wheel and not alone" -q -n 3 --dist loadgroup \
+	$(PY) -m pytest -m "not slow and not wheel and not alone" -q -n 4 --dist loadgroup \
 		--durations=20; rest=$$?; exit $$((alone || rest))
 
 ## make check: the fast layer for a developer's loop (lint, unit and property tests, on both
