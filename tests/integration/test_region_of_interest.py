@@ -7,6 +7,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 from calib_store.model import load_calibration
 from drivers.camera.aravis import AravisCamera
@@ -56,6 +57,9 @@ def follow(cam: AravisCamera, follower: RegionFollower, geometry, until, timeout
     return seen
 
 
+# It compares frame rates delivered on loopback: beside four workers of the suite the
+# region's rate rose to only 1.09 times the whole frame's (1.25 asked), so it runs alone.
+@pytest.mark.alone
 def test_region_follows_the_stripe_and_comes_back_after_a_loss(sim_camera_factory) -> None:
     sim = sim_camera_factory("ROI001", diameter=DIAMETER, fps=250.0,
                              extra=("--replay", "8"))
