@@ -43,10 +43,9 @@ fi
 lock=deploy/requirements-test.lock
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$lock" -nt "$stamp" ]; then
   # The exact versions (and hashes) of the lock, then the package itself over them: every
-  # install is the same ("make lock" renews the lock). No byte-compiling of every installed
-  # module (half of the install's 47 s): Python compiles what is imported, once.
+  # install is the same ("make lock" renews the lock).
   echo "bootstrap: installing shaftgauge and its test tools into .venv from $lock"
-  .venv/bin/python -m pip install -q --no-compile --require-hashes -r "$lock"
+  .venv/bin/python -m pip install -q --require-hashes -r "$lock"
   .venv/bin/python -m pip install -q --no-deps -e .
   touch "$stamp"
 fi
