@@ -44,7 +44,12 @@ def test_the_grafana_dashboard_reads_only_metrics_the_gauge_exports(tmp_path) ->
     gauge, _ = build(make_settings(tmp_path, mqtt={"host": "127.0.0.1", "port": 1}),
                      Children())
     with TestClient(create_app(gauge)) as c:
-        time.sleep(0.5)
+        # The fused diameter exists once the fusion window has its measurements: waited for,
+        # not slept on (0.5 s was too short on a busy machine).
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and (
+                gauge.feed.latest is None or gauge.feed.latest.fused_diameter_mm is None):
+            time.sleep(0.05)
         exported = set()
         for f in text_string_to_metric_families(c.get("/metrics").text):
             exported |= {s.name for s in f.samples}
