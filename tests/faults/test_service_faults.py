@@ -83,12 +83,19 @@ def start_rig(tmp: Path, sim_plc_factory, data: Path | None = None,
     except Exception:
         camera.stop()
         raise
-    doc = json.loads(camera.calibration.read_text())
-    r = httpx.post(svc.url + "/api/v1/calibrations", headers=H, timeout=10,
-                   json={"document": doc, "activate": True, "note": "fault suite"})
-    assert r.status_code == 201, r.text
     rig = Rig(svc, camera, plc, sim_plc_factory.log)
-    assert wait_ready(svc), rig.problems()
+    try:
+        doc = json.loads(camera.calibration.read_text())
+        r = httpx.post(svc.url + "/api/v1/calibrations", headers=H, timeout=10,
+                       json={"document": doc, "activate": True, "note": "fault suite"})
+        assert r.status_code == 201, r.text
+        assert wait_ready(svc), rig.problems()
+    except BaseException:
+        # A rig that never got ready is stopped here: left running, it took a core for the
+        # rest of the suite (a service under faketime, after a timed-out request).
+        stop_service(svc)
+        camera.stop()
+        raise
     return rig
 
 
