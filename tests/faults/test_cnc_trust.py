@@ -144,10 +144,16 @@ def test_killed_at_random_moments(tmp_path, sim_plc_factory, kills: int) -> None
             last_seq = read_register(svc.modbus_port, "measurement_seq")
             svc.proc.kill()  # SIGKILL: no cleanup at all
             svc.proc.wait(10)
-        # The last life: everything settles, then the books are compared.
+        # The last life: the part at its nominal, so that no offset follows; everything
+        # settles, then the books are compared. (Left off it, the gauge kept writing an offset
+        # every 1.8 s, and one in flight was in the gauge's book and not yet in the CNC's.)
+        control(camera.control_port, {"set": {"diameter_mm": 30.0}})
         time.sleep(3.0)
         until(lambda: httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()["state"]
               != "uncertain", 15, "every offset settled")
+        until(lambda: [e["seq"] for e in plc_events(sim_plc_factory.log)][-1:] ==
+              [e["seq"] for e in applied_in(sim_plc_factory.log)][-1:], 15,
+              "the CNC applying the last offset written")
         events = plc_events(sim_plc_factory.log)
         written = [e["seq"] for e in events if e["event"] == "write"]
         applied = applied_in(sim_plc_factory.log)
