@@ -39,6 +39,7 @@ from service.config import CameraSettings, Settings
 from service.https import https_files
 from service.measure.diameter import MeasureParams
 from service.measure.result import Method
+from service.measure.runout_track import SpindleAngles
 from service.measure.stripe import StripeParams
 from service.runtime.archive import MeasurementArchive
 from service.runtime.calibration import CalibrationContext, MasterPolicy
@@ -164,7 +165,8 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
         exposure_us=cam_cfg.exposure_us, gain_db=cam_cfg.gain_db,
         pixel_format=cam_cfg.pixel_format, frame_rate_hz=cam_cfg.frame_rate_hz,
         packet_size=cam_cfg.packet_size, packet_socket=cam_cfg.packet_socket,
-        socket_buffer_bytes=cam_cfg.socket_buffer_bytes, queue_size=cam_cfg.queue_size)
+        socket_buffer_bytes=cam_cfg.socket_buffer_bytes, queue_size=cam_cfg.queue_size,
+        trigger=cam_cfg.trigger, trigger_line=cam_cfg.trigger_line)
     camera: Camera
     if cam_cfg.source == "rig":
         from drivers.camera.rig import RigCamera
@@ -230,8 +232,11 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                              "so modbus.enabled must be true")
         writer = PullCnc(bank, settings.modbus.host, settings.modbus.port,
                          ack_timeout_s=settings.plc.ack_timeout_s)
+    sp = settings.spindle
     context = CalibrationContext(store, MasterPolicy(ms.master_interval_h, ms.axis_sigma_mm,
-                                                     ms.track_axis), store_error)
+                                                     ms.track_axis), store_error,
+                                 SpindleAngles(sp.deg_per_frame, sp.zero_deg)
+                                 if sp.source == "encoder" else None)
     compensation = CompensationService(
         RuntimeSettings(settings.compensation, ts.part_temp_c, ts.alpha_per_k), writer,
         comp_log, reset_command=settings.modbus.reset_command)
@@ -247,7 +252,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                           bank=bank)
     sequence = SequenceCounter(comp_log, compensation.controller.persisted
                                .last_measurement_seq + 1)
-    publisher = Publisher(sequence, feed, modbus, compensation)
+    publisher = Publisher(sequence, feed, modbus, compensation, sp.max_tir_mm)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
                              settings.camera.roi_margin_px if settings.camera.roi_enabled
                              else None, ms.max_rate_hz, ms.reflection_check_hz,
@@ -289,8 +294,10 @@ class _Server(uvicorn.Server):
     def __init__(self, feed: MeasurementFeed, config: uvicorn.Config) -> None:
         super().__init__(config)
         self._feed = feed
+        self.stopped_by: int | None = None
 
     def handle_exit(self, sig: int, frame: object) -> None:
+        self.stopped_by = sig
         with contextlib.suppress(RuntimeError):  # no loop running: nothing streams
             asyncio.get_running_loop().call_soon(self._feed.closing.set)
         super().handle_exit(sig, frame)
@@ -345,7 +352,9 @@ async def serve(settings: Settings) -> int:
         task.cancel()
     finally:
         children.stop()
-    return 0
+    # Ctrl-C ends with 130 however the interrupt uvicorn raises again meets the event loop:
+    # when asyncio's own handler cancels a task that has already returned, nothing is raised.
+    return 130 if server.stopped_by == signal.SIGINT else 0
 
 
 def main(settings: Settings) -> int:
