@@ -63,6 +63,11 @@ class CameraSettings(_Section):
     when the stripe nears its edge or is lost: fewer rows, more frames per second. None: on
     for the simulated cameras, off for a real one until it is tried there."""
     roi_margin_px: int = Field(32, ge=4, le=512)
+    trigger: Literal["free_run", "hardware"] = "free_run"
+    """``hardware``: a frame on each pulse at ``trigger_line`` (an encoder on the spindle:
+    ``spindle.source = "encoder"``); ``free_run``: at ``frame_rate_hz``."""
+    trigger_line: str = "Line0"
+    """The camera's input line the trigger pulses reach (GenICam ``TriggerSource``)."""
     sim_serial: str = "SIM001"
     sim_diameter_mm: float = Field(30.0, gt=1, lt=500)
     sim_drift_um_per_min: float | None = None
@@ -310,6 +315,36 @@ class MeasurementSettings(_Section):
     """A master correction whose scale differs from 1 by more than this is refused."""
 
 
+class SpindleSettings(_Section):
+    """Each frame's spindle angle, and the run-out the gauge takes.
+
+    With the angle known, a surface that is not concentric with the spindle axis (raw stock,
+    a second clamping, a part badly seated) is measured about its own centre at that angle
+    once a revolution of frames has shown where it goes round; without it such a surface is
+    refused as not concentric. Angles count right-handed about the calibration's
+    ``axis.direction``."""
+
+    source: Literal["none", "encoder"] = "none"
+    """``encoder``: the camera is triggered by the spindle's encoder every ``deg_per_frame``
+    degrees (``camera.trigger = "hardware"``; the simulated cameras turn their shaft that much
+    a frame), so a frame's angle follows from its frame number. ``none``: not known."""
+    deg_per_frame: float = Field(0.0, gt=-360, lt=360)
+    """The spindle's turn from one triggered frame to the next (encoder pulses per frame
+    times degrees per pulse; negative when the encoder counts against the axis direction)."""
+    zero_deg: float = 0.0
+    """The spindle angle at frame number 0 (only the run-out's phase depends on it)."""
+    max_tir_mm: float = Field(0.02, gt=0)
+    """Run-out (TIR, what a dial indicator reads) beyond which no offset is written: the
+    surface under the laser is not the one the tool is cutting concentric."""
+
+    @model_validator(mode="after")
+    def _a_step(self) -> SpindleSettings:
+        if self.source == "encoder" and self.deg_per_frame == 0:
+            raise ValueError("spindle.deg_per_frame: the encoder's turn a frame is needed "
+                             "with source = 'encoder'")
+        return self
+
+
 class TemperatureSettings(_Section):
     """Part temperature, for the diameter at 20 C."""
 
@@ -441,12 +476,24 @@ class Settings(BaseSettings):
     store: StoreSettings = StoreSettings()
     measurement: MeasurementSettings = MeasurementSettings()
     temperature: TemperatureSettings = TemperatureSettings()
+    spindle: SpindleSettings = SpindleSettings()
     compensation: CompensationSettings = CompensationSettings()
     spc: SpcConfig = SpcConfig()
     quality: QualitySettings = QualitySettings()
     mqtt: MqttSettings = MqttSettings()
     opcua: OpcUaSettings = OpcUaSettings()
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    @model_validator(mode="after")
+    def _encoder_triggers_the_camera(self) -> Settings:
+        if self.spindle.source == "encoder" and self.camera.source == "gige" \
+                and self.camera.trigger != "hardware":
+            raise ValueError("spindle.source = 'encoder' needs camera.trigger = 'hardware': "
+                             "a free-running camera's frames are not at fixed spindle steps")
+        if self.spindle.source == "encoder" and not self.measurement.track_axis:
+            raise ValueError("spindle.source = 'encoder' needs measurement.track_axis = true: "
+                             "the run-out is fitted from the frames' free fits")
+        return self
 
     @model_validator(mode="after")
     def _compensation_consistent(self) -> Settings:

@@ -36,6 +36,8 @@ class MeasurementRecord(NamedTuple):
     reason: str
     note: str
     calibration_id: int | None = None  # the calibration it was measured with
+    spindle_deg: float | None = None    # the frame's spindle angle, when known
+    about_runout: bool = False          # measured about the surface's own centre there
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: a non-finite number (a fit's NaN residual, say) becomes None."""
@@ -80,7 +82,8 @@ def make_record(*, seq: int, wall_time: float, frame_id: int, raw: Measurement,
         bool(feature.tol_lower_mm <= dev <= feature.tol_upper_mm),
         arc_deg=float(m.arc_deg or 0.0), n_points=m.n_points,
         rms_residual_mm=m.rms_residual_mm, latency_ms=latency_ms,
-        reason=m.reason, note=m.note, calibration_id=calibration_id)
+        reason=m.reason, note=m.note, calibration_id=calibration_id,
+        spindle_deg=m.spindle_deg, about_runout=m.about_runout)
 
 
 def finite_or_none(x: float | None) -> float | None:

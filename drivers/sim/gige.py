@@ -265,9 +265,11 @@ class SimGigECamera:
         self.lathe.follow(read_total_mm, self._stop, period_s)
 
     def set_turning(self, turning: Turning, spindle_deg_per_frame: float) -> None:
-        """Show a surface off the spindle axis or out of round (``Turning()``: none), the
-        spindle turning ``spindle_deg_per_frame`` from frame to frame; a replay ring is
-        rendered again (its frames at their own angles)."""
+        """Show a surface off the spindle axis or out of round (``Turning()``: none), frame
+        ``n`` at spindle angle ``n * spindle_deg_per_frame`` (as an encoder-triggered camera
+        sees it); a replay ring is rendered again, and must hold whole revolutions."""
+        if self._ring is not None and turning:
+            self._ring.check_revolutions(spindle_deg_per_frame)
         renderer = ShaftRenderer(self.settings.rig.with_(turning=turning),
                                  seed=self.settings.seed)
         with self._lock:

@@ -93,7 +93,7 @@ class FrameRing:
     def fill(self) -> None:
         """Render every frame of the ring (at start)."""
         d = self._diameter()
-        frames = [self._render(d) for _ in range(self.size)]
+        frames = [self._render(d, slot) for slot in range(self.size)]
         with self._lock:
             self._frames, self._shown, self._crc = frames, [d] * self.size, {}
 
@@ -119,7 +119,7 @@ class FrameRing:
             t0 = time.monotonic()
             with self._lock:
                 jump = abs(self._shown[slot] - d) > JUMP_MM
-            image = self._render(d)
+            image = self._render(d, slot)
             with self._lock:
                 self._frames[slot], self._shown[slot] = image, d
                 self._crc.pop(slot, None)
@@ -128,6 +128,16 @@ class FrameRing:
                 stop.wait((time.monotonic() - t0) * self.rest)
         self.rerendered += done
         return done
+
+    def check_revolutions(self, spindle_step_deg: float) -> None:
+        """ValueError unless the ring holds whole revolutions at this step: frame ``n`` then
+        shows the spindle at ``n * step`` however long the ring is replayed."""
+        turns = self.size * spindle_step_deg / 360.0
+        if abs(turns - round(turns)) > 1e-9:
+            raise ValueError(
+                f"spindle_deg_per_frame {spindle_step_deg:g} with a replay ring of {self.size} "
+                f"frames: the ring must hold whole revolutions (a multiple of "
+                f"{360.0 / self.size:g} degrees a frame), or start the camera with no ring")
 
     def set_renderer(self, renderer: ShaftRenderer) -> None:
         """Render with ``renderer`` from now on; every frame is rendered again (``refresh``),
@@ -153,10 +163,10 @@ class FrameRing:
                 self._crc[slot] = crc
         return crc
 
-    def _render(self, diameter_mm: float) -> np.ndarray:
-        if self.spindle_step_deg:  # a turning surface: each frame at its own angle
+    def _render(self, diameter_mm: float, slot: int) -> np.ndarray:
+        if self.spindle_step_deg:  # a turning surface: the slot's frames are at its angle
             image = self.renderer.render(diameter_mm, self._rendered,
-                                         spindle_deg=self._rendered * self.spindle_step_deg)
+                                         spindle_deg=slot * self.spindle_step_deg)
         else:
             image = self.renderer.render(diameter_mm, self._rendered)
         self._rendered += 1

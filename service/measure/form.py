@@ -117,9 +117,10 @@ def fit_runout(centres_mm: np.ndarray, covs_mm2: np.ndarray, spindle_deg: np.nda
     if n < (3 if fit_axis else 2) or len(cov) != n or len(th) != n:
         return Runout(False, frames=n, reason=f"{n} frames with a free fit, need "
                       f"{3 if fit_axis else 2} (and a covariance and an angle each)")
-    if fit_axis and _span_deg(th) < min_span_deg:
-        return Runout(False, frames=n, reason=f"the spindle angles cover {_span_deg(th):.0f}"
-                      f" degrees, need {min_span_deg:.0f} to tell run-out from the axis")
+    span = span_deg(np.degrees(th))
+    if fit_axis and span < min_span_deg:
+        return Runout(False, frames=n, reason=f"the spindle angles cover {span:.0f} degrees, "
+                      f"need {min_span_deg:.0f} to tell run-out from the axis")
     try:
         weights = np.linalg.inv(cov)
     except np.linalg.LinAlgError:
@@ -162,9 +163,10 @@ def fit_runout(centres_mm: np.ndarray, covs_mm2: np.ndarray, spindle_deg: np.nda
                   min(phase_std, 180.0), 2.0 * e_std, shift, shift_cov, chi2 / dof, p_cov, n)
 
 
-def _span_deg(theta_rad: np.ndarray) -> float:
-    """How much of a revolution the angles cover: 360 less the largest gap between them."""
-    a = np.sort(np.mod(np.degrees(theta_rad), 360.0))
+def span_deg(spindle_deg: np.ndarray) -> float:
+    """How much of a revolution the angles (degrees) cover: 360 less the largest gap between
+    them."""
+    a = np.sort(np.mod(np.asarray(spindle_deg, np.float64).ravel(), 360.0))
     if len(a) < 2:
         return 0.0
     gaps = np.diff(np.concatenate([a, [a[0] + 360.0]]))

@@ -83,6 +83,11 @@ class Measurement:
     filter_px : float or None
         The derivative filters' scale the stripe was found with, px (wider than the default
         for a wide stripe): where the next frame's extraction starts.
+    spindle_deg : float or None
+        The frame's spindle angle, when known.
+    about_runout : bool
+        Measured about the surface's own centre at that angle (its run-out known), not the
+        spindle axis.
     """
 
     status: Status
@@ -101,6 +106,8 @@ class Measurement:
     section_mm: np.ndarray = field(default_factory=lambda: np.empty((0, 2)), repr=False)
     reflection_px: tuple[float, float] | None = None
     filter_px: float | None = None
+    spindle_deg: float | None = None
+    about_runout: bool = False
 
     def __bool__(self) -> bool:
         return self.status is Status.OK

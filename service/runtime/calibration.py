@@ -1,5 +1,6 @@
-"""The calibration in force: the active calibration, its master correction, its axis tracker
-and its master checks. One owner; the parts that need to know of a change subscribe."""
+"""The calibration in force: the active calibration, its master correction, its axis and
+run-out trackers and its master checks. One owner; the parts that need to know of a change
+subscribe."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from service.measure.axis_track import AxisTracker
 from service.measure.diameter import axis_center
 from service.measure.form import ConcentricityWatch
 from service.measure.geometry import RigGeometry, geometry_of
+from service.measure.runout_track import RunoutTracker, SpindleAngles
 
 log = logging.getLogger("shaftgauge.calibration")
 
@@ -33,6 +35,8 @@ class CalibrationInUse:
     tracker: AxisTracker | None
     concentricity: ConcentricityWatch | None = None
     """Whether the surface is concentric with the spindle axis (from the free fits)."""
+    runout: RunoutTracker | None = None
+    """Where the surface's centre goes round the axis (when the spindle angle is known)."""
 
 
 @dataclass(frozen=True)
@@ -55,13 +59,16 @@ class CalibrationContext:
         Master-check interval and axis tracking.
     store_error : str
         Why there is no store.
+    spindle : SpindleAngles or None
+        Each frame's spindle angle, when the camera is triggered by the spindle's encoder.
     """
 
     def __init__(self, store: CalibrationStore | None, policy: MasterPolicy,
-                 store_error: str = "") -> None:
+                 store_error: str = "", spindle: SpindleAngles | None = None) -> None:
         self.store = store
         self.store_error = store_error
         self.policy = policy
+        self.spindle = spindle
         self.in_use: CalibrationInUse | None = None
         self._last_master_check: dict[str, Any] | None = None
         self._listeners: list[Callable[[int], None]] = []
@@ -123,7 +130,9 @@ class CalibrationContext:
         self.in_use = CalibrationInUse(info, calibration, geometry, None if corr is None else
                                        DiameterCorrection(corr["offset_mm"], corr["scale"],
                                                           corr["time"]), tracker,
-                                       ConcentricityWatch() if tracker is not None else None)
+                                       ConcentricityWatch() if tracker is not None else None,
+                                       RunoutTracker() if tracker is not None and
+                                       self.spindle is not None else None)
         self._last_master_check = (self.store.last_master_check(info.id)
                                    if self.store is not None else None)
         for listener in self._listeners:

@@ -166,17 +166,20 @@ class CompensationService:
 
     # ---- the measurements ----------------------------------------------------------------
 
-    def submit(self, record: MeasurementRecord, received_s: float) -> None:
+    def submit(self, record: MeasurementRecord, received_s: float, held: str | None = None
+               ) -> None:
         """Queue a published measurement for the controller (the oldest is dropped and
-        counted when the queue is full). Held measurements go in with a held status."""
+        counted when the queue is full). Held measurements go in with a held status: while
+        offsets are held, or when ``held`` names why this one may not move the tool
+        (``held_for_<held>``)."""
         if self._queue is None:
             return
         if self._queue.full():
             self._queue.get_nowait()
             self.dropped += 1
-        hold = self._hold if self.offset_hold() else None
+        hold = self._hold.code if self.offset_hold() and self._hold else held
         self._queue.put_nowait(MeasurementIn(
-            record.seq, received_s, ("held_for_" + hold.code) if hold else record.status,
+            record.seq, received_s, ("held_for_" + hold) if hold else record.status,
             record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id))
 
     async def run(self) -> None:

@@ -79,7 +79,15 @@ class HealthReport:
                                    f"latest frame did not measure: {latest.reason}"))
         in_use = self.context.in_use
         watch = in_use.concentricity if in_use is not None else None
-        if watch is not None and not (verdict := watch.verdict()).concentric:
+        runout = in_use.runout.runout if in_use is not None and in_use.runout else None
+        limit = self.settings.spindle.max_tir_mm
+        if runout is not None:  # measured about the surface's own centre: the watch waits
+            if runout.tir_mm > limit:
+                out.append(Problem("runout", (
+                    f"run-out {runout.tir_mm * 1000:.0f} um TIR (limit {limit * 1000:.0f} um): "
+                    "the surface under the laser is not concentric with the spindle (raw "
+                    "stock, a bad clamping, a bent part): no offset is written from it")))
+        elif watch is not None and not (verdict := watch.verdict()).concentric:
             out.append(Problem("not_concentric", verdict.reason + ": its diameters are "
                                "refused and no offset is written from them"))
         comp = self.compensation
@@ -145,6 +153,11 @@ class HealthReport:
             tracker = {"drift_um": [float(x * 1000) for x in ctx.tracker.drift_mm],
                        "sigma_um": sigma * 1000, "accepted": ctx.tracker.accepted,
                        "rejected": ctx.tracker.rejected}
+        runout = None
+        if ctx.in_use is not None and ctx.in_use.runout is not None:
+            sp = self.settings.spindle
+            runout = {**ctx.in_use.runout.status(), "source": sp.source,
+                      "deg_per_frame": sp.deg_per_frame, "max_tir_mm": sp.max_tir_mm}
         counters = feed.counters
         m = self.settings.modbus
         return {
@@ -171,7 +184,8 @@ class HealthReport:
                              "present": self.pipeline.reflections.present,
                              "modelled_frames": self.pipeline.counters["reflections_modelled"]},
                          "latest_age_s": feed.measurement_age_s(),
-                         "latency": feed.latency_summary(), "axis_tracking": tracker},
+                         "latency": feed.latency_summary(), "axis_tracking": tracker,
+                         "runout": runout},
             "calibration": info, "store_error": ctx.store_error or None,
             "plc": self._plc(),
             "api": {"https": self.settings.api.tls_certfile is not None

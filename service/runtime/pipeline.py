@@ -216,6 +216,21 @@ class FramePipeline:
             return
         self.counters["region_requests"] += 1
 
+    def _prior(self, frame: Frame, in_use: CalibrationInUse
+               ) -> tuple[tuple[np.ndarray, float] | None, tuple[float, bool] | None]:
+        """Where the frame's circle is centred: the tracked spindle axis, or the surface's own
+        centre at the frame's spindle angle once its run-out is known; and that angle with
+        which of the two it is (None: no angle)."""
+        prior = in_use.tracker.center() if in_use.tracker is not None else None
+        angles = self.context.spindle
+        if angles is None:
+            return prior, None
+        deg = angles.at(frame.frame_id)
+        if in_use.runout is None or prior is None:
+            return prior, (deg, False)
+        about = in_use.runout.prior_at(frame.frame_id, deg, *prior)
+        return (prior, (deg, False)) if about is None else (about, (deg, True))
+
     async def _intake(self) -> None:
         """Frames from the camera to the worker pool, at most ``workers`` in flight."""
         loop = asyncio.get_running_loop()
@@ -237,7 +252,7 @@ class FramePipeline:
                 if in_use is None:
                     self.counters["frames_without_calibration"] += 1
                     continue
-                prior = in_use.tracker.center() if in_use.tracker is not None else None
+                prior, spindle = self._prior(frame, in_use)
                 params = self._params_now()
                 pool, ref = self._pool, self._shared(frame, in_use)
                 try:
@@ -251,7 +266,7 @@ class FramePipeline:
                     self._renew_pool(pool, err)
                     continue
                 await self._in_flight.put((frame, in_use, fut, params.reflection_check, pool,
-                                           ref))
+                                           ref, spindle))
                 submitted = True
             except asyncio.CancelledError:
                 raise
@@ -267,7 +282,7 @@ class FramePipeline:
         """Results in frame order, each as soon as it and those before it are done."""
         assert self._slots is not None and self._in_flight is not None
         while True:
-            frame, in_use, fut, checked, pool, ref = await self._in_flight.get()
+            frame, in_use, fut, checked, pool, ref, spindle = await self._in_flight.get()
             try:
                 try:
                     m, t0, t1 = await fut
@@ -288,6 +303,8 @@ class FramePipeline:
                 continue
             finally:
                 self._slots.release()
+            if spindle is not None:
+                m = replace(m, spindle_deg=spindle[0], about_runout=spindle[1])
             self._near = m.stripe_px
             self._scale_px = m.filter_px if m.stripe_px is not None else None
             self.reflections.seen(checked, m.reflection_px is not None)

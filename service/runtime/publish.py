@@ -4,12 +4,13 @@ feed (latest, history, live stream) and compensation, in that order."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from drivers.camera.base import Frame
 from service.calibrate.master import corrected
-from service.measure.result import Measurement
+from service.measure.result import Measurement, Status
 from service.measure.turning import concentricity_check
 from service.record import make_record
 from service.runtime.calibration import CalibrationInUse
@@ -27,21 +28,23 @@ class Publisher:
         The measurements' sequence numbers.
     feed, modbus, compensation : MeasurementFeed, ModbusFacade, CompensationService
         Where the record goes.
+    max_tir_mm : float
+        Run-out beyond which measurements reach compensation held (``held_for_runout``).
     """
 
     def __init__(self, sequence: SequenceCounter, feed: MeasurementFeed,
-                 modbus: ModbusFacade, compensation: CompensationService) -> None:
+                 modbus: ModbusFacade, compensation: CompensationService,
+                 max_tir_mm: float = 0.02) -> None:
         self.sequence, self.feed = sequence, feed
         self.modbus, self.compensation = modbus, compensation
+        self.max_tir_mm = max_tir_mm
         modbus.set_sequence(sequence.current)
 
     def __call__(self, frame: Frame, raw: Measurement, in_use: CalibrationInUse) -> None:
-        m = not_concentric(corrected(raw, in_use.correction), in_use)
+        m, axis_seen = positioned(corrected(raw, in_use.correction), frame.frame_id, in_use)
         tracker = in_use.tracker
-        if m and tracker is not None and m.free_center_mm and m.free_center_cov:
-            xx, xy, yy = m.free_center_cov
-            tracker.update(np.array(m.free_center_mm), np.array([[xx, xy], [xy, yy]]),
-                           m.diameter_mm)
+        if m and tracker is not None and axis_seen is not None:
+            tracker.update(*axis_seen, m.diameter_mm)
         comp = self.compensation
         record = make_record(
             seq=self.sequence.next(), wall_time=time.time(), frame_id=frame.frame_id,
@@ -51,7 +54,39 @@ class Publisher:
             calibration_id=in_use.info.id)
         self.modbus.publish(record)  # first: the latency is frame -> registers
         self.feed.publish(record, m, frame, in_use.geometry)
-        comp.submit(record, frame.received_ns / 1e9)
+        runout = in_use.runout.runout if in_use.runout is not None else None
+        comp.submit(record, frame.received_ns / 1e9, held="runout" if runout is not None and
+                    runout.tir_mm > self.max_tir_mm else None)
+
+
+def positioned(m: Measurement, frame_id: int, in_use: CalibrationInUse
+               ) -> tuple[Measurement, tuple[np.ndarray, np.ndarray] | None]:
+    """``m`` judged for the surface's position, and its free centre as the axis tracker is
+    to see it (the spindle axis: less the run-out at the frame's angle; None without one).
+
+    Without the frame's spindle angle, or before the run-out is known, the concentricity
+    watch judges (``not_concentric``). With it, the free fit goes to the run-out tracker, and
+    a frame measured about the surface's own centre is refused when its free centre lies off
+    that run-out beyond the tracker's gate (a new part or clamping, before it is noticed)."""
+    free = None
+    if m.free_center_mm is not None and m.free_center_cov is not None:
+        xx, xy, yy = m.free_center_cov
+        free = (np.array(m.free_center_mm), np.array([[xx, xy], [xy, yy]]))
+    runout, tracker = in_use.runout, in_use.tracker
+    if runout is None or tracker is None or m.spindle_deg is None:
+        return not_concentric(m, in_use), free
+    known = runout.runout
+    axis, _ = tracker.center()
+    sigmas = runout.update(frame_id, m.spindle_deg, *free, axis) if free else float("nan")
+    if not m.about_runout:
+        return not_concentric(m, in_use), free
+    if m and sigmas > runout.gate:
+        m = replace(m, status=Status.NOT_CONCENTRIC, reason=(
+            f"this frame's centre lies {sigmas:.1f} sigma off the surface's run-out (limit "
+            f"{runout.gate:.1f}): a new part or clamping?"))
+    if free is None or known is None:
+        return m, None
+    return m, (free[0] - (known.center_at(axis, m.spindle_deg) - axis), free[1])
 
 
 def not_concentric(m: Measurement, in_use: CalibrationInUse) -> Measurement:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 
 import numpy as np
+import pytest
 
 from drivers.sim.replay import FrameRing, crop, min_frame_period_us
 from drivers.sim.rig import RigConfig, ShaftRenderer
@@ -80,3 +81,32 @@ def test_a_drifts_step_rests_between_frames_and_a_jump_does_not() -> None:
     rests.clear()
     diameter[0] = 30.5  # a jump
     assert ring.refresh(stop) == 3 and rests == []
+
+
+def test_a_turning_ring_renders_each_slot_at_its_own_spindle_angle() -> None:
+    """Frame n of the ring shows the spindle at n times its step however often the ring was
+    rendered again (so a ring of whole revolutions is what an encoder-triggered camera sees)."""
+    angles: list[tuple[int, float]] = []
+
+    class Renderer:
+        def render(self, diameter_mm: float, frame_index: int, spindle_deg: float = 0.0):
+            angles.append((frame_index, spindle_deg))
+            return np.zeros((4, 4), np.uint8)
+
+    diameter = [30.0]
+    ring = FrameRing(Renderer(), 4, lambda: diameter[0])  # type: ignore[arg-type]
+    ring.spindle_step_deg = 90.0
+    ring.fill()
+    diameter[0] = 30.5
+    ring.take()  # the next to send is slot 1: rendered again first
+    ring.refresh(threading.Event())
+    assert [a for _, a in angles] == [0.0, 90.0, 180.0, 270.0, 180.0, 270.0, 0.0, 90.0]
+    assert len({i for i, _ in angles}) == 8  # fresh speckle every time
+
+
+def test_a_turning_ring_must_hold_whole_revolutions() -> None:
+    ring = FrameRing(ShaftRenderer(RigConfig(image_size=(320, 240)), seed=1), 8, lambda: 30.0)
+    ring.check_revolutions(45.0)
+    ring.check_revolutions(90.0)
+    with pytest.raises(ValueError, match="a multiple of 45 degrees a frame"):
+        ring.check_revolutions(37.0)

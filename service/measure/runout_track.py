@@ -1,0 +1,216 @@
+"""The turning surface's run-out followed frame by frame, for a service that knows each frame's
+spindle angle (``SpindleAngles``): where the surface's centre is at the next frame's angle,
+so that the frame is measured about it (``form.fit_runout`` over the last free fits).
+
+The ``axis`` method pins each frame's circle to the spindle axis, right for the surface being
+turned and wrong for one that is not concentric with it (raw stock, a second clamping). With
+the angle known, the last ``window`` free-fit centres tell the eccentricity about the tracked
+axis; once they cover ``min_span_deg`` of a revolution and the fit explains them, the run-out
+is *known* and each frame gets the surface's centre at its angle as its prior, with the fit's
+uncertainty there. Before that (the first revolution, a frame rate locked to the spindle) it
+gives nothing, and the frames stay under the concentricity watch. A free centre that leaves
+the known run-out beyond ``gate`` sigmas ``lost_after`` times in a row (a new part, another
+clamping) forgets it and learns again; so does a frame number that goes backwards (the
+camera started again, or its 16-bit block id wrapped: the angle's phase is lost with it).
+Pure: centres and angles in, a prior out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from service.measure.form import Runout, fit_runout, span_deg
+from service.measure.turning import centre_sigma_at
+
+
+@dataclass(frozen=True)
+class SpindleAngles:
+    """Each frame's spindle angle from its camera frame number, the camera triggered by the
+    spindle's encoder every ``deg_per_frame`` degrees (a rotary encoder's pulses divided down
+    to the frame trigger). Angles count right-handed about the calibration's
+    ``axis.direction``; ``zero_deg`` is the angle at frame number 0 (unknown for a camera
+    whose numbers start anywhere: the run-out's phase is then relative, its size is not).
+    """
+
+    deg_per_frame: float
+    zero_deg: float = 0.0
+
+    def at(self, frame_id: int) -> float:
+        """The spindle angle of frame ``frame_id``, degrees in [0, 360)."""
+        return (self.zero_deg + frame_id * self.deg_per_frame) % 360.0
+
+
+@dataclass
+class RunoutTracker:
+    """The surface's run-out from the last free fits at known spindle angles.
+
+    Parameters
+    ----------
+    window : int
+        Free fits the run-out is fitted from (12 a second: four seconds).
+    min_frames : int
+        Free fits needed before it is known.
+    min_span_deg : float
+        Their spindle angles must cover this much of a revolution: a frame rate locked to
+        the spindle (every frame at one angle) never makes it known.
+    max_chi2 : float
+        The fit's chi-square per degree of freedom beyond which the centres do not go round
+        as one eccentricity (whirl, a bent part, a form that moves the arcs' centres): not
+        known. Below it, the centre's uncertainty grows with it (``centre_sigma_at``).
+    gate : float
+        A free centre this many sigmas off the run-out's prediction does not fit it.
+    lost_after : int
+        That many in a row and the run-out is forgotten.
+    """
+
+    window: int = 48
+    min_frames: int = 12
+    min_span_deg: float = 270.0
+    max_chi2: float = 9.0
+    gate: float = 5.0
+    lost_after: int = 3
+    resets: int = 0
+    reason: str = "no free fit at a known spindle angle yet"
+    _fits: deque = field(default_factory=deque, repr=False)
+    _runout: Runout | None = field(default=None, repr=False)
+    _misses: int = 0
+    _last_id: int | None = None
+
+    def reset(self, why: str) -> None:
+        """Forget the run-out (``why`` says so until it is known again)."""
+        self._fits.clear()
+        self._runout, self._misses = None, 0
+        self.reason = why
+        self.resets += 1
+
+    @property
+    def runout(self) -> Runout | None:
+        """The run-out, when known."""
+        return self._runout
+
+    def _see(self, frame_id: int) -> None:
+        if self._last_id is not None and frame_id < self._last_id:
+            self.reset(f"the camera's frame numbers went back ({self._last_id} to {frame_id}):"
+                       " the spindle angle's phase is lost with them")
+        self._last_id = frame_id
+
+    def offset_sigmas(self, spindle_deg: float, centre_mm: np.ndarray, cov_mm2: np.ndarray,
+                      axis_mm: np.ndarray) -> float:
+        """How many sigmas a free centre lies off the known run-out at its angle (NaN when
+        the run-out is not known)."""
+        r = self._runout
+        return math.nan if r is None else _sigmas(r, spindle_deg, centre_mm, cov_mm2, axis_mm)
+
+    def update(self, frame_id: int, spindle_deg: float, centre_mm: np.ndarray,
+               cov_mm2: np.ndarray, axis_mm: np.ndarray) -> float:
+        """One frame's free-fit centre (section mm) and covariance at its spindle angle,
+        about the tracked spindle axis ``axis_mm``; returns how many sigmas it lies off the
+        run-out known before it (NaN when none was). A centre beyond ``gate`` is not taken."""
+        self._see(frame_id)
+        c = np.asarray(centre_mm, np.float64).reshape(2)
+        cov = np.asarray(cov_mm2, np.float64).reshape(2, 2)
+        if not (np.isfinite(c).all() and np.isfinite(cov).all()):
+            return math.nan
+        sigmas = self.offset_sigmas(spindle_deg, c, cov, axis_mm)
+        if sigmas > self.gate:
+            self._misses += 1
+            if self._misses >= self.lost_after:
+                self.reset(f"the surface's centre left its run-out ({sigmas:.1f} sigma, "
+                           f"{self.lost_after} frames in a row): a new part or clamping")
+            return sigmas
+        self._misses = 0
+        self._fits.append((float(spindle_deg), c, cov))
+        while len(self._fits) > self.window:
+            self._fits.popleft()
+        self._fit(np.asarray(axis_mm, np.float64))
+        return sigmas
+
+    def _fit(self, axis_mm: np.ndarray) -> None:
+        n = len(self._fits)
+        if n < self.min_frames:
+            self._runout = None
+            self.reason = f"{n} free fits at known spindle angles, need {self.min_frames}"
+            return
+        deg = np.array([f[0] for f in self._fits])
+        span = span_deg(deg)
+        if span < self.min_span_deg:
+            self._runout = None
+            self.reason = (f"the spindle angles of the last {n} free fits cover {span:.0f} "
+                           f"degrees, need {self.min_span_deg:.0f} (a frame rate locked to "
+                           "the spindle never goes round)")
+            return
+        r = self._fit_pruned(axis_mm)
+        if not r.ok:
+            self._runout, self.reason = None, r.reason
+        elif r.chi2_per_dof > self.max_chi2:
+            self._runout = None
+            self.reason = (f"the surface's centre does not go round as one eccentricity "
+                           f"(chi-square {r.chi2_per_dof:.1f} per degree of freedom, limit "
+                           f"{self.max_chi2:g}): whirl, a bent part, or a form it cannot take")
+        else:
+            self._runout, self.reason = r, ""
+
+    def _fit_pruned(self, axis_mm: np.ndarray, passes: int = 3) -> Runout:
+        """The run-out from the window, less the free fits that lie beyond ``gate`` of it (a
+        window that began before another part or clamping holds some of the last one's)."""
+        fits = list(self._fits)
+        r = Runout(False, reason="no free fit")
+        for _ in range(passes):
+            deg = np.array([f[0] for f in fits])
+            c = np.array([f[1] for f in fits])
+            cov = np.array([f[2] for f in fits])
+            r = fit_runout(c, cov, deg, axis_mm, fit_axis=False)
+            if not r.ok:
+                return r
+            keep = [f for f in fits if _sigmas(r, *f, axis_mm) <= self.gate]
+            if len(keep) == len(fits):
+                return r
+            if len(keep) < self.min_frames or span_deg(np.array([f[0] for f in keep])) \
+                    < self.min_span_deg:
+                return Runout(False, reason=f"{len(fits) - len(keep)} of the last {len(fits)} "
+                              "free fits lie off the run-out of the others: a change of part "
+                              "or clamping while it was being learnt")
+            self._fits = deque(keep)
+            fits = keep
+        return r
+
+    def prior_at(self, frame_id: int, spindle_deg: float, axis_mm: np.ndarray,
+                 axis_sigma_mm: float) -> tuple[np.ndarray, float] | None:
+        """The surface's centre at this frame's angle and its standard uncertainty (the
+        run-out's there and the axis's), or None while the run-out is not known."""
+        r = self._runout
+        if r is None or (self._last_id is not None and frame_id < self._last_id):
+            return None
+        return (r.center_at(axis_mm, spindle_deg),
+                math.hypot(centre_sigma_at(r, spindle_deg), axis_sigma_mm))
+
+    def status(self) -> dict:
+        """JSON-ready: the run-out when known (eccentricity, its phase, TIR, uncertainties)
+        or why not."""
+        r = self._runout
+        out: dict = {"known": r is not None, "frames": len(self._fits), "resets": self.resets,
+                     "reason": self.reason or None}
+        if r is not None:
+            out.update(eccentricity_mm=r.eccentricity_mm, eccentricity_deg=r.eccentricity_deg,
+                       tir_mm=r.tir_mm, tir_uncertainty_mm=r.tir_uncertainty_mm,
+                       eccentricity_deg_uncertainty=r.eccentricity_deg_uncertainty,
+                       chi2_per_dof=r.chi2_per_dof)
+        return out
+
+
+
+def _sigmas(r: Runout, spindle_deg: float, centre_mm: np.ndarray, cov_mm2: np.ndarray,
+            axis_mm: np.ndarray) -> float:
+    """How many sigmas a free centre lies off a run-out's centre at its angle (the centre's
+    covariance and the run-out's uncertainty there; infinite when they cannot be used)."""
+    d = np.asarray(centre_mm, np.float64) - r.center_at(axis_mm, spindle_deg)
+    s = centre_sigma_at(r, spindle_deg)
+    try:
+        return math.sqrt(float(d @ np.linalg.solve(
+            np.asarray(cov_mm2, np.float64) + s**2 * np.eye(2), d)))
+    except np.linalg.LinAlgError:
+        return math.inf

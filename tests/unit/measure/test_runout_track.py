@@ -1,0 +1,105 @@
+"""The service's run-out tracker (service/measure/runout_track.py) against analytic truth: the
+free fits of an eccentric circle's arcs at the angles an encoder-triggered camera sees, fed
+one frame at a time as the publisher does."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from service.measure.runout_track import RunoutTracker, SpindleAngles
+from tests.unit.measure.test_form import AXIS, frames, free_fits
+
+
+def feed(tracker: RunoutTracker, e_um: float, phi: float, step_deg: float, n: int,
+         first_id: int = 0, seed: int = 5) -> list[float]:
+    angles = SpindleAngles(step_deg)
+    ids = np.arange(first_id, first_id + n)
+    deg = np.array([angles.at(int(i)) for i in ids])
+    centres, covs = free_fits(frames(e_um / 1000.0, phi, [], deg, seed=seed))
+    return [tracker.update(int(i), float(d), c, v, AXIS)
+            for i, d, c, v in zip(ids, deg, centres, covs, strict=True)]
+
+
+def test_spindle_angles_count_from_the_frame_number() -> None:
+    a = SpindleAngles(37.0, zero_deg=350.0)
+    assert a.at(0) == pytest.approx(350.0)
+    assert a.at(1) == pytest.approx(27.0)
+    assert 0.0 <= a.at(10**9) < 360.0
+
+
+@pytest.mark.parametrize(("e_um", "phi"), [(0.0, 0.0), (25.0, 70.0), (100.0, 200.0)])
+def test_the_surface_centre_at_each_angle_once_a_revolution_is_seen(e_um: float,
+                                                                   phi: float) -> None:
+    t = RunoutTracker()
+    assert t.prior_at(0, 0.0, AXIS, 0.001) is None
+    feed(t, e_um, phi, 37.0, 30)
+    assert t.runout is not None, t.reason
+    assert t.runout.eccentricity_mm == pytest.approx(e_um / 1000.0, abs=max(
+        3.0 * t.runout.eccentricity_uncertainty_mm, 0.0008))
+    for theta in (0.0, 123.0, 271.0):
+        centre, sigma = t.prior_at(40, theta, AXIS, 0.001)
+        th, ph = math.radians(theta), math.radians(phi)
+        truth = AXIS + e_um / 1000.0 * np.array([math.cos(ph + th), math.sin(ph + th)])
+        assert np.linalg.norm(centre - truth) <= 3.0 * sigma
+        assert sigma >= 0.001  # never better than the axis it is reckoned from
+    status = t.status()
+    assert status["known"] and status["tir_mm"] == pytest.approx(2 * t.runout.eccentricity_mm)
+
+
+def test_a_frame_rate_locked_to_the_spindle_never_knows_it() -> None:
+    t = RunoutTracker()
+    feed(t, 50.0, 30.0, 360.0, 60)  # every frame at the same angle
+    assert t.runout is None
+    assert "locked" in t.reason and "cover 0 degrees" in t.reason
+    assert t.prior_at(60, 0.0, AXIS, 0.001) is None
+
+
+def test_the_first_frames_are_not_enough() -> None:
+    t = RunoutTracker(min_frames=12)
+    feed(t, 50.0, 30.0, 37.0, 11)
+    assert t.runout is None and "11 free fits" in t.reason
+
+
+def test_another_clamping_is_noticed_and_learnt_again() -> None:
+    t = RunoutTracker()
+    feed(t, 50.0, 30.0, 37.0, 30)
+    before = t.runout
+    assert before is not None
+    # Reclamped 80 um off the other way: the centres leave the run-out known.
+    sig = feed(t, 80.0, 210.0, 37.0, 3, first_id=30, seed=6)
+    assert min(sig) > t.gate
+    assert t.runout is None and "new part or clamping" in t.reason and t.resets == 1
+    feed(t, 80.0, 210.0, 37.0, 30, first_id=33, seed=7)
+    assert t.runout is not None
+    assert t.runout.eccentricity_mm == pytest.approx(0.080, abs=0.002)
+
+
+def test_one_stray_frame_does_not_forget_it() -> None:
+    t = RunoutTracker()
+    feed(t, 50.0, 30.0, 37.0, 30)
+    far = np.array([AXIS[0] + 0.5, AXIS[1]])
+    assert t.update(30, SpindleAngles(37.0).at(30), far, np.eye(2) * 1e-6, AXIS) > t.gate
+    assert t.runout is not None and t.resets == 0
+
+
+def test_frame_numbers_going_back_lose_the_phase() -> None:
+    t = RunoutTracker()
+    feed(t, 50.0, 30.0, 37.0, 30, first_id=65500)
+    assert t.runout is not None
+    assert t.prior_at(3, 0.0, AXIS, 0.001) is None  # the camera started again
+    feed(t, 50.0, 30.0, 37.0, 1, first_id=1)
+    assert t.runout is None and t.resets == 1
+
+
+def test_a_window_begun_on_the_last_part_learns_the_new_one() -> None:
+    """The part changed while the run-out was being learnt: the last part's frames in the
+    window lie off the new run-out and are left out, not averaged in."""
+    t = RunoutTracker()
+    feed(t, 0.0, 0.0, 37.0, 8)            # the concentric part, not known yet (8 < 12)
+    assert t.runout is None
+    feed(t, 50.0, 30.0, 37.0, 40, first_id=8, seed=8)
+    assert t.runout is not None, t.reason
+    assert t.runout.tir_mm == pytest.approx(0.100, abs=0.002)
