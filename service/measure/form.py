@@ -33,6 +33,12 @@ def rotation(theta_rad: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
+def rotations(theta_rad: np.ndarray) -> np.ndarray:
+    """The 2x2 rotations by each of ``theta_rad``, shape (N, 2, 2)."""
+    c, s = np.cos(theta_rad), np.sin(theta_rad)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
 @dataclass(frozen=True)
 class Runout:
     """The surface's position relative to the spindle axis.
@@ -126,24 +132,21 @@ def fit_runout(centres_mm: np.ndarray, covs_mm2: np.ndarray, spindle_deg: np.nda
     except np.linalg.LinAlgError:
         return Runout(False, frames=n, reason="a frame's centre covariance is singular")
     k = 4 if fit_axis else 2
-    normal = np.zeros((k, k))
-    rhs = np.zeros(k)
     d = c - np.asarray(axis_mm, np.float64)
-    design = []
-    for i in range(n):
-        a = rotation(th[i])
-        row = np.hstack([a, np.eye(2)]) if fit_axis else a
-        design.append(row)
-        normal += row.T @ weights[i] @ row
-        rhs += row.T @ weights[i] @ d[i]
+    design = rotations(th)
+    if fit_axis:
+        design = np.concatenate([design, np.broadcast_to(np.eye(2), (n, 2, 2))], axis=2)
+    wa = weights @ design
+    normal = np.einsum("nji,njk->ik", design, wa)
+    rhs = np.einsum("nji,nj->i", wa, d)
     try:
         p_cov = np.linalg.inv(normal)
     except np.linalg.LinAlgError:
         return Runout(False, frames=n, reason="the frames do not determine the run-out "
                       "(their angles and arcs leave it open)")
     p = p_cov @ rhs
-    chi2 = float(sum((d[i] - design[i] @ p) @ weights[i] @ (d[i] - design[i] @ p)
-                     for i in range(n)))
+    res = d - design @ p
+    chi2 = float(np.einsum("ni,nij,nj->", res, weights, res))
     dof = max(2 * n - k, 1)
     ex, ey = p[0], p[1]
     e = math.hypot(ex, ey)

@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.measure.form import Runout, fit_runout, span_deg
-from service.measure.turning import centre_sigma_at
+from service.measure.form import Runout, fit_runout, rotations, span_deg
+from service.measure.turning import MIN_CENTRE_SIGMA_MM, centre_sigma_at
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,8 @@ class RunoutTracker:
         """How many sigmas a free centre lies off the known run-out at its angle (NaN when
         the run-out is not known)."""
         r = self._runout
-        return math.nan if r is None else _sigmas(r, spindle_deg, centre_mm, cov_mm2, axis_mm)
+        return math.nan if r is None else float(_sigmas(r, spindle_deg, centre_mm, cov_mm2,
+                                                         axis_mm)[0])
 
     def update(self, frame_id: int, spindle_deg: float, centre_mm: np.ndarray,
                cov_mm2: np.ndarray, axis_mm: np.ndarray) -> float:
@@ -166,16 +167,15 @@ class RunoutTracker:
             r = fit_runout(c, cov, deg, axis_mm, fit_axis=False)
             if not r.ok:
                 return r
-            keep = [f for f in fits if _sigmas(r, *f, axis_mm) <= self.gate]
-            if len(keep) == len(fits):
+            ok = _sigmas(r, deg, c, cov, axis_mm) <= self.gate
+            if ok.all():
                 return r
-            if len(keep) < self.min_frames or span_deg(np.array([f[0] for f in keep])) \
-                    < self.min_span_deg:
-                return Runout(False, reason=f"{len(fits) - len(keep)} of the last {len(fits)} "
-                              "free fits lie off the run-out of the others: a change of part "
-                              "or clamping while it was being learnt")
-            self._fits = deque(keep)
-            fits = keep
+            if ok.sum() < self.min_frames or span_deg(deg[ok]) < self.min_span_deg:
+                return Runout(False, reason=f"{int((~ok).sum())} of the last {len(fits)} free "
+                              "fits lie off the run-out of the others: a change of part or "
+                              "clamping while it was being learnt")
+            fits = [f for f, keep in zip(fits, ok, strict=True) if keep]
+            self._fits = deque(fits)
         return r
 
     def prior_at(self, frame_id: int, spindle_deg: float, axis_mm: np.ndarray,
@@ -203,14 +203,28 @@ class RunoutTracker:
 
 
 
-def _sigmas(r: Runout, spindle_deg: float, centre_mm: np.ndarray, cov_mm2: np.ndarray,
-            axis_mm: np.ndarray) -> float:
-    """How many sigmas a free centre lies off a run-out's centre at its angle (the centre's
-    covariance and the run-out's uncertainty there; infinite when they cannot be used)."""
-    d = np.asarray(centre_mm, np.float64) - r.center_at(axis_mm, spindle_deg)
-    s = centre_sigma_at(r, spindle_deg)
-    try:
-        return math.sqrt(float(d @ np.linalg.solve(
-            np.asarray(cov_mm2, np.float64) + s**2 * np.eye(2), d)))
-    except np.linalg.LinAlgError:
-        return math.inf
+
+def _sigmas(r: Runout, spindle_deg: np.ndarray | float, centre_mm: np.ndarray,
+            cov_mm2: np.ndarray, axis_mm: np.ndarray) -> np.ndarray:
+    """How many sigmas free centres (N, 2) lie off a run-out's centre at their angles (N,):
+    their covariances (N, 2, 2) and the run-out's uncertainty there (``centre_sigma_at``,
+    for all at once); infinite where they cannot be used."""
+    th = np.radians(np.atleast_1d(np.asarray(spindle_deg, np.float64)))
+    c = np.asarray(centre_mm, np.float64).reshape(-1, 2)
+    cov = np.asarray(cov_mm2, np.float64).reshape(-1, 2, 2)
+    e = r.eccentricity_mm * np.column_stack([np.cos(th + math.radians(r.eccentricity_deg)),
+                                             np.sin(th + math.radians(r.eccentricity_deg))])
+    d = c - (np.asarray(axis_mm, np.float64) + np.asarray(r.axis_shift_mm) + e)
+    p_cov = r.parameter_cov
+    jac = rotations(th)
+    if p_cov.shape[0] == 4:
+        jac = np.concatenate([jac, np.broadcast_to(np.eye(2), (len(th), 2, 2))], axis=2)
+    model = jac @ p_cov @ jac.transpose(0, 2, 1) * max(1.0, r.chi2_per_dof)
+    a, b, cc = model[:, 0, 0], model[:, 0, 1], model[:, 1, 1]
+    top = (a + cc) / 2.0 + np.sqrt(((a - cc) / 2.0) ** 2 + b**2)
+    s2 = np.maximum(top, MIN_CENTRE_SIGMA_MM**2)
+    total = cov + s2[:, None, None] * np.eye(2)
+    det = total[:, 0, 0] * total[:, 1, 1] - total[:, 0, 1] * total[:, 1, 0]
+    m2 = (d[:, 0] ** 2 * total[:, 1, 1] - 2.0 * d[:, 0] * d[:, 1] * total[:, 0, 1]
+          + d[:, 1] ** 2 * total[:, 0, 0]) / np.where(det > 0, det, np.nan)
+    return np.where(np.isfinite(m2) & (m2 >= 0), np.sqrt(np.abs(m2)), np.inf)
