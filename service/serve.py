@@ -45,6 +45,7 @@ from service.runtime.archive import MeasurementArchive
 from service.runtime.calibration import CalibrationContext, MasterPolicy
 from service.runtime.compensating import CompensationService, RuntimeSettings
 from service.runtime.feed import MeasurementFeed, SequenceCounter
+from service.runtime.form import FormWatch
 from service.runtime.gauge import Gauge
 from service.runtime.health import HealthReport
 from service.runtime.metrics import GaugeMetrics
@@ -276,6 +277,8 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
         StudyPolicy(q.study_max_age_h, q.min_index, q.study_required, q.resolution_mm),
         lambda: context.calibration[0].id if context.calibration else None)
     health.quality = (spc, studies)
+    form = FormWatch(context) if context.spindle is not None else None
+    health.form = form
     plant = make_plant_links(settings, feed, compensation, camera, writer, health)
     health.plant = plant
     metrics = GaugeMetrics(health)
@@ -284,7 +287,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     compensation.channel.write_listeners.append(
         lambda r: metrics.write_time(r.outcome.value, r.elapsed_s))
     return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
-                 sessions, metrics, spc, studies, writer, comp_log, plant)
+                 sessions, metrics, spc, studies, writer, comp_log, plant, form)
 
 
 class _Server(uvicorn.Server):

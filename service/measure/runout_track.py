@@ -19,12 +19,15 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from service.measure.form import Runout, fit_runout, rotations, span_deg
-from service.measure.turning import MIN_CENTRE_SIGMA_MM, centre_sigma_at
+from service.measure.form import Roundness, Runout, fit_runout, rotations, span_deg
+from service.measure.result import Measurement, Status
+from service.measure.turning import MIN_CENTRE_SIGMA_MM, centre_sigma_at, roundness_of
+
+_NO_POINTS = np.empty((0, 2))
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,51 @@ class SpindleAngles:
     def at(self, frame_id: int) -> float:
         """The spindle angle of frame ``frame_id``, degrees in [0, 360)."""
         return (self.zero_deg + frame_id * self.deg_per_frame) % 360.0
+
+
+@dataclass
+class FormFrames:
+    """The last frames measured about the surface's own centre, kept for its roundness (the
+    radius over the material's angle: ``turning.roundness_of``), each thinned to at most
+    ``points`` of its arc: the form's harmonics up to 50 need a few thousand points over a
+    revolution, not every one (36 frames of 400 cost 130 ms, of 100 35 ms).
+
+    Parameters
+    ----------
+    frames : int
+        Frames kept (at 12 free fits a second: three seconds).
+    points : int
+        Points kept of each.
+    """
+
+    frames: int = 36
+    points: int = 100
+    added: int = 0
+    _kept: deque = field(default_factory=deque, repr=False)
+
+    def add(self, m: Measurement) -> None:
+        """A frame measured about the surface's centre at its spindle angle (others are not
+        taken: their points are about the spindle axis)."""
+        if not m.about_runout or m.spindle_deg is None or m.center_mm is None \
+                or m.status not in (Status.OK, Status.UNCERTAIN) or len(m.section_mm) == 0:
+            return
+        step = max(1, -(-len(m.section_mm) // self.points))
+        self._kept.append(replace(m, section_mm=m.section_mm[::step], points_px=_NO_POINTS))
+        while len(self._kept) > self.frames:
+            self._kept.popleft()
+        self.added += 1
+
+    def clear(self) -> None:
+        """Forget the frames (another part, another clamping)."""
+        self._kept.clear()
+
+    def roundness(self, upr: int = 50) -> Roundness:
+        """The form of the frames kept (``ok`` False with the reason when they do not cover
+        the material's angles)."""
+        kept = list(self._kept)
+        if not kept:
+            return Roundness(False, reason="no frame measured about the surface's centre yet")
+        return roundness_of(kept, np.array([m.spindle_deg for m in kept]), upr)
 
 
 @dataclass
@@ -73,6 +121,8 @@ class RunoutTracker:
     max_chi2: float = 9.0
     gate: float = 5.0
     lost_after: int = 3
+    form: FormFrames = field(default_factory=FormFrames)
+    """The frames measured about the surface's centre, for its roundness (cleared with it)."""
     resets: int = 0
     reason: str = "no free fit at a known spindle angle yet"
     _fits: deque = field(default_factory=deque, repr=False)
@@ -83,6 +133,7 @@ class RunoutTracker:
     def reset(self, why: str) -> None:
         """Forget the run-out (``why`` says so until it is known again)."""
         self._fits.clear()
+        self.form.clear()
         self._runout, self._misses = None, 0
         self.reason = why
         self.resets += 1
@@ -200,6 +251,7 @@ class RunoutTracker:
                        eccentricity_deg_uncertainty=r.eccentricity_deg_uncertainty,
                        chi2_per_dof=r.chi2_per_dof)
         return out
+
 
 
 

@@ -173,7 +173,7 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
                           near=near)
         near = m.stripe_px
         second.append(m)
-    shape = _roundness(second, angles, upr)
+    shape = roundness_of(second, angles, upr)
     for _ in range(FORM_ROUNDS):
         # A surface out of round moves each arc's free centre and bends its circle: with the
         # form known, take it off every frame's points and fit again.
@@ -184,7 +184,7 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
         if not again.ok:
             break
         runout, second = again, refitted
-        shape = _roundness(second, angles, upr)
+        shape = roundness_of(second, angles, upr)
     return TurningFrames(second, runout, fuse(second), shape if form else None, axis_check)
 
 
@@ -258,7 +258,7 @@ def _about_the_form(ms: list[Measurement], angles: np.ndarray, axis: np.ndarray,
     return runout, out
 
 
-def _roundness(ms: list[Measurement], angles: np.ndarray, upr: int) -> Roundness:
+def roundness_of(ms: list[Measurement], angles: np.ndarray, upr: int) -> Roundness:
     """Every fitted frame's points (as its fit took them) as radii about its own centre at
     their material angles (the angle in the section less the frame's spindle angle)."""
     material, radius = [], []

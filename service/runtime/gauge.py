@@ -16,6 +16,7 @@ from service.measure.compiled import compile_kernels
 from service.runtime.calibration import CalibrationContext
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
+from service.runtime.form import FormWatch
 from service.runtime.health import HealthReport
 from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
@@ -44,6 +45,7 @@ class Gauge:
     writer: OffsetWriter | PullCnc | None = None
     log: CompensationLog | None = None
     plant: list[PlantLink] = field(default_factory=list)
+    form: FormWatch | None = None
     _tasks: list[asyncio.Task] = field(default_factory=list)
 
     async def start(self) -> None:
@@ -62,6 +64,7 @@ class Gauge:
                 name="master-gate"),
             *await self.modbus.start(self.health.snapshot, self.health.healthy),
             *(loop.create_task(link.run(), name=link.name) for link in self.plant),
+            *([loop.create_task(self.form.run(), name="form")] if self.form else []),
         ]
         self.health.running = True
 

@@ -45,6 +45,7 @@ class HealthReport:
         self.running = False
         self.plant: list[Any] = []  # service.runtime.plant.PlantLink, set by the gauge
         self.quality: tuple[Any, Any] | None = None  # (SpcService, GaugeStudies), set too
+        self.form: Any = None  # service.runtime.form.FormWatch, with the spindle's angle
 
     def _fresh(self) -> bool:
         age = self.feed.measurement_age_s()
@@ -157,7 +158,8 @@ class HealthReport:
         if ctx.in_use is not None and ctx.in_use.runout is not None:
             sp = self.settings.spindle
             runout = {**ctx.in_use.runout.status(), "source": sp.source,
-                      "deg_per_frame": sp.deg_per_frame, "max_tir_mm": sp.max_tir_mm}
+                      "deg_per_frame": sp.deg_per_frame, "max_tir_mm": sp.max_tir_mm,
+                      "roundness": self.form.status() if self.form is not None else None}
         counters = feed.counters
         m = self.settings.modbus
         return {

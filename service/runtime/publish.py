@@ -86,6 +86,7 @@ def positioned(m: Measurement, frame_id: int, in_use: CalibrationInUse
             f"{runout.gate:.1f}): a new part or clamping?"))
     if free is None or known is None:
         return m, None
+    runout.form.add(m)  # at the free fits' cadence: frames spread over the revolutions
     return m, (free[0] - (known.center_at(axis, m.spindle_deg) - axis), free[1])
 
 

@@ -78,6 +78,13 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
         assert sum(errors) / len(errors) < 0.004, errors
         assert all(e <= 4 * m["uncertainty_mm"] for e, m in zip(errors, items, strict=True)), \
             [(e, m["uncertainty_mm"]) for e, m in zip(errors, items, strict=True)]
+        # A round surface: its form is reported, with no lobes standing above the noise.
+        def form():
+            shape = svc.get("/api/v1/status").json()["pipeline"]["runout"]["roundness"]
+            return shape if shape and shape["ok"] else None
+
+        shape = until(form, 15, "the roundness of a revolution of frames")
+        assert shape["ront_mm"] < 0.004 and shape["lobes"] == 0, shape
         problems = {p["code"]: p["text"] for p in svc.get("/api/v1/status").json()["problems"]}
         assert "runout" in problems and " um TIR (limit 20 um)" in problems["runout"], problems
         assert "not_concentric" not in problems
@@ -93,7 +100,9 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
                        )["ok"]
         events = until(lambda: applied_in(plc_log), 40, "an offset applied once concentric")
         assert -100 <= events[0]["value_units"] < -40, events[0]
-        r = svc.get("/api/v1/status").json()["pipeline"]["runout"]
-        assert r["known"] and r["tir_mm"] < 0.01 and r["resets"] >= 1, r
+        # (Learnt again: the camera's 16-bit frame numbers may also have wrapped meanwhile.)
+        r = until(lambda: (r := svc.get("/api/v1/status").json()["pipeline"]["runout"])[
+            "known"] and r, 10, "the run-out of the part turned true")
+        assert r["tir_mm"] < 0.01 and r["resets"] >= 1, r
     finally:
         stop_service(svc)

@@ -103,3 +103,26 @@ def test_a_window_begun_on_the_last_part_learns_the_new_one() -> None:
     feed(t, 50.0, 30.0, 37.0, 40, first_id=8, seed=8)
     assert t.runout is not None, t.reason
     assert t.runout.tir_mm == pytest.approx(0.100, abs=0.002)
+
+
+def test_the_form_of_the_frames_measured_about_the_surface_centre() -> None:
+    """Three lobes of 8 um on an eccentric surface, from frames thinned to 100 points."""
+    from service.measure.result import Measurement, Method, Status
+    from service.measure.runout_track import FormFrames
+
+    form = FormFrames()
+    assert not form.roundness().ok
+    deg = np.array([SpindleAngles(37.0).at(i) for i in range(36)])
+    for theta, (pts, centre) in zip(deg, frames(0.05, 30.0, [(3, 0.008, 40.0)], deg),
+                                    strict=True):
+        form.add(Measurement(Status.OK, Method.AXIS, 30.0, center_mm=tuple(centre),
+                             section_mm=pts, spindle_deg=float(theta), about_runout=True))
+    form.add(Measurement(Status.OK, Method.AXIS, 30.0, center_mm=(0.0, 0.0),
+                         section_mm=pts, spindle_deg=0.0))  # about the axis: not taken
+    assert form.added == 36
+    shape = form.roundness()
+    assert shape.ok, shape.reason
+    assert shape.dominant_order == 3 and shape.odd_lobing
+    assert shape.ront_mm == pytest.approx(0.016, abs=0.001 + 0.1 * 0.016)
+    form.clear()
+    assert not form.roundness().ok
