@@ -8,6 +8,9 @@ are signed 32-bit integers in 0.1 um; ``NO_VALUE`` (0x80000000) means "no value"
 Version 2 adds the pull handshake (``drivers.plc.pull``) for a CNC that can only poll: the
 offset request the gauge posts and the report the CNC writes back, every entry one unsigned
 16-bit register (what mb2hal and many PLCs' Modbus clients can read and write).
+
+Version 3 adds form and position: the run-out (TIR and its phase) and roundness (RONt, the
+dominant lobing) of the surface under the laser, with the spindle's angle known.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from dataclasses import dataclass
 
 NO_VALUE = -0x80000000  # 0x80000000 as a signed 32-bit integer
 TEST_PATTERN = 0x12345678
-MAP_VERSION = 2
+MAP_VERSION = 3
 UM_PER_UNIT = 0.1  # 0.1 um per count
 
 
@@ -65,7 +68,7 @@ U16, I32, U32 = RegisterType.U16, RegisterType.I32, RegisterType.U32
 REGISTERS: tuple[Register, ...] = (
     _r("test_pattern", 0, U32, "-", "always 0x12345678: reads 0x1234, 0x5678 with "
        "big-endian words; check your word order with it"),
-    _r("map_version", 2, U16, "-", "version of this map (2)"),
+    _r("map_version", 2, U16, "-", "version of this map (3)"),
     _r("heartbeat", 3, U16, "count", "counts up once a second while the service is "
        "healthy (wraps at 65535); stands still when it is not"),
     _r("status", 4, U16, "bits", "status bits, see below"),
@@ -110,6 +113,15 @@ REGISTERS: tuple[Register, ...] = (
        writable=True),
     _r("cnc_check", 39, U16, "-", "pull, written by the CNC last: (cnc_ack + cnc_result + "
        "cnc_total_hi + cnc_total_lo + 0xA5A5) mod 65536", writable=True),
+    # Form and position, with the spindle's angle (spindle.source = "encoder").
+    _r("runout_tir", 40, I32, "0.1 um", "run-out of the surface under the laser: TIR, "
+       "twice its eccentricity (what a dial indicator reads); no value while not known"),
+    _r("runout_phase", 42, U16, "0.01 deg", "direction of the eccentricity at spindle angle "
+       "0 (0-35999); 65535 while not known"),
+    _r("ront", 43, I32, "0.1 um", "roundness RONt of the last revolutions (ISO 12181, 50 "
+       "undulations per revolution); no value while not known"),
+    _r("lobes", 45, U16, "count", "the form's dominant lobing (3: three lobes); 0 none above "
+       "its noise, or not known"),
 )
 
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}
@@ -139,6 +151,7 @@ class StatusBit(enum.IntFlag):
     PLC_CONNECTED = 1 << 6
     CALIBRATED = 1 << 7
     RULE_VIOLATION = 1 << 8      # SPC: a run rule fired at the latest subgroup
+    RUNOUT_KNOWN = 1 << 9        # the run-out (and the form) of the surface is known
 
 
 class FaultBit(enum.IntFlag):
@@ -153,6 +166,8 @@ class FaultBit(enum.IntFlag):
     STALE_MEASUREMENT = 1 << 6
     MASTER_CHECK_DUE = 1 << 7
     GAUGE_STUDY_FAILED = 1 << 8  # the type-1 study failed (Cgk too low) or is overdue
+    RUNOUT_BEYOND_LIMIT = 1 << 9  # TIR beyond spindle.max_tir_mm: no offset is written
+    NOT_CONCENTRIC = 1 << 10     # off the spindle axis, no angle to measure it: refused
 
 
 class Command(enum.IntEnum):
@@ -216,8 +231,9 @@ class RegisterBank:
         self.set("test_pattern", TEST_PATTERN)
         self.set("map_version", MAP_VERSION)
         for name in ("diameter", "uncertainty", "nominal", "proposed_offset",
-                     "cumulative_offset"):
+                     "cumulative_offset", "runout_tir", "ront"):
             self.set(name, NO_VALUE)
+        self.set("runout_phase", 0xFFFF)
         self.set("tol_upper", 0)
         self.set("tol_lower", 0)
 

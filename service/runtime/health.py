@@ -78,9 +78,7 @@ class HealthReport:
             elif latest is not None and latest.status != "ok":
                 out.append(Problem("not_measuring",
                                    f"latest frame did not measure: {latest.reason}"))
-        in_use = self.context.in_use
-        watch = in_use.concentricity if in_use is not None else None
-        runout = in_use.runout.runout if in_use is not None and in_use.runout else None
+        runout, watch = self._position()
         limit = self.settings.spindle.max_tir_mm
         if runout is not None:  # measured about the surface's own centre: the watch waits
             if runout.tir_mm > limit:
@@ -128,6 +126,8 @@ class HealthReport:
         latest = self.feed.latest
         c = self.compensation.controller
         w = self.writer
+        runout, watch = self._position()
+        shape = self.form.latest if self.form is not None and runout is not None else None
         return StatusSnapshot(
             healthy=self.healthy(),
             camera_streaming=self.camera.status().state is CameraState.STREAMING,
@@ -141,7 +141,23 @@ class HealthReport:
             plc_outage=w is not None and w.outage_since is not None,
             writes_blocked=bool(self.context.master_status()["blocking"]),
             rule_violation=bool(self.quality and self.quality[0].rule_violation),
-            study_failed=bool(self.quality and self.quality[1].blocking()))
+            study_failed=bool(self.quality and self.quality[1].blocking()),
+            not_concentric=(latest is not None and latest.status == "not_concentric") or (
+                runout is None and watch is not None and not watch.verdict().concentric),
+            tir_mm=None if runout is None else runout.tir_mm,
+            runout_phase_deg=None if runout is None else runout.eccentricity_deg,
+            max_tir_mm=self.settings.spindle.max_tir_mm,
+            ront_mm=shape.ront_mm if shape is not None and shape.ok else None,
+            lobes=shape.dominant_order if shape is not None and shape.ok else 0)
+
+    def _position(self) -> tuple[Any, Any]:
+        """The run-out of the calibration in force (when known) and its concentricity
+        watch."""
+        in_use = self.context.in_use
+        if in_use is None:
+            return None, None
+        return (in_use.runout.runout if in_use.runout is not None else None,
+                in_use.concentricity)
 
     def status(self) -> dict[str, Any]:
         """Everything an operator or a monitoring system wants to know, JSON-ready."""

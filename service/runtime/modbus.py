@@ -50,6 +50,12 @@ class StatusSnapshot:
     writes_blocked: bool = False
     rule_violation: bool = False          # SPC: a run rule fired at the latest subgroup
     study_failed: bool = False            # the type-1 gauge study failed or is overdue
+    not_concentric: bool = False          # refused: off the spindle axis, no angle known
+    tir_mm: float | None = None           # the run-out, when known
+    runout_phase_deg: float | None = None
+    max_tir_mm: float = 0.02
+    ront_mm: float | None = None          # the roundness, when known
+    lobes: int = 0
 
 
 def status_words(s: StatusSnapshot) -> tuple[StatusBit, FaultBit, int]:
@@ -96,8 +102,22 @@ def status_words(s: StatusSnapshot) -> tuple[StatusBit, FaultBit, int]:
         status |= StatusBit.RULE_VIOLATION
     if s.study_failed:
         faults |= FaultBit.GAUGE_STUDY_FAILED
+    if s.tir_mm is not None:
+        status |= StatusBit.RUNOUT_KNOWN
+        if s.tir_mm > s.max_tir_mm:
+            faults |= FaultBit.RUNOUT_BEYOND_LIMIT
+    if s.not_concentric:
+        faults |= FaultBit.NOT_CONCENTRIC
     age_ms = 65535 if s.age_s is None else min(65535, int(s.age_s * 1000))
     return status, faults, age_ms
+
+
+def form_words(s: StatusSnapshot) -> dict[str, int]:
+    """The form and position registers for a snapshot (no value while not known)."""
+    phase = s.runout_phase_deg
+    return {"runout_tir": mm_to_units(s.tir_mm), "ront": mm_to_units(s.ront_mm),
+            "runout_phase": 0xFFFF if phase is None or s.tir_mm is None
+            else round(phase % 360.0 * 100.0) % 36000, "lobes": max(0, min(s.lobes, 0xFFFF))}
 
 
 class ModbusFacade:
@@ -182,11 +202,13 @@ class ModbusFacade:
         while True:
             await asyncio.sleep(REFRESH_S)
             try:
-                status, faults, age_ms = status_words(snapshot())
+                snap = snapshot()
+                status, faults, age_ms = status_words(snap)
             except Exception:  # keep the loop: a bug here must not freeze the registers
                 log.exception("status registers")
                 continue
-            update = {"status": int(status), "faults": int(faults), "measurement_age": age_ms}
+            update = {"status": int(status), "faults": int(faults), "measurement_age": age_ms,
+                      **form_words(snap)}
             if faults & FaultBit.STALE_MEASUREMENT:  # a stale diameter is no diameter
                 update["diameter"] = mm_to_units(None)
             self.bank.set_many(update)

@@ -6,6 +6,7 @@ the surface going round, 45 degrees of spindle a frame (its ring of 8 frames: a 
 
 from __future__ import annotations
 
+import subprocess
 import time
 
 from drivers.sim.control import control
@@ -25,6 +26,8 @@ def test_a_part_clamped_off_the_axis_holds_offsets_until_it_runs_true(tmp_path) 
         assert reply["ok"], reply
         until(lambda: "not_concentric" in [p["code"] for p in svc.get(
             "/api/v1/status").json()["problems"]], 20, "the run-out said as a problem")
+        status, faults = registers(svc.modbus_port, 4, 2)
+        assert faults & 1 << 10 and not status & 1 << 9, (status, faults)  # refused, no angle
         time.sleep(12.0)  # long enough for offsets at the test's tuning (window 5, 10/s)
         assert applied_in(plc_log) == [], "an offset was written from an off-axis surface"
         latest = svc.get("/api/v1/measurements/latest").json()
@@ -47,16 +50,30 @@ def test_a_part_clamped_off_the_axis_holds_offsets_until_it_runs_true(tmp_path) 
         stop_service(svc)
 
 
-ENCODER = '[spindle]\nsource = "encoder"\ndeg_per_frame = 45.0\nmax_tir_mm = 0.02\n'
+def registers(port: int, address: int, count: int) -> list[int]:
+    """Holding registers from ``address`` (0-based), read by mbpoll."""
+    out = subprocess.run(["mbpoll", "-m", "tcp", "-a", "1", "-r", str(address + 1), "-c",
+                          str(count), "-t", "4:hex", "-1", "-p", str(port), "127.0.0.1"],
+                         capture_output=True, text=True, timeout=20)
+    assert out.returncode == 0, out.stderr
+    return [int(line.split()[1], 16) for line in out.stdout.splitlines()
+            if line.startswith("[")]
+
+
+# A ring of 36 frames, 10 degrees apart: the form is made from the last 36 frames, each then
+# a frame of its own (a ring of 8 replayed would count the same noise four times).
+ENCODER = '[spindle]\nsource = "encoder"\ndeg_per_frame = 10.0\nmax_tir_mm = 0.02\n'
+TURNING_36 = {**OFF_AXIS, "spindle_deg_per_frame": 10.0}
 
 
 def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_runout(
         tmp_path) -> None:
-    svc = start_service(tmp_path, extra_toml=ENCODER)
+    svc = start_service(tmp_path, extra_toml=ENCODER, camera_toml="sim_replay_frames = 36\n")
     plc_log = svc.data / "sim-plc.log"
     try:
         assert wait_ready(svc)
-        reply = control(svc.control_port, {"set": {"turning": OFF_AXIS, "diameter_mm": 30.012}})
+        reply = control(svc.control_port, {"set": {"turning": TURNING_36,
+                                                   "diameter_mm": 30.012}})
         assert reply["ok"], reply
 
         def runout():
@@ -68,12 +85,12 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
         # Measured about the surface's own centre at each frame's angle: as accurate as a
         # concentric part, not refused.
         def about_runout():
-            items = svc.get("/api/v1/measurements", params={"limit": 16}).json()["items"]
+            items = svc.get("/api/v1/measurements", params={"limit": 36}).json()["items"]
             return items if all(m["about_runout"] for m in items) else None
 
         items = until(about_runout, 10, "a revolution of frames about the surface's centre")
         assert all(m["status"] == "ok" and m["spindle_deg"] is not None for m in items), items
-        # (The ring's 8 frames of a concentric 30 mm: mean |error| 1.2-1.9 um, at most 2.7.)
+        # (A concentric 30 mm in the ring of 8: mean |error| 1.2-1.9 um, at most 2.7.)
         errors = [abs(m["diameter_mm"] - 30.012) for m in items]
         assert sum(errors) / len(errors) < 0.004, errors
         assert all(e <= 4 * m["uncertainty_mm"] for e, m in zip(errors, items, strict=True)), \
@@ -88,6 +105,12 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
         problems = {p["code"]: p["text"] for p in svc.get("/api/v1/status").json()["problems"]}
         assert "runout" in problems and " um TIR (limit 20 um)" in problems["runout"], problems
         assert "not_concentric" not in problems
+        # What the CNC reads (mbpoll, a real Modbus client): the run-out known and beyond its
+        # limit, TIR (0.1 um) and its phase.
+        status, faults = registers(svc.modbus_port, 4, 2)
+        assert status & 1 << 9 and faults & 1 << 9 and not faults & 1 << 10, (status, faults)
+        tir_hi, tir_lo, phase, _, _, lobes = registers(svc.modbus_port, 40, 6)
+        assert abs((tir_hi << 16 | tir_lo) - 1000) <= 70 and phase < 36000 and lobes == 0
         time.sleep(8.0)  # long enough for offsets at the test's tuning (window 5, 10/s)
         assert applied_in(plc_log) == [], "an offset was written from an off-axis surface"
         log = svc.get("/api/v1/compensation/log", params={"limit": 200}).json()["items"]
@@ -96,7 +119,7 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
 
         # Turned true: the centre leaves the run-out, which is learnt again, and the
         # oversize is corrected.
-        assert control(svc.control_port, {"set": {"turning": {"spindle_deg_per_frame": 45.0}}}
+        assert control(svc.control_port, {"set": {"turning": {"spindle_deg_per_frame": 10.0}}}
                        )["ok"]
         events = until(lambda: applied_in(plc_log), 40, "an offset applied once concentric")
         assert -100 <= events[0]["value_units"] < -40, events[0]

@@ -44,6 +44,10 @@ ROWS = [
     (FaultBit.MASTER_CHECK_DUE, {"writes_blocked": True}, {}),
     (StatusBit.RULE_VIOLATION, {"rule_violation": True}, {}),
     (FaultBit.GAUGE_STUDY_FAILED, {"study_failed": True}, {}),
+    (StatusBit.RUNOUT_KNOWN, {"tir_mm": 0.004}, {}),
+    (FaultBit.RUNOUT_BEYOND_LIMIT, {"tir_mm": 0.021, "max_tir_mm": 0.02},
+     {"tir_mm": 0.019, "max_tir_mm": 0.02}),
+    (FaultBit.NOT_CONCENTRIC, {"not_concentric": True}, {}),
 ]
 
 
@@ -72,3 +76,15 @@ def test_a_healthy_shadow_gauge_has_no_fault_and_a_fresh_age() -> None:
                       | StatusBit.CALIBRATED)
     assert status_words(replace(BASE, age_s=None))[2] == 65535
     assert status_words(replace(BASE, age_s=1e6))[2] == 65535
+
+
+def test_the_form_registers_say_no_value_until_the_run_out_is_known() -> None:
+    from drivers.plc.registers import NO_VALUE
+    from service.runtime.modbus import form_words
+
+    assert form_words(BASE) == {"runout_tir": NO_VALUE, "ront": NO_VALUE,
+                                "runout_phase": 0xFFFF, "lobes": 0}
+    known = replace(BASE, tir_mm=0.1005, runout_phase_deg=359.996, ront_mm=0.016, lobes=3)
+    assert form_words(known) == {"runout_tir": 1005, "ront": 160, "runout_phase": 0,
+                                 "lobes": 3}
+    assert form_words(replace(known, runout_phase_deg=212.5))["runout_phase"] == 21250
