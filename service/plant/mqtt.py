@@ -56,7 +56,7 @@ def gauge_identity(settings: MqttSettings) -> tuple[str, str, str]:
 
 MEASUREMENT_FIELDS = ("seq", "time", "status", "diameter_mm", "uncertainty_mm",
                       "fused_diameter_mm", "fused_uncertainty_mm", "deviation_mm",
-                      "in_tolerance", "calibration_id", "reason")
+                      "in_tolerance", "calibration_id", "reason", "spindle_deg", "about_runout")
 
 
 def measurement_payload(record: MeasurementRecord, gauge_id: str) -> dict[str, Any]:

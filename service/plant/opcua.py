@@ -7,7 +7,8 @@ Address space (namespace ``urn:shaftgauge``; ``docs/opcua.md``), named after OPC
     Objects/Shaftgauge
         Identification   Manufacturer, Model, SerialNumber, SoftwareRevision
         Monitoring       Diameter, Uncertainty, FusedDiameter, Deviation (mm), InTolerance,
-                         Status, Reason, MeasurementSeq, CalibrationId, CameraState, PlcState
+                         Status, Reason, MeasurementSeq, CalibrationId, CameraState, PlcState,
+                         RunoutTir, RunoutPhase (deg), Ront (mm), Lobes
         Compensation     State, CumulativeOffset, LastOffset (mm), Shadow
         MeasureNow()         -> Diameter (mm), Status         technicians only
         ResetCompensation()  -> Result                        technicians only
@@ -57,7 +58,8 @@ _DOUBLE, _STRING, _BOOL, _INT = (ua.VariantType.Double, ua.VariantType.String,
 MONITORING = {"Diameter": _DOUBLE, "Uncertainty": _DOUBLE, "FusedDiameter": _DOUBLE,
               "Deviation": _DOUBLE, "InTolerance": _BOOL, "Status": _STRING,
               "Reason": _STRING, "MeasurementSeq": _INT, "CalibrationId": _INT,
-              "CameraState": _STRING, "PlcState": _STRING}
+              "CameraState": _STRING, "PlcState": _STRING, "RunoutTir": _DOUBLE,
+              "RunoutPhase": _DOUBLE, "Ront": _DOUBLE, "Lobes": _INT}
 COMPENSATION = {"State": _STRING, "CumulativeOffset": _DOUBLE, "LastOffset": _DOUBLE,
                 "Shadow": _BOOL}
 _DEFAULTS = {_DOUBLE: math.nan, _STRING: "", _BOOL: False, _INT: -1}

@@ -119,7 +119,19 @@ class HealthReport:
                 "rate_hz": self.feed.rate_hz(),
                 "latest_status": None if latest is None else latest.status,
                 "compensation": self.compensation.state.value,
-                "calibration_id": None if latest is None else latest.calibration_id}
+                "calibration_id": None if latest is None else latest.calibration_id,
+                "form": self.form_position()}
+
+    def form_position(self) -> dict[str, Any]:
+        """The run-out and roundness of the surface under the laser (None where not known):
+        ``tir_mm``, ``eccentricity_deg``, ``ront_mm``, ``lobes`` (0: none above the noise)."""
+        runout, _ = self._position()
+        shape = self.form.latest if self.form is not None and runout is not None else None
+        shape = shape if shape is not None and shape.ok else None
+        return {"tir_mm": None if runout is None else runout.tir_mm,
+                "eccentricity_deg": None if runout is None else runout.eccentricity_deg,
+                "ront_mm": None if shape is None else shape.ront_mm,
+                "lobes": None if shape is None else shape.dominant_order}
 
     def snapshot(self) -> StatusSnapshot:
         """The registers' view of the moment."""
@@ -127,7 +139,7 @@ class HealthReport:
         c = self.compensation.controller
         w = self.writer
         runout, watch = self._position()
-        shape = self.form.latest if self.form is not None and runout is not None else None
+        form = self.form_position()
         return StatusSnapshot(
             healthy=self.healthy(),
             camera_streaming=self.camera.status().state is CameraState.STREAMING,
@@ -144,11 +156,9 @@ class HealthReport:
             study_failed=bool(self.quality and self.quality[1].blocking()),
             not_concentric=(latest is not None and latest.status == "not_concentric") or (
                 runout is None and watch is not None and not watch.verdict().concentric),
-            tir_mm=None if runout is None else runout.tir_mm,
-            runout_phase_deg=None if runout is None else runout.eccentricity_deg,
-            max_tir_mm=self.settings.spindle.max_tir_mm,
-            ront_mm=shape.ront_mm if shape is not None and shape.ok else None,
-            lobes=shape.dominant_order if shape is not None and shape.ok else 0)
+            tir_mm=form["tir_mm"], runout_phase_deg=form["eccentricity_deg"],
+            max_tir_mm=self.settings.spindle.max_tir_mm, ront_mm=form["ront_mm"],
+            lobes=form["lobes"] or 0)
 
     def _position(self) -> tuple[Any, Any]:
         """The run-out of the calibration in force (when known) and its concentricity

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import sqlite3
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -53,9 +54,11 @@ class OpcUaValues:
     """The OPC UA server's view of the gauge: values and methods (``GaugeView``)."""
 
     def __init__(self, feed: MeasurementFeed, compensation: CompensationService,
-                 camera: Camera, writer: OffsetWriter | PullCnc | None) -> None:
+                 camera: Camera, writer: OffsetWriter | PullCnc | None,
+                 form: Callable[[], dict[str, Any]] = dict) -> None:
         self.feed, self.compensation, self.camera, self.writer = (feed, compensation, camera,
                                                                   writer)
+        self.form = form
         self.last_offset = LastOffset()
         compensation.on_decision(self.last_offset)
 
@@ -70,6 +73,10 @@ class OpcUaValues:
             "CameraState": self.camera.status().state.value, "PlcState": plc,
             "State": c.state.value, "CumulativeOffset": c.cumulative_mm,
             "LastOffset": self.last_offset.offset_mm, "Shadow": c.settings.shadow}
+        f = self.form()
+        out.update({name: f[key] for name, key in (
+            ("RunoutTir", "tir_mm"), ("RunoutPhase", "eccentricity_deg"), ("Ront", "ront_mm"),
+            ("Lobes", "lobes")) if f.get(key) is not None})
         if r is not None:
             out.update(Diameter=r.diameter_mm, Uncertainty=r.uncertainty_mm,
                        FusedDiameter=r.fused_diameter_mm, Deviation=r.deviation_mm,
@@ -127,7 +134,7 @@ def make_plant_links(settings: Settings, feed: MeasurementFeed,
         if ua.none_security is None:
             ua = ua.model_copy(update={"none_security": embedded})
 
-        values = OpcUaValues(feed, compensation, camera, writer)
+        values = OpcUaValues(feed, compensation, camera, writer, health.form_position)
         links.append(OpcUaServer(ua, GaugeView(
             values.values, values.measure_now, values.reset,
             serial_number=settings.camera.device_id or settings.camera.sim_serial,

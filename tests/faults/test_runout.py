@@ -6,11 +6,14 @@ the surface going round, 45 degrees of spindle a frame (its ring of 8 frames: a 
 
 from __future__ import annotations
 
+import asyncio
 import subprocess
 import time
 
+from asyncua import Client
+
 from drivers.sim.control import control
-from tests.e2e.conftest import start_service, stop_service, wait_ready
+from tests.e2e.conftest import free_port, start_service, stop_service, wait_ready
 from tests.faults.test_service_faults import applied_in, until
 
 OFF_AXIS = {"eccentricity_mm": 0.05, "eccentricity_deg": 30.0, "spindle_deg_per_frame": 45.0}
@@ -50,6 +53,15 @@ def test_a_part_clamped_off_the_axis_holds_offsets_until_it_runs_true(tmp_path) 
         stop_service(svc)
 
 
+async def read_monitoring(url: str, name: str) -> float:
+    """A variable of the gauge's ``Monitoring`` object, read by asyncua's client."""
+    async with Client(url) as client:
+        idx = await client.get_namespace_index("urn:shaftgauge")
+        node = await client.nodes.objects.get_child(
+            [f"{idx}:Shaftgauge", f"{idx}:Monitoring", f"{idx}:{name}"])
+        return await node.read_value()
+
+
 def registers(port: int, address: int, count: int) -> list[int]:
     """Holding registers from ``address`` (0-based), read by mbpoll."""
     out = subprocess.run(["mbpoll", "-m", "tcp", "-a", "1", "-r", str(address + 1), "-c",
@@ -68,7 +80,9 @@ TURNING_36 = {**OFF_AXIS, "spindle_deg_per_frame": 10.0}
 
 def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_runout(
         tmp_path) -> None:
-    svc = start_service(tmp_path, extra_toml=ENCODER, camera_toml="sim_replay_frames = 36\n")
+    opcua = free_port()
+    svc = start_service(tmp_path, extra_toml=ENCODER, camera_toml="sim_replay_frames = 36\n",
+                        opcua_port=opcua)
     plc_log = svc.data / "sim-plc.log"
     try:
         assert wait_ready(svc)
@@ -111,7 +125,10 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
         assert status & 1 << 9 and faults & 1 << 9 and not faults & 1 << 10, (status, faults)
         tir_hi, tir_lo, phase, _, _, lobes = registers(svc.modbus_port, 40, 6)
         assert abs((tir_hi << 16 | tir_lo) - 1000) <= 70 and phase < 36000 and lobes == 0
-        time.sleep(8.0)  # long enough for offsets at the test's tuning (window 5, 10/s)
+        # And the plant's OPC UA client.
+        tir = asyncio.run(read_monitoring(f"opc.tcp://127.0.0.1:{opcua}", "RunoutTir"))
+        assert abs(tir - 0.100) <= 0.007, tir
+        time.sleep(6.0)  # long enough for offsets at the test's tuning (window 5, 10/s)
         assert applied_in(plc_log) == [], "an offset was written from an off-axis surface"
         log = svc.get("/api/v1/compensation/log", params={"limit": 200}).json()["items"]
         assert [d for d in log if d.get("code") == "status_held_for_runout"], log[:5]
