@@ -283,7 +283,12 @@ def roundness(material_deg: np.ndarray, radius_mm: np.ndarray, noise_mm: float |
     for k in range(1, top + 1):
         cols += [np.cos(k * beta), np.sin(k * beta)]
     a = np.column_stack(cols)
-    coef, *_ = np.linalg.lstsq(a, r, rcond=None)
+    coef, _, rank, sv = np.linalg.lstsq(a, r, rcond=None)
+    if rank < a.shape[1] or sv[-1] < 1e-6 * sv[0]:
+        # Arcs that leave gaps in the material's angles leave the high orders open: their
+        # amplitudes would be anything.
+        return Roundness(False, reason=f"the points' material angles do not determine the "
+                         f"form up to {top} undulations: more of a revolution")
     resid = r - a @ coef
     dof = max(len(r) - a.shape[1], 1)
     sigma = float(noise_mm) if noise_mm is not None else float(np.sqrt(resid @ resid / dof))

@@ -47,25 +47,65 @@ class SpindleAngles:
         return (self.zero_deg + frame_id * self.deg_per_frame) % 360.0
 
 
+
+@dataclass
+class Settling:
+    """Whether the surface under the laser is still the one whose position was checked, so
+    that a frame may go without a free fit of its own.
+
+    Each frame's free fit is what judges its position (the concentricity watch, the run-out's
+    gate), and costs a fifth of a frame; at a hundred frames a second the service fits
+    freely a few times a second once the position is *settled*: ``frames`` free fits in a row
+    passed it. Anything that may mean another surface unsettles it until that many pass
+    again, every frame fitted freely meanwhile: a free fit refused as off the axis or its
+    run-out, a frame with no stripe on a shaft (a part taken out, the laser blocked), a pause
+    of more than ``max_gap_s`` between frames (the spindle stopped: an encoder-triggered
+    camera takes none), another calibration.
+    """
+
+    frames: int = 10
+    max_gap_s: float = 0.5
+    _streak: int = 0
+    _last_s: float | None = None
+
+    @property
+    def settled(self) -> bool:
+        """Whether a frame may go without its own free fit."""
+        return self._streak >= self.frames
+
+    def seen(self, t_s: float, on_shaft: bool, passed: bool | None) -> None:
+        """A frame taken at ``t_s`` (seconds): whether its stripe lay on the shaft, and
+        whether its free fit passed the position check (None: it had none)."""
+        if self._last_s is not None and t_s - self._last_s > self.max_gap_s:
+            self._streak = 0
+        self._last_s = t_s
+        if not on_shaft or passed is False:
+            self._streak = 0
+        elif passed:
+            self._streak += 1
+
+
 @dataclass
 class FormFrames:
-    """The last frames measured about the surface's own centre, kept for its roundness (the
-    radius over the material's angle: ``turning.roundness_of``), each thinned to at most
-    ``points`` of its arc: the form's harmonics up to 50 need a few thousand points over a
-    revolution, not every one (36 frames of 400 cost 130 ms, of 100 35 ms).
+    """Frames measured about the surface's own centre, kept for its roundness (the radius
+    over the material's angle: ``turning.roundness_of``): the latest of each ``bins``-th of a
+    revolution of spindle angle, so that they cover the material's angles whatever the frame
+    rate and the spindle's speed make of the frames' angles; each thinned to at most
+    ``points`` of its arc (the form's harmonics up to 50 need a few thousand points over a
+    revolution, not every one: 36 frames of 400 cost 130 ms, of 100 35 ms).
 
     Parameters
     ----------
-    frames : int
-        Frames kept (at 12 free fits a second: three seconds).
+    bins : int
+        Frames kept, one per ``360 / bins`` degrees of spindle angle.
     points : int
         Points kept of each.
     """
 
-    frames: int = 36
+    bins: int = 36
     points: int = 100
     added: int = 0
-    _kept: deque = field(default_factory=deque, repr=False)
+    _kept: dict = field(default_factory=dict, repr=False)
 
     def add(self, m: Measurement) -> None:
         """A frame measured about the surface's centre at its spindle angle (others are not
@@ -74,9 +114,8 @@ class FormFrames:
                 or m.status not in (Status.OK, Status.UNCERTAIN) or len(m.section_mm) == 0:
             return
         step = max(1, -(-len(m.section_mm) // self.points))
-        self._kept.append(replace(m, section_mm=m.section_mm[::step], points_px=_NO_POINTS))
-        while len(self._kept) > self.frames:
-            self._kept.popleft()
+        slot = int(m.spindle_deg % 360.0 * self.bins / 360.0) % self.bins
+        self._kept[slot] = replace(m, section_mm=m.section_mm[::step], points_px=_NO_POINTS)
         self.added += 1
 
     def clear(self) -> None:
@@ -86,7 +125,7 @@ class FormFrames:
     def roundness(self, upr: int = 50) -> Roundness:
         """The form of the frames kept (``ok`` False with the reason when they do not cover
         the material's angles)."""
-        kept = list(self._kept)
+        kept = list(self._kept.values())
         if not kept:
             return Roundness(False, reason="no frame measured about the surface's centre yet")
         return roundness_of(kept, np.array([m.spindle_deg for m in kept]), upr)

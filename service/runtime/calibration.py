@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from calib_store.model import Calibration
@@ -17,7 +17,7 @@ from service.measure.axis_track import AxisTracker
 from service.measure.diameter import axis_center
 from service.measure.form import ConcentricityWatch
 from service.measure.geometry import RigGeometry, geometry_of
-from service.measure.runout_track import RunoutTracker, SpindleAngles
+from service.measure.runout_track import RunoutTracker, Settling, SpindleAngles
 
 log = logging.getLogger("shaftgauge.calibration")
 
@@ -37,6 +37,9 @@ class CalibrationInUse:
     """Whether the surface is concentric with the spindle axis (from the free fits)."""
     runout: RunoutTracker | None = None
     """Where the surface's centre goes round the axis (when the spindle angle is known)."""
+    settling: Settling = field(default_factory=Settling)
+    """Whether the position was checked often enough that a frame may go without a free
+    fit."""
 
 
 @dataclass(frozen=True)

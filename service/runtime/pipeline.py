@@ -28,6 +28,7 @@ from drivers.camera.base import Camera, CameraError, Frame
 from service.measure.cadence import ReflectionWatch
 from service.measure.diameter import MeasureParams
 from service.measure.result import Measurement, Method
+from service.measure.runout_track import SpindleAngles
 from service.measuring import FrameRef, FrameSlots, measure_timed, worker_start
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 from service.runtime.roi import KEEP, RegionFollower
@@ -40,6 +41,21 @@ SHARED_MIN_BYTES = 256 * 1024
 """Frames from this size on reach a worker process through shared memory; a smaller region
 is pickled through the pool's pipe, which measured faster for it (a 170x347 region at 100
 frames/s: p99 23 against 35 ms; a whole 1376x1024 frame: 2 against 161 frames dropped)."""
+
+
+def frame_prior(frame_id: int, in_use: CalibrationInUse, angles: SpindleAngles | None
+                ) -> tuple[tuple[np.ndarray, float] | None, tuple[float, bool] | None]:
+    """Where a frame's circle is centred: the tracked spindle axis, or the surface's own
+    centre at the frame's spindle angle once its run-out is known; and that angle with which
+    of the two it is (None: no angle)."""
+    prior = in_use.tracker.center() if in_use.tracker is not None else None
+    if angles is None:
+        return prior, None
+    deg = angles.at(frame_id)
+    if in_use.runout is None or prior is None:
+        return prior, (deg, False)
+    about = in_use.runout.prior_at(frame_id, deg, *prior)
+    return (prior, (deg, False)) if about is None else (about, (deg, True))
 
 
 class FramePipeline:
@@ -86,8 +102,9 @@ class FramePipeline:
         self._next_take = 0.0
         self._follower: RegionFollower | None = None
         self._whole_until = 0.0
-        # The free circle for the axis tracker is fitted at most FREE_FIT_HZ times a second:
-        # the axis moves over minutes, and the fit costs a fifth of a frame's measurement.
+        # The free circle (for the axis tracker and the surface's position) is fitted at most
+        # FREE_FIT_HZ times a second once the position is settled: the axis moves over
+        # minutes, and the fit costs a fifth of a frame's measurement.
         self._free_fit_s = -1e9
         # A reflection is looked for a few times a second, and on every frame while one is
         # there (``ReflectionWatch``); the measurement itself checks every lopsided stripe.
@@ -188,11 +205,12 @@ class FramePipeline:
         if self._slots_shm is not None:
             self._slots_shm.close()
 
-    def _params_now(self) -> MeasureParams:
-        """The settings for the next frame: with the free fit and the reflection check when
-        they are due."""
+    def _params_now(self, in_use: CalibrationInUse) -> MeasureParams:
+        """The settings for the next frame: with the free fit (every frame until the
+        surface's position is settled, then when due) and the reflection check when due."""
         now = time.monotonic()
-        free = self.params.free_fit and now - self._free_fit_s >= 1.0 / FREE_FIT_HZ
+        free = self.params.free_fit and (not in_use.settling.settled
+                                         or now - self._free_fit_s >= 1.0 / FREE_FIT_HZ)
         if free:
             self._free_fit_s = now
         return self._variants[(free, self.reflections.due(now))]
@@ -216,21 +234,6 @@ class FramePipeline:
             return
         self.counters["region_requests"] += 1
 
-    def _prior(self, frame: Frame, in_use: CalibrationInUse
-               ) -> tuple[tuple[np.ndarray, float] | None, tuple[float, bool] | None]:
-        """Where the frame's circle is centred: the tracked spindle axis, or the surface's own
-        centre at the frame's spindle angle once its run-out is known; and that angle with
-        which of the two it is (None: no angle)."""
-        prior = in_use.tracker.center() if in_use.tracker is not None else None
-        angles = self.context.spindle
-        if angles is None:
-            return prior, None
-        deg = angles.at(frame.frame_id)
-        if in_use.runout is None or prior is None:
-            return prior, (deg, False)
-        about = in_use.runout.prior_at(frame.frame_id, deg, *prior)
-        return (prior, (deg, False)) if about is None else (about, (deg, True))
-
     async def _intake(self) -> None:
         """Frames from the camera to the worker pool, at most ``workers`` in flight."""
         loop = asyncio.get_running_loop()
@@ -252,8 +255,8 @@ class FramePipeline:
                 if in_use is None:
                     self.counters["frames_without_calibration"] += 1
                     continue
-                prior, spindle = self._prior(frame, in_use)
-                params = self._params_now()
+                prior, spindle = frame_prior(frame.frame_id, in_use, self.context.spindle)
+                params = self._params_now(in_use)
                 pool, ref = self._pool, self._shared(frame, in_use)
                 try:
                     fut = loop.run_in_executor(pool, measure_timed,

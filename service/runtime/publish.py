@@ -41,10 +41,8 @@ class Publisher:
         modbus.set_sequence(sequence.current)
 
     def __call__(self, frame: Frame, raw: Measurement, in_use: CalibrationInUse) -> None:
-        m, axis_seen = positioned(corrected(raw, in_use.correction), frame.frame_id, in_use)
-        tracker = in_use.tracker
-        if m and tracker is not None and axis_seen is not None:
-            tracker.update(*axis_seen, m.diameter_mm)
+        m = judged(corrected(raw, in_use.correction), frame.frame_id, in_use,
+                   frame.received_ns / 1e9)
         comp = self.compensation
         record = make_record(
             seq=self.sequence.next(), wall_time=time.time(), frame_id=frame.frame_id,
@@ -57,6 +55,28 @@ class Publisher:
         runout = in_use.runout.runout if in_use.runout is not None else None
         comp.submit(record, frame.received_ns / 1e9, held="runout" if runout is not None and
                     runout.tir_mm > self.max_tir_mm else None)
+
+
+def judged(m: Measurement, frame_id: int, in_use: CalibrationInUse, t_s: float
+           ) -> Measurement:
+    """``m`` (a frame taken at ``t_s``, seconds) judged for the surface's position
+    (``positioned``), the axis tracker told the spindle axis it saw when ``m`` stands, and
+    whether the position stays settled (``Settling``)."""
+    m, axis_seen = positioned(m, frame_id, in_use)
+    # A pass is a frame measured and checked; one refused as uncertain says nothing (an
+    # eccentric surface about the spindle axis is mostly that).
+    checked = m.free_center_mm is not None and m.free_center_cov is not None
+    passed = None if not checked else True if m.status is Status.OK else \
+        False if m.status is Status.NOT_CONCENTRIC else None
+    in_use.settling.seen(t_s, m.status not in _OFF_SHAFT, passed)
+    tracker = in_use.tracker
+    if m and tracker is not None and axis_seen is not None:
+        tracker.update(*axis_seen, m.diameter_mm)
+    return m
+
+
+_OFF_SHAFT = (Status.NO_STRIPE, Status.TOO_FEW_POINTS, Status.BAD_IMAGE)
+"""A frame with one of these saw no shaft: it may have been taken out."""
 
 
 def positioned(m: Measurement, frame_id: int, in_use: CalibrationInUse
@@ -84,9 +104,9 @@ def positioned(m: Measurement, frame_id: int, in_use: CalibrationInUse
         m = replace(m, status=Status.NOT_CONCENTRIC, reason=(
             f"this frame's centre lies {sigmas:.1f} sigma off the surface's run-out (limit "
             f"{runout.gate:.1f}): a new part or clamping?"))
+    runout.form.add(m)
     if free is None or known is None:
         return m, None
-    runout.form.add(m)  # at the free fits' cadence: frames spread over the revolutions
     return m, (free[0] - (known.center_at(axis, m.spindle_deg) - axis), free[1])
 
 

@@ -126,3 +126,26 @@ def test_the_form_of_the_frames_measured_about_the_surface_centre() -> None:
     assert shape.ront_mm == pytest.approx(0.016, abs=0.001 + 0.1 * 0.016)
     form.clear()
     assert not form.roundness().ok
+
+
+def test_the_position_settles_after_free_fits_that_pass_and_unsettles_on_a_doubt() -> None:
+    from service.measure.runout_track import Settling
+
+    s = Settling(frames=3, max_gap_s=0.5)
+    for i in range(2):
+        s.seen(i * 0.01, True, True)
+    assert not s.settled
+    s.seen(0.02, True, None)   # no free fit: neither way
+    s.seen(0.03, True, True)
+    assert s.settled
+    s.seen(0.04, True, False)  # a free fit refused as off the axis
+    assert not s.settled
+    for i in range(3):
+        s.seen(0.05 + i * 0.01, True, True)
+    assert s.settled
+    s.seen(0.08, False, None)  # no shaft under the laser: it may have been taken out
+    assert not s.settled
+    for i in range(3):
+        s.seen(0.09 + i * 0.01, True, True)
+    s.seen(2.0, True, None)    # the spindle stood (no encoder pulses)
+    assert not s.settled
