@@ -213,7 +213,9 @@ class HealthReport:
                              "modelled_frames": self.pipeline.counters["reflections_modelled"]},
                          "latest_age_s": feed.measurement_age_s(),
                          "latency": feed.latency_summary(), "axis_tracking": tracker,
-                         "runout": runout},
+                         "runout": runout,
+                         "position_settled": None if ctx.in_use is None
+                         else ctx.in_use.settling.settled},
             "calibration": info, "store_error": ctx.store_error or None,
             "plc": self._plc(),
             "api": {"https": self.settings.api.tls_certfile is not None
