@@ -78,6 +78,7 @@ bench: setup
 	$(PY) -m tests.bench.principal_point
 	$(PY) -m tests.bench.robustness
 	$(PY) -m tests.bench.rig_range
+	$(PY) -m tests.bench.turning_service
 	$(PY) -m tests.bench.camera_throughput
 	$(PY) -m tests.bench.service_throughput
 	$(PY) -m tests.bench.plant_publish

@@ -78,8 +78,41 @@ def service_throughput() -> str:
     return "\n".join([*rows, "", *dict.fromkeys(_measured(r) for r in runs)])
 
 
+def turning_service() -> str:
+    """The service's frame path on turning surfaces: the tuning set and the held-out one."""
+    def num(x: float | None, fmt: str) -> str:
+        return "-" if x is None else fmt.format(x)
+
+    out = []
+    for name, what in (("turning_service", "Tuning set"),
+                       ("turning_service_held_out", "Held out (scored once)")):
+        path = RESULTS / f"{name}.json"
+        if not path.exists():
+            continue
+        d = _load(name)
+        scored = d["cases"][0]["frames"]
+        out += [f"{what}: the last {scored} of {d['frames']} frames a case scored (the "
+                f"run-out is learnt in the first), seeds "
+                f"{', '.join(str(s) for s in d['seeds'])}, one row per case and seed.", "",
+                r"| surface | seed | measured | mean / max \|error\| | max \|error\| / u "
+                "| TIR error | RONt error | lobes (true) |",
+                "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in d["cases"]:
+            out.append(
+                f"| {r['case']} | {r['seed']} | {r['measured']}/{r['frames']} | "
+                f"{num(r['mean_abs_error_um'], '{:.2f}')} / "
+                f"{num(r['max_abs_error_um'], '{:.1f}')} um | "
+                f"{num(r['max_error_over_u'], '{:.1f}')} | "
+                f"{num(r['tir_error_um'], '{:+.1f} um')} | "
+                f"{num(r['ront_error_um'], '{:+.1f} um')} | "
+                f"{num(r['lobes'], '{}')} ({r['lobes_true']}) |")
+        out += ["", _measured(d["run"]), ""]
+    return "\n".join(out).rstrip("\n")
+
+
 RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
-                                        "service_throughput": service_throughput}
+                                        "service_throughput": service_throughput,
+                                        "turning_service": turning_service}
 
 
 def render_page(text: str) -> str:
