@@ -166,3 +166,46 @@ export function drawHistogram(canvas, values, lsl, usl, nominal) {
     ctx.stroke(); ctx.fillStyle = color; ctx.fillText(label, x(v) + 3, pad.t + 10);
   }
 }
+
+// The revolution in polar form: the reference circle, the measured profile about it (its
+// deviation magnified so that the largest reaches a quarter of the radius; rings in um), and
+// the spindle axis where it lies from the surface's centre (the eccentricity, same scale).
+// profile: {deg: [...], mm: [...]} or null; ecc: {mm, deg} or null.
+export function drawPolar(canvas, profile, ecc) {
+  const { ctx, w, h } = fit(canvas);
+  const cx = w / 2, cy = h / 2, r0 = Math.min(w, h) * 0.3;
+  const devs = profile ? profile.mm.map(Math.abs) : [];
+  const reach = Math.max(...devs, ecc ? ecc.mm : 0, 0.001);  // mm shown at a quarter radius
+  const stepUm = ticks(0, reach * 1000, 2).find((v) => v > 0) || reach * 1000;
+  const k = (r0 * 0.25) / reach;                              // px per mm of deviation
+  ctx.font = "11px system-ui"; ctx.fillStyle = "#9aa5b1";
+  ctx.strokeStyle = "rgba(154,165,177,.25)";
+  for (const ring of [-stepUm, stepUm]) {
+    const r = r0 + ring / 1000 * k;
+    if (r <= 0) continue;
+    ctx.setLineDash([3, 3]); ctx.beginPath(); ctx.arc(cx, cy, r, 0, 2 * Math.PI); ctx.stroke();
+  }
+  ctx.setLineDash([]);
+  ctx.fillText(`rings ±${stepUm.toFixed(stepUm < 1 ? 1 : 0)} µm`, 4, 14);
+  ctx.strokeStyle = "rgba(139, 224, 176, .8)";                // the reference circle
+  ctx.beginPath(); ctx.arc(cx, cy, r0, 0, 2 * Math.PI); ctx.stroke();
+  if (profile && profile.deg.length) {
+    ctx.strokeStyle = "#6fb3ff"; ctx.lineWidth = 1.5; ctx.beginPath();
+    profile.deg.forEach((d, i) => {
+      const a = d * Math.PI / 180, r = r0 + profile.mm[i] * k;
+      const px = cx + r * Math.cos(a), py = cy - r * Math.sin(a);
+      i ? ctx.lineTo(px, py) : ctx.moveTo(px, py);
+    });
+    ctx.closePath(); ctx.stroke(); ctx.lineWidth = 1;
+  } else {
+    ctx.fillText("form: not known yet", cx - 48, cy + 4);
+  }
+  if (ecc) {                                                  // the spindle axis
+    const a = ecc.deg * Math.PI / 180;
+    const px = cx - ecc.mm * k * Math.cos(a), py = cy + ecc.mm * k * Math.sin(a);
+    ctx.strokeStyle = "#e0a030"; ctx.beginPath();
+    ctx.moveTo(px - 6, py); ctx.lineTo(px + 6, py); ctx.moveTo(px, py - 6); ctx.lineTo(px, py + 6);
+    ctx.stroke();
+  }
+  ctx.fillStyle = "#9aa5b1"; ctx.fillText("0°", cx + r0 + 6, cy + 4);
+}

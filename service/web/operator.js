@@ -1,6 +1,6 @@
 // Operator view: the diameter against its tolerance, the trend, the gauge's state, the frame.
 import { $, api, clock, mm, um } from "./api.js";
-import { drawTrend } from "./chart.js";
+import { drawPolar, drawTrend } from "./chart.js";
 
 const MAX_POINTS = 600;
 const points = [];      // {seq, d}
@@ -95,6 +95,7 @@ export function onStatus(st) {
   else if (st.plc.outage_s == null) pill($("plc"), "idle: connects to write an offset", "warn");
   else pill($("plc"), `unreachable for ${st.plc.outage_s.toFixed(0)} s: ${st.plc.last_error}`,
             "bad");
+  showForm(st.pipeline.runout);
   const ul = $("problems");
   ul.replaceChildren(...st.problems.map((p) => Object.assign(document.createElement("li"),
                                                              { textContent: p.text,
@@ -106,4 +107,21 @@ export function refreshFrame() {
   const next = new Image();
   next.onload = () => { img.src = next.src; };
   next.src = "/api/v1/frame/latest.jpg?width=688&t=" + Date.now();
+}
+
+// Form and position, when the spindle's angle is known (status pipeline.runout).
+function showForm(ro) {
+  $("form-card").hidden = !ro;
+  if (!ro) return;
+  const shape = ro.roundness && ro.roundness.ok ? ro.roundness : null;
+  $("tir").textContent = ro.known ? `${um(ro.tir_mm)} ± ${um(ro.tir_uncertainty_mm)}` +
+    (ro.tir_mm > ro.max_tir_mm ? ` (beyond ${um(ro.max_tir_mm)}: offsets held)` : "") : "–";
+  $("ecc-phase").textContent = ro.known ? `${ro.eccentricity_deg.toFixed(0)}°` : "–";
+  $("ront").textContent = shape ? `${um(shape.ront_mm)} ± ${um(shape.ront_uncertainty_mm)}`
+    : "–";
+  $("lobes").textContent = shape ? (shape.lobes ? shape.lobes + (shape.odd_lobing
+    ? " (odd: a two-point gauge cannot see it)" : "") : "none above the noise") : "–";
+  $("runout-why").textContent = ro.known ? "" : ro.reason || "";
+  drawPolar($("polar"), shape ? { deg: shape.profile_deg, mm: shape.profile_mm } : null,
+            ro.known ? { mm: ro.eccentricity_mm, deg: ro.eccentricity_deg } : null);
 }

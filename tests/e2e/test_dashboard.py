@@ -96,6 +96,35 @@ def test_operator_view_is_live(service, browser) -> None:
     assert phone.evaluate("document.documentElement.scrollWidth") <= 391
 
 
+def test_the_operator_sees_the_run_out_and_the_form(tmp_path, browser) -> None:
+    """With the spindle's angle, a part clamped 50 um off: the operator view shows its TIR
+    (beyond the limit: offsets held), the form and a polar plot of the revolution."""
+    from drivers.sim.control import control
+    from tests.faults.test_runout import ENCODER, TURNING_36
+
+    svc = start_service(tmp_path, extra_toml=ENCODER, camera_toml="sim_replay_frames = 36\n")
+    try:
+        assert wait_ready(svc)
+        assert control(svc.control_port, {"set": {"turning": TURNING_36}})["ok"]
+        page = open_page(browser, svc.url + "/ui/#operator")
+        expect(page.locator("#form-card")).to_be_visible(timeout=15000)
+        expect(page.locator("#tir")).to_contain_text("offsets held", timeout=20000)
+        tir = float(page.locator("#tir").inner_text().split()[0])
+        assert abs(tir - 100.0) < 8.0, tir
+        expect(page.locator("#lobes")).to_have_text("none above the noise", timeout=20000)
+        expect(page.locator("#ront")).to_contain_text("µm")
+        # The profile is drawn: pixels of its blue on the canvas.
+        wait_for_js(page, """(() => { const c = document.getElementById('polar');
+            const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+            for (let i = 0; i < d.length; i += 4)
+              if (d[i + 2] > 200 && d[i] < 160 && d[i + 3] > 200) return true;
+            return false; })()""")
+        shot(page, "operator-runout")
+        assert not page.errors  # type: ignore[attr-defined]
+    finally:
+        stop_service(svc)
+
+
 def test_the_dashboard_links_to_the_manual_it_serves(service, browser) -> None:
     """The manual (``make docs``) is served by the gauge itself, for a closed plant network:
     from the dashboard's footer to its operating page, with nothing fetched from outside."""
