@@ -17,13 +17,14 @@ import contextlib
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from drivers.camera.base import (
     NO_REGION_REQUEST,
+    BlockIds,
     CameraConfig,
     CameraError,
     CameraState,
@@ -104,6 +105,7 @@ class _Session:
     sensor: tuple[int, int] = (0, 0)                  # width, height, px
     region: tuple[int, int, int, int] = (0, 0, 0, 0)  # x, y, width, height in force
     previous: tuple[int, int, int, int] = (0, 0, 0, 0)  # ... and before the last change
+    ids: BlockIds = field(default_factory=BlockIds)    # frame numbers from block ids
 
 
 _STREAM_INFOS = {
@@ -373,7 +375,7 @@ class AravisCamera(ThreadedCamera):
         if bits == 16:
             image = image.astype(np.uint16, copy=False)
         whole = region == (0, 0, *session.sensor)
-        return Frame(image, int(buf.get_frame_id()), int(buf.get_timestamp()),
+        return Frame(image, session.ids.count(int(buf.get_frame_id())), int(buf.get_timestamp()),
                      time.monotonic_ns(), None if whole else (region[0], region[1]))
 
     def _update_stream_counters(self, session: _Session) -> None:

@@ -85,6 +85,27 @@ class CameraConfig:
             raise CameraError("n_buffers must be >= 2 and queue_size >= 1")
 
 
+@dataclass
+class BlockIds:
+    """A stream's frame numbers from its block ids, which in GigE Vision 1.x are 16 bits and
+    go from 65535 to 1 (0 is not a block id): counted on across that wrap, so that they keep
+    rising; an id that goes back by less than half the range is the camera starting again,
+    and is taken as it comes."""
+
+    _last: int | None = None
+    _wraps: int = 0
+
+    def count(self, block_id: int) -> int:
+        """The frame number of this block id."""
+        if self._last is not None and block_id < self._last:
+            if self._last - block_id > 0x8000 and self._last <= 0xFFFF:
+                self._wraps += 1
+            else:
+                self._wraps = 0
+        self._last = block_id
+        return block_id + self._wraps * 0xFFFF
+
+
 @dataclass(frozen=True)
 class Frame:
     """One complete image.
@@ -94,7 +115,9 @@ class Frame:
     image : ndarray, shape (H, W)
         uint8 for Mono8, uint16 for Mono12/Mono16.
     frame_id : int
-        The camera's frame number.
+        The camera's frame number, counting on across the 16-bit block ids of GigE Vision
+        1.x (``BlockIds``): a frame triggered by the spindle's encoder is at a known angle
+        from it.
     timestamp_ns : int
         The device's timestamp, as it came (ns, device clock).
     received_ns : int

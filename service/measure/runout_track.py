@@ -11,7 +11,7 @@ uncertainty there. Before that (the first revolution, a frame rate locked to the
 gives nothing, and the frames stay under the concentricity watch. A free centre that leaves
 the known run-out beyond ``gate`` sigmas ``lost_after`` times in a row (a new part, another
 clamping) forgets it and learns again; so does a frame number that goes backwards (the
-camera started again, or its 16-bit block id wrapped: the angle's phase is lost with it).
+camera started again: the angle's phase is lost with it).
 Pure: centres and angles in, a prior out.
 """
 

@@ -140,7 +140,6 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
                        )["ok"]
         events = until(lambda: applied_in(plc_log), 40, "an offset applied once concentric")
         assert -100 <= events[0]["value_units"] < -40, events[0]
-        # (Learnt again: the camera's 16-bit frame numbers may also have wrapped meanwhile.)
         r = until(lambda: (r := svc.get("/api/v1/status").json()["pipeline"]["runout"])[
             "known"] and r, 10, "the run-out of the part turned true")
         assert r["tir_mm"] < 0.01 and r["resets"] >= 1, r
