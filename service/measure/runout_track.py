@@ -168,6 +168,7 @@ class RunoutTracker:
     _runout: Runout | None = field(default=None, repr=False)
     _misses: int = 0
     _last_id: int | None = None
+    _axis: np.ndarray | None = field(default=None, repr=False)
 
     def reset(self, why: str) -> None:
         """Forget the run-out (``why`` says so until it is known again)."""
@@ -221,6 +222,7 @@ class RunoutTracker:
         return sigmas
 
     def _fit(self, axis_mm: np.ndarray) -> None:
+        self._axis = axis_mm
         n = len(self._fits)
         if n < self.min_frames:
             self._runout = None
@@ -234,6 +236,19 @@ class RunoutTracker:
                            f"degrees, need {self.min_span_deg:.0f} (a frame rate locked to "
                            "the spindle never goes round)")
             return
+        fixed = fit_runout(np.array([f[1] for f in self._fits]),
+                           np.array([f[2] for f in self._fits]), deg, axis_mm, fit_axis=False)
+        check = None if fixed.ok and fixed.chi2_per_dof <= self.max_chi2 else self.axis_check()
+        if check is not None and check["chi2_per_dof"] <= self.max_chi2:
+            # The window goes round one axis: off the tracked one, it is the axis that is
+            # wrong (the calibration), not the part that changed.
+            dx, dy = (v * 1000.0 for v in check["shift_mm"])
+            if math.hypot(dx, dy) > max(4.0 * check["shift_uncertainty_mm"] * 1000.0, 2.0):
+                self._runout = None
+                self.reason = (f"the surface goes round an axis ({dx:+.1f}, {dy:+.1f}) um off "
+                               "the tracked spindle axis: check the calibration's axis (a "
+                               "master check, or calibrate the axis again)")
+                return
         r = self._fit_pruned(axis_mm)
         if not r.ok:
             self._runout, self.reason = None, r.reason
@@ -289,7 +304,26 @@ class RunoutTracker:
                        tir_mm=r.tir_mm, tir_uncertainty_mm=r.tir_uncertainty_mm,
                        eccentricity_deg_uncertainty=r.eccentricity_deg_uncertainty,
                        chi2_per_dof=r.chi2_per_dof)
+        out["axis_check"] = self.axis_check()
         return out
+
+    def axis_check(self) -> dict | None:
+        """Where the window's free fits put the spindle axis relative to the tracked one
+        (the run-out fitted with the axis free: section mm, with its standard uncertainty),
+        None when they cannot tell. A check of the calibrated axis on a surface just turned,
+        not a correction: the free fits' own bias along their arcs' bisector (a micrometre
+        or two) moves it too."""
+        if self._axis is None or len(self._fits) < 3:
+            return None
+        f = list(self._fits)
+        r = fit_runout(np.array([x[1] for x in f]), np.array([x[2] for x in f]),
+                       np.array([x[0] for x in f]), self._axis, fit_axis=True)
+        if not r.ok:
+            return None
+        xx, _, yy = r.axis_shift_cov
+        return {"shift_mm": list(r.axis_shift_mm),
+                "shift_uncertainty_mm": math.sqrt(max(xx + yy, 0.0) / 2.0),
+                "chi2_per_dof": r.chi2_per_dof}
 
 
 

@@ -149,3 +149,20 @@ def test_the_position_settles_after_free_fits_that_pass_and_unsettles_on_a_doubt
         s.seen(0.09 + i * 0.01, True, True)
     s.seen(2.0, True, None)    # the spindle stood (no encoder pulses)
     assert not s.settled
+
+
+def test_the_frames_check_the_tracked_axis() -> None:
+    """The surface's frames go round an axis 4 um off the one tracked: the check says so."""
+    t = RunoutTracker()
+    angles = SpindleAngles(37.0)
+    deg = np.array([angles.at(i) for i in range(40)])
+    centres, covs = free_fits(frames(0.05, 30.0, [], deg))
+    tracked = AXIS - np.array([0.004, 0.0])
+    for i, (d, c, v) in enumerate(zip(deg, centres, covs, strict=True)):
+        t.update(i, float(d), c, v, tracked)
+    check = t.status()["axis_check"]
+    assert check is not None
+    if t.runout is None:  # a fixed offset the eccentricity alone cannot take: named
+        assert "um off the tracked spindle axis" in t.reason, t.reason
+    shift = np.array(check["shift_mm"])
+    assert np.linalg.norm(shift - [0.004, 0.0]) <= max(4 * check["shift_uncertainty_mm"], 0.001)
