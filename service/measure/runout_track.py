@@ -25,7 +25,12 @@ import numpy as np
 
 from service.measure.form import Roundness, Runout, fit_runout, rotations, span_deg
 from service.measure.result import Measurement, Status
-from service.measure.turning import MIN_CENTRE_SIGMA_MM, centre_sigma_at, roundness_of
+from service.measure.turning import (
+    MIN_CENTRE_SIGMA_MM,
+    centre_sigma_at,
+    roundness_of,
+    significant_lobes,
+)
 
 _NO_POINTS = np.empty((0, 2))
 
@@ -105,6 +110,9 @@ class FormFrames:
     bins: int = 36
     points: int = 100
     added: int = 0
+    lobes: list = field(default_factory=list)
+    """The harmonics (order, amplitude mm, phase rad) of the last form made that stand above
+    their noise: taken off the points of the frames that follow (``turning.about_the_form``)."""
     _kept: dict = field(default_factory=dict, repr=False)
 
     def add(self, m: Measurement) -> None:
@@ -121,14 +129,17 @@ class FormFrames:
     def clear(self) -> None:
         """Forget the frames (another part, another clamping)."""
         self._kept.clear()
+        self.lobes = []
 
     def roundness(self, upr: int = 50) -> Roundness:
         """The form of the frames kept (``ok`` False with the reason when they do not cover
-        the material's angles)."""
+        the material's angles); its significant harmonics become ``lobes``."""
         kept = list(self._kept.values())
         if not kept:
             return Roundness(False, reason="no frame measured about the surface's centre yet")
-        return roundness_of(kept, np.array([m.spindle_deg for m in kept]), upr)
+        shape = roundness_of(kept, np.array([m.spindle_deg for m in kept]), upr)
+        self.lobes = significant_lobes(shape)
+        return shape
 
 
 @dataclass

@@ -177,7 +177,7 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
     for _ in range(FORM_ROUNDS):
         # A surface out of round moves each arc's free centre and bends its circle: with the
         # form known, take it off every frame's points and fit again.
-        lobes = _significant(shape)
+        lobes = significant_lobes(shape)
         if not lobes:
             break
         again, refitted = _about_the_form(second, angles, axis, lobes, params)
@@ -188,7 +188,7 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
     return TurningFrames(second, runout, fuse(second), shape if form else None, axis_check)
 
 
-def _significant(shape: Roundness) -> list[tuple[int, float, float]]:
+def significant_lobes(shape: Roundness) -> list[tuple[int, float, float]]:
     """The harmonics (order, amplitude mm, phase rad) that stand above their noise."""
     if not shape.ok or not shape.dominant_order:
         return []
@@ -239,23 +239,32 @@ def _about_the_form(ms: list[Measurement], angles: np.ndarray, axis: np.ndarray,
             out.append(m)
             continue
         centre = runout.center_at(axis, float(theta))
-        pts = _off_form(m.section_mm, centre, theta, lobes)
-        circ = fits.fit_axis_prior(pts, centre, centre_sigma_at(runout, float(theta)))
-        if not circ:
-            out.append(replace(m, status=Status.FIT_FAILED, diameter_mm=None,
-                               reason=circ.reason))
-            continue
-        std = 2.0 * circ.radius_std
-        ok = bool(np.isfinite(std) and std <= params.max_uncertainty_mm)
-        out.append(replace(
-            m, status=Status.OK if ok else Status.UNCERTAIN,
-            diameter_mm=float(circ.diameter) if ok else None,
-            center_mm=(float(circ.center[0]), float(circ.center[1])),
-            uncertainty_mm=float(std) if np.isfinite(std) else None,
-            reason="" if ok else f"diameter uncertain by {std * 1000:.1f} um (limit "
-            f"{params.max_uncertainty_mm * 1000:.1f} um) with the surface's form taken off",
-            note="measured with the surface's form taken off"))
+        out.append(about_the_form(m, centre, centre_sigma_at(runout, float(theta)),
+                                  float(theta), lobes, params.max_uncertainty_mm))
     return runout, out
+
+
+def about_the_form(m: Measurement, centre_mm: np.ndarray, centre_sigma_mm: float,
+                   spindle_deg: float, lobes: list[tuple[int, float, float]],
+                   max_uncertainty_mm: float) -> Measurement:
+    """``m``'s circle fitted again about the surface's centre at its spindle angle (known to
+    ``centre_sigma_mm``) with the form's ``lobes`` (order, amplitude mm, phase rad) taken off
+    its points: the diameter of the form's reference circle, not of the arc's share of the
+    lobes (``fit.fit_axis_prior``)."""
+    pts = _off_form(m.section_mm, np.asarray(centre_mm, np.float64), spindle_deg, lobes)
+    circ = fits.fit_axis_prior(pts, centre_mm, centre_sigma_mm)
+    if not circ:
+        return replace(m, status=Status.FIT_FAILED, diameter_mm=None, reason=circ.reason)
+    std = 2.0 * circ.radius_std
+    ok = bool(np.isfinite(std) and std <= max_uncertainty_mm)
+    return replace(
+        m, status=Status.OK if ok else Status.UNCERTAIN,
+        diameter_mm=float(circ.diameter) if ok else None,
+        center_mm=(float(circ.center[0]), float(circ.center[1])),
+        uncertainty_mm=float(std) if np.isfinite(std) else None,
+        reason="" if ok else f"diameter uncertain by {std * 1000:.1f} um (limit "
+        f"{max_uncertainty_mm * 1000:.1f} um) with the surface's form taken off",
+        note="measured with the surface's form taken off")
 
 
 def roundness_of(ms: list[Measurement], angles: np.ndarray, upr: int) -> Roundness:

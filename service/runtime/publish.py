@@ -3,6 +3,7 @@ feed (latest, history, live stream) and compensation, in that order."""
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
 
@@ -10,8 +11,8 @@ import numpy as np
 
 from drivers.camera.base import Frame
 from service.calibrate.master import corrected
-from service.measure.result import Measurement, Status
-from service.measure.turning import concentricity_check
+from service.measure.result import MAX_UNCERTAINTY_MM, Measurement, Status
+from service.measure.turning import about_the_form, centre_sigma_at, concentricity_check
 from service.record import make_record
 from service.runtime.calibration import CalibrationInUse
 from service.runtime.compensating import CompensationService
@@ -96,7 +97,7 @@ def positioned(m: Measurement, frame_id: int, in_use: CalibrationInUse
     if runout is None or tracker is None or m.spindle_deg is None:
         return not_concentric(m, in_use), free
     known = runout.runout
-    axis, _ = tracker.center()
+    axis, axis_sigma = tracker.center()
     sigmas = runout.update(frame_id, m.spindle_deg, *free, axis) if free else float("nan")
     if not m.about_runout:
         return not_concentric(m, in_use), free
@@ -104,6 +105,12 @@ def positioned(m: Measurement, frame_id: int, in_use: CalibrationInUse
         m = replace(m, status=Status.NOT_CONCENTRIC, reason=(
             f"this frame's centre lies {sigmas:.1f} sigma off the surface's run-out (limit "
             f"{runout.gate:.1f}): a new part or clamping?"))
+    if known is not None and runout.form.lobes and m.status in (Status.OK, Status.UNCERTAIN) \
+            and len(m.section_mm):
+        # An out-of-round surface: its circle about the centre, with the form taken off.
+        m = about_the_form(m, known.center_at(axis, m.spindle_deg), math.hypot(
+            centre_sigma_at(known, m.spindle_deg), axis_sigma), m.spindle_deg,
+            runout.form.lobes, MAX_UNCERTAINTY_MM)
     runout.form.add(m)
     if free is None or known is None:
         return m, None

@@ -67,6 +67,10 @@ WARM_UP = 40
 """Frames before scoring: the run-out is learnt in the first revolution (its frames are
 judged by the concentricity watch meanwhile, and counted apart)."""
 
+FORM_EVERY = 40
+"""The form made again every this many frames (the service: every 2 s; 200 frames at 100
+frames a second, but the bench's cases are short)."""
+
 FREE_EVERY = 8
 """Once the position is settled, a free fit every this many frames: 12 a second at 100
 frames a second, as the service (every frame until then)."""
@@ -95,6 +99,8 @@ def run_case(case: Case, seed: int, frames: int, rig: RigConfig) -> dict:
         if spindle is not None:
             m = replace(m, spindle_deg=spindle[0], about_runout=spindle[1])
         m = judged(m, i, in_use, i / 100.0)
+        if i % FORM_EVERY == FORM_EVERY - 1 and in_use.runout.runout is not None:
+            in_use.runout.form.roundness()  # as the service's FormWatch, every 2 s
         if i < WARM_UP:
             early += m.status is not Status.OK
             continue

@@ -166,3 +166,37 @@ def test_the_frames_check_the_tracked_axis() -> None:
         assert "um off the tracked spindle axis" in t.reason, t.reason
     shift = np.array(check["shift_mm"])
     assert np.linalg.norm(shift - [0.004, 0.0]) <= max(4 * check["shift_uncertainty_mm"], 0.001)
+
+
+def test_the_publisher_takes_the_known_form_off_a_frame() -> None:
+    """A lobed surface's frame measured about its centre: with the form known, its circle is
+    that of the form's reference circle (here R = 15 mm exactly), not the arc's share of it."""
+    import math
+
+    from calib_store.store import CalibrationInfo
+    from service.measure import fit as fits
+    from service.measure.axis_track import AxisTracker
+    from service.measure.form import ConcentricityWatch
+    from service.measure.result import Measurement, Method, Status
+    from service.runtime.calibration import CalibrationInUse
+    from service.runtime.publish import positioned
+
+    lobes = [(2, 0.008, 20.0)]
+    runout = RunoutTracker()
+    feed(runout, 50.0, 30.0, 37.0, 30)
+    runout.form.lobes = [(2, 0.008, math.radians(20.0))]
+    in_use = CalibrationInUse(CalibrationInfo(1, 0.0, "", "", True, None), None, None, None,
+                              AxisTracker(AXIS, 0.001), ConcentricityWatch(), runout)
+    plain_err, got_err = [], []
+    for i in range(31, 31 + 36):
+        theta = SpindleAngles(37.0).at(i)
+        (pts, centre), = frames(0.05, 30.0, lobes, np.array([theta]), noise_mm=0.0002, seed=i)
+        plain = fits.fit_axis_prior(pts, centre, 0.0015)
+        m = Measurement(Status.OK, Method.AXIS, plain.diameter, center_mm=tuple(plain.center),
+                        uncertainty_mm=0.002, section_mm=pts, spindle_deg=theta,
+                        about_runout=True)
+        got, _ = positioned(m, i, in_use)
+        assert got.status is Status.OK and "form taken off" in got.note
+        plain_err.append(abs(plain.diameter - 30.0))
+        got_err.append(abs(got.diameter_mm - 30.0))
+    assert np.mean(got_err) < 0.5 * np.mean(plain_err), (np.mean(got_err), np.mean(plain_err))
