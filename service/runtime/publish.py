@@ -100,7 +100,17 @@ def positioned(m: Measurement, frame_id: int, in_use: CalibrationInUse
     axis, axis_sigma = tracker.center()
     sigmas = runout.update(frame_id, m.spindle_deg, *free, axis) if free else float("nan")
     if not m.about_runout:
-        return not_concentric(m, in_use), free
+        # With the spindle's angle, a diameter about the spindle axis is not taken before the
+        # run-out says the surface is concentric: one frame cannot tell an offset along its
+        # arc's bisector from a change of diameter (a part clamped 50 um off passed five
+        # frames in a row that way, 77 um wrong).
+        m = not_concentric(m, in_use)
+        if m:
+            m = replace(m, status=Status.UNCERTAIN, reason=(
+                f"the surface's run-out is not known yet ({runout.reason or 'learning'}): "
+                "with the spindle's angle, a diameter is taken about the surface's own "
+                "centre"))
+        return m, free
     if m and sigmas > runout.gate:
         m = replace(m, status=Status.NOT_CONCENTRIC, reason=(
             f"this frame's centre lies {sigmas:.1f} sigma off the surface's run-out (limit "
