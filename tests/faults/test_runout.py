@@ -29,8 +29,10 @@ def test_a_part_clamped_off_the_axis_holds_offsets_until_it_runs_true(tmp_path) 
         assert reply["ok"], reply
         until(lambda: "not_concentric" in [p["code"] for p in svc.get(
             "/api/v1/status").json()["problems"]], 20, "the run-out said as a problem")
-        status, faults = registers(svc.modbus_port, 4, 2)
-        assert faults & 1 << 10 and not status & 1 << 9, (status, faults)  # refused, no angle
+        # The registers follow the status every 0.2 s: refused, no angle (bit 10), no run-out.
+        status, faults = until(lambda: (w := registers(svc.modbus_port, 4, 2))[1] & 1 << 10
+                               and w, 5, "fault bit not_concentric in the registers")
+        assert not status & 1 << 9, (status, faults)
         time.sleep(12.0)  # long enough for offsets at the test's tuning (window 5, 10/s)
         assert applied_in(plc_log) == [], "an offset was written from an off-axis surface"
         latest = svc.get("/api/v1/measurements/latest").json()
