@@ -133,7 +133,8 @@ class MqttPublisher:
         self._latest: MeasurementRecord | None = None
         self._sent_seq = -1
         self._last_measurement_s = -float("inf")
-        self._wake = asyncio.Event()
+        self._wake = asyncio.Event()  # a new measurement
+        self._decision_wake = asyncio.Event()  # a decision in the outbox
         self._pending: set[asyncio.Future] = set()
         self.connected = False
         self.problem = ""
@@ -178,7 +179,7 @@ class MqttPublisher:
             self.problem = f"MQTT outbox cannot be written ({err})"
         elif fut.result():
             log.warning("MQTT outbox full: %d oldest decisions dropped", fut.result())
-        self._wake.set()
+        self._decision_wake.set()
 
     async def _outbox(self, fn: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self._disk, fn, *args)
@@ -233,32 +234,53 @@ class MqttPublisher:
                                  retain=True, timeout=2.0)
 
     async def _serve(self, client: aiomqtt.Client) -> None:
+        """The decisions and the live stream on one connection, each in a loop of its own: a
+        decision waiting for its acknowledgement or for the outbox's disk never holds back a
+        measurement (at 50 gauges on a busy host it had let the next one replace it)."""
+        tasks = [asyncio.create_task(self._decisions(client)),
+                 asyncio.create_task(self._live(client))]
+        try:
+            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
+            for t in done:
+                t.result()  # the connection's error, for run() to report
+        finally:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def _decisions(self, client: aiomqtt.Client) -> None:
+        while True:
+            self._decision_wake.clear()
+            await self._drain(client)
+            await self._decision_wake.wait()
+
+    async def _live(self, client: aiomqtt.Client) -> None:
+        """The latest measurement at most ``measurement_hz``, health every ``health_s``."""
         s = self.settings
         period_s = 1.0 / s.measurement_hz
         next_health = time.monotonic()
         while True:
             self._wake.clear()
-            await self._drain(client)
             now = time.monotonic()
             latest = self._latest
-            wait_s = next_health - now
-            if latest is not None and latest.seq != self._sent_seq:
-                due = self._last_measurement_s + period_s
-                if now >= due:
-                    await client.publish(self.topic("measurement"), json.dumps(
-                        measurement_payload(latest, self.gauge_id)).encode(),
-                        qos=s.qos_measurement, timeout=PUBLISH_TIMEOUT_S)
-                    self._sent_seq, self._last_measurement_s = latest.seq, now
-                    self.counters["measurements"] += 1
-                else:
-                    wait_s = min(wait_s, due - now)
+            due = self._last_measurement_s + period_s
+            if latest is not None and latest.seq != self._sent_seq and now >= due:
+                await client.publish(self.topic("measurement"), json.dumps(
+                    measurement_payload(latest, self.gauge_id)).encode(),
+                    qos=s.qos_measurement, timeout=PUBLISH_TIMEOUT_S)
+                self._sent_seq, self._last_measurement_s = latest.seq, now
+                self.counters["measurements"] += 1
             if now >= next_health:
                 await client.publish(self.topic("health"), json.dumps(
                     {"gauge_id": self.gauge_id, "time": time.time(), **self._health()},
                     default=str).encode(), qos=0, timeout=PUBLISH_TIMEOUT_S)
                 self.counters["health"] += 1
                 next_health = now + s.health_s
-                wait_s = s.health_s
+            now = time.monotonic()
+            wait_s = next_health - now
+            latest = self._latest
+            if latest is not None and latest.seq != self._sent_seq:
+                wait_s = min(wait_s, self._last_measurement_s + period_s - now)
             if wait_s > 0:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(wait_s):  # no task per wait (wait_for makes one)

@@ -32,6 +32,12 @@ class FleetResult:
     decisions_received: int
     decisions_out_of_order: int
     cpu_s: float  # this process: publishers, their feeding, and the subscriber
+    # rounds fed (one measurement to every gauge), and of those the ones the next round
+    # followed within the publisher's own minimum interval: a stall of this process (the
+    # machine busy elsewhere) fed those in a burst, and each gauge keeps only its latest
+    rounds_fed: int = 0
+    rounds_superseded: int = 0
+    longest_stall_s: float = 0.0
 
     @property
     def delivered_per_s(self) -> float:
@@ -85,7 +91,7 @@ async def run_fleet(port: int, folder: Path, gauges: int = 50, seconds: float = 
     sub = asyncio.create_task(_subscriber(port, got, ready))
     await asyncio.wait_for(ready.wait(), 10)
     pubs = [MqttPublisher(MqttSettings(host="127.0.0.1", port=port, gauge_id=f"g{i:03d}",
-                                       measurement_hz=measurement_hz * 2, health_s=3600),
+                                       measurement_hz=2 * measurement_hz, health_s=3600),
                           Outbox(folder / f"outbox-{i}.db", 10_000), dict)
             for i in range(gauges)]
     tasks = [asyncio.create_task(p.run()) for p in pubs]
@@ -96,8 +102,10 @@ async def run_fleet(port: int, folder: Path, gauges: int = 50, seconds: float = 
     t0 = time.monotonic()
     seq, decisions, next_decision = 0, 0, t0 + decision_every_s
     period = 1.0 / measurement_hz
+    fed_at: list[float] = []
     while (now := time.monotonic()) < t0 + seconds:
         seq += 1
+        fed_at.append(now)
         for p in pubs:
             p.measurement(_record(seq))
         if now >= next_decision:
@@ -117,6 +125,8 @@ async def run_fleet(port: int, folder: Path, gauges: int = 50, seconds: float = 
     sub.cancel()
     await asyncio.gather(sub, return_exceptions=True)
     sent_m = sum(p.counters["measurements"] for p in pubs)
+    gaps = [b - a for a, b in itertools.pairwise(fed_at)]
+    min_interval_s = 1.0 / (2 * measurement_hz)  # the publishers are given twice the rate
     order_breaks = 0
     for i in range(gauges):
         ds = [s for g, s in got["decision"] if g == f"g{i:03d}"]
@@ -125,4 +135,6 @@ async def run_fleet(port: int, folder: Path, gauges: int = 50, seconds: float = 
         gauges=gauges, seconds=seconds, measurements_sent=sent_m,
         measurements_received=len(got["measurement"]), decisions_sent=decisions * gauges,
         decisions_received=len(got["decision"]), decisions_out_of_order=order_breaks,
-        cpu_s=(cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime))
+        cpu_s=(cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
+        rounds_fed=seq, rounds_superseded=sum(g < min_interval_s for g in gaps),
+        longest_stall_s=max((g - period for g in gaps), default=0.0))
