@@ -1,7 +1,9 @@
 """Robust statistics of a frame's few hundred values, without numpy's per-call overhead.
 
 ``np.median`` costs about 19 us whatever the length (a copy, NaN checks, a mean of two); a
-tracked frame takes nine medians of a few hundred values. Pure; no I/O.
+tracked frame takes nine medians of a few hundred values. Selecting the rows of a 2-D array
+by a boolean mask costs 8 us for 500 rows, by ``take`` of their indices under 1 us. Pure; no
+I/O.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ import math
 
 import numpy as np
 
-__all__ = ["median"]
+__all__ = ["median", "row_index", "rows"]
 
 
 def median(values: np.ndarray) -> float:
@@ -25,3 +27,13 @@ def median(values: np.ndarray) -> float:
         return float(np.partition(a, k)[k])
     part = np.partition(a, (k - 1, k))
     return 0.5 * (float(part[k - 1]) + float(part[k]))
+
+
+def row_index(keep: np.ndarray) -> np.ndarray:
+    """The indices a boolean mask selects (an index array as it is), for ``rows``."""
+    return np.flatnonzero(keep) if keep.dtype == np.bool_ else keep
+
+
+def rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``a[index]`` for an index array (``row_index``), without boolean indexing's cost."""
+    return a.take(index, axis=0)

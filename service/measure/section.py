@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.measure.robust import row_index, rows
 from service.measure.stripe import StripePoints
 
 
@@ -212,4 +213,5 @@ class SectionPoints:
         when the mask keeps them all)."""
         if keep.dtype == np.bool_ and keep.all():
             return self
-        return SectionPoints(self.stripe.subset(keep), self.points3d[keep], self.section[keep])
+        i = row_index(keep)
+        return SectionPoints(self.stripe.subset(i), rows(self.points3d, i), rows(self.section, i))

@@ -29,7 +29,7 @@ from service.measure.band import (
     tube_band,
     without_background,
 )
-from service.measure.robust import median
+from service.measure.robust import median, row_index, rows
 
 __all__ = ["Band", "StripeParams", "StripePoints", "extract_stripe", "full_scale",
            "matched_scale", "reject_weak", "steger_centres", "with_scale"]
@@ -197,12 +197,13 @@ class StripePoints:
         when the mask keeps them all: the arrays are never changed in place)."""
         if keep.dtype == np.bool_ and keep.all():
             return self
+        i = row_index(keep)
         return StripePoints(
-            self.xy[keep], self.normal[keep], self.strength[keep], self.width_px[keep],
-            self.background, self.noise, self.reason,
-            None if self.peak is None else self.peak[keep],
-            None if self.chain is None else self.chain[keep],
-            None if self.balance is None else self.balance[keep],
+            rows(self.xy, i), rows(self.normal, i), rows(self.strength, i),
+            rows(self.width_px, i), self.background, self.noise, self.reason,
+            None if self.peak is None else rows(self.peak, i),
+            None if self.chain is None else rows(self.chain, i),
+            None if self.balance is None else rows(self.balance, i),
             self.filter_px,
         )
 
