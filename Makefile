@@ -80,7 +80,12 @@ bench: setup
 	$(PY) -m tests.bench.rig_range
 	$(PY) -m tests.bench.turning_service
 	$(PY) -m tests.bench.camera_throughput
-	$(PY) -m tests.bench.service_throughput
+	$(PY) -m tests.bench.service_throughput --seconds 60 --fps 100 --roi on --embedded \
+		--json bench-results/service_throughput_embedded.json
+	$(PY) -m tests.bench.service_throughput --seconds 60 --fps 100 \
+		--json bench-results/service_throughput_100fps.json
+	$(PY) -m tests.bench.service_throughput --seconds 30 --fps 200 --roi on \
+		--json bench-results/service_throughput_200fps.json
 	$(PY) -m tests.bench.plant_publish
 	$(PY) -m tests.bench.closed_loop
 	$(PY) -m tests.bench.guard --runs 3 --write

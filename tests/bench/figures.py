@@ -57,6 +57,38 @@ def core_throughput() -> str:
         f"{rc['median_frame_ms']:.2f} ms.", "", *rows, "", _measured(d["run"])])
 
 
+def core_stages() -> str:
+    """Where a tracked ``axis`` frame's time goes, and what a reflection check adds."""
+    d = _load("core_throughput")
+    st, rc = d["stages_ms"], d["reflection_check"]
+    tracked = d["core"]["axis"]["median_frame_ms"]
+    rows = ["| stage | ms per frame |", "|---|---:|"]
+    rows += [f"| {name} | {ms:.3f} |" for name, ms in st.items()]
+    return "\n".join([
+        f"A frame checked for a reflection: {rc['median_frame_ms']:.2f} ms, "
+        f"{rc['median_frame_ms'] / tracked:.1f} tracked frames. Where a tracked `axis` frame's "
+        "time goes (each stage timed one call at a time, so the total is a little above the "
+        "median frame):", "", *rows, "", _measured(d["run"])])
+
+
+def core_extractors() -> str:
+    """The extractors on the core bench's frames, through the same triangulation and fit."""
+    d = _load("core_throughput")
+    names = {"ours": "ours (tracked band, compiled Steger, rejection, chains, curvature "
+                     "correction)",
+             "plain_steger": "plain Steger over the whole frame (as above)",
+             "plain_steger_pruned": "the same, the eigenvector only where the strength test "
+                                    "passes",
+             "grey_centroid": "grey centroid per column (pixels above half the peak)"}
+    rows = ["| extractor | frames | ms per frame | plain Steger / this | "
+            "mean \\|error\\| per frame | failed |", "|---|---:|---:|---:|---:|---:|"]
+    for key, v in d["extractors"].items():
+        rows.append(f"| {names.get(key, key)} | {v['frames']} | {v['ms_per_frame']:.2f} | "
+                    f"{v['plain_vs_this']:.1f} | {v['mean_abs_error_um']:.1f} um | "
+                    f"{v['failed']} |")
+    return "\n".join([*rows, "", _measured(d["run"])])
+
+
 def service_throughput() -> str:
     """``serve`` at 100 fps: the embedded default and a fixed shaft, region on and off."""
     rows = ["| run | region of interest | measurements/s | frames dropped | "
@@ -64,7 +96,10 @@ def service_throughput() -> str:
             "Modbus p99 |", "|---|:---:|---:|---:|---:|---:|---:|"]
     runs = []
     for name, what in (("service_throughput_embedded", "the embedded default, 100 fps"),
-                       ("service_throughput_100fps", "a fixed 30 mm shaft, 100 fps")):
+                       ("service_throughput_100fps", "a fixed 30 mm shaft, 100 fps"),
+                       ("service_throughput_200fps", "a fixed 30 mm shaft, 200 fps")):
+        if not (RESULTS / f"{name}.json").exists():
+            continue
         d = _load(name)
         runs.append(d["run"])
         for r in d["results"]:
@@ -111,6 +146,8 @@ def turning_service() -> str:
 
 
 RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
+                                        "core_stages": core_stages,
+                                        "core_extractors": core_extractors,
                                         "service_throughput": service_throughput,
                                         "turning_service": turning_service}
 
