@@ -9,17 +9,24 @@ The margin: five runs of the quick core bench in a row on this machine gave each
 within 9-13 % of their median (the lowest run at 0.82 of it); a ratio below 0.7 of its
 baseline is a change, not the machine (a core 1.45 times slower fails). The service must
 keep measuring every frame it is sent (at least 0.9 of them, as the baseline did: 1.0).
+
+A core ratio below the margin is measured once more, 10 s later, and fails only if it is below
+again: a clean-clone run on 4 December read 0.69 and 0.67 of the baseline right after the
+fleet test, the same tree 0.82-0.90 when run again (alone and after the same tests), while a
+core made slower (``band_hessian`` eight times a frame) reads 0.55 and 0.42 every time.
 """
 
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
 from tests.bench import guard
 
 MARGIN = 0.7
+AGAIN_S = 10.0
 pytestmark = pytest.mark.alone
 
 
@@ -48,8 +55,15 @@ def test_the_core_is_as_fast_as_the_baseline(baseline, core_now) -> None:
     then = {**baseline["core"], "run": baseline.get("run", {})}
     print("\n" + report("core", then, core_now, CORE))
     slow = [k for k in CORE if core_now[k] < MARGIN * then[k]]
-    assert not slow, (f"slower than the committed baseline beyond the machine's noise "
-                      f"(below {MARGIN} of it): {slow}; " + report("core", then, core_now, CORE))
+    if slow:  # a slow moment of the host passes, a slower core does not: measure again
+        time.sleep(AGAIN_S)
+        again = guard.quick_core()
+        print(report("core, again", then, again, CORE))
+        slow = [k for k in slow if again[k] < MARGIN * then[k]]
+        assert not slow, (f"slower than the committed baseline beyond the machine's noise "
+                          f"(below {MARGIN} of it, twice): {slow}; "
+                          + report("core", then, core_now, CORE) + "; "
+                          + report("again", then, again, CORE))
 
 
 def test_the_service_keeps_up_as_the_baseline(baseline, core_now) -> None:
