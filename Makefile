@@ -69,7 +69,9 @@ docs: setup
 
 ## make bench: accuracy and speed figures; results land in bench-results/ (with the machine,
 ## the commit and the date), the speed guard's baseline among them, and the manual's figures
-## are rendered from them (tests.bench.figures): commit them with the change.
+## are rendered from them (tests.bench.figures): commit them with the change. The held-out
+## sets are scored by hand at the end of a piece of work (robustness, rig_range and
+## turning_service with --held-out); their committed results are rendered too.
 bench: setup
 	$(PY) -m service.measure.compiled
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PY) -m tests.bench.core_throughput

@@ -11,7 +11,9 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import shutil
 import statistics
+import tempfile
 import time
 from pathlib import Path
 
@@ -54,8 +56,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--json", default="bench-results/camera_throughput.json")
     args = ap.parse_args()
-    tmp = Path("bench-results")
-    tmp.mkdir(exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix="shaftgauge-camera-bench-"))  # the camera's files
     sim = sim_camera_process(tmp, "BENCH1", fps=args.fps).start()
     report: dict = {"asked_fps": args.fps, "seconds": args.seconds, "runs": args.runs,
                     "root": os.geteuid() == 0}
@@ -77,6 +78,7 @@ def main() -> None:
                   f"{args.fps:g} fps)")
     finally:
         sim.stop()
+        shutil.rmtree(tmp, ignore_errors=True)
     save_report(report, "camera_throughput", path=args.json)
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import statistics
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -145,11 +146,235 @@ def turning_service() -> str:
     return "\n".join(out).rstrip("\n")
 
 
+def _um(x: float | None, fmt: str = "{:.2f}") -> str:
+    return "-" if x is None or x != x else fmt.format(x) + " um"
+
+
+def paper_comparison() -> str:
+    """The paper's comparison (its Tables 3-10) on the simulated rig, per frame."""
+    d = _load("paper_comparison")
+    names = {"ellipse": "ellipse (Eq. 10-11)", "circle": "circle (Kasa)",
+             "paper": "paper (constrained centre)", "geometric": "geometric",
+             "axis": "**axis** (default)"}
+    rows = [r"| method | mean \|error\| | bias | std | frames refused |",
+            "|---|---:|---:|---:|---:|"]
+    for m, v in d["all"].items():
+        rows.append(f"| {names.get(m, m)} | {_um(v['mean_abs_error_um'], '{:.1f}')} | "
+                    f"{_um(v['bias_um'], '{:.1f}')} | {_um(v['std_um'], '{:.1f}')} | "
+                    f"{v['failed']} of {v['frames'] + v['failed']} |")
+    methods = list(d["all"])
+    shafts = [f"| shaft | {' | '.join(methods)} |", "|---|" + "---:|" * len(methods)]
+    for s, v in d["shafts"].items():
+        shafts.append(f"| {s} | " + " | ".join(_um(v[m]["mean_abs_error_um"], "{:.1f}")
+                                             for m in methods) + " |")
+    ang = d["angles"]
+    cond = ["| condition | `geometric` | `axis` | `axis` frames refused |", "|---|---:|---:|---:|"]
+    for what, v in [*((f"triangulation {float(a):g} degrees (Tables 7, 8)", v)
+                      for a, v in ang.items()),
+                    ("the paper's added noise (Tables 9, 10)", d["added_noise"])]:
+        cond.append(f"| {what} | {_um(v['geometric']['mean_abs_error_um'], '{:.1f}')} | "
+                    f"{_um(v['axis']['mean_abs_error_um'], '{:.1f}')} | "
+                    f"{v['axis']['failed']} |")
+    t = d["timing_ms_median"]
+    timing = ", ".join(f"`{m}` {v:.0f} ms" for m, v in t.items())
+    return "\n".join([
+        f"{d['frames_per_diameter']} frames per diameter, seed {d['seed']}; per frame, "
+        "every frame measured as the paper did (no uncertainty limit):", "", *rows, "",
+        "Per shaft, mean \\|error\\| per frame:", "", *shafts, "",
+        f"Other conditions, {max(2, d['frames_per_diameter'] // 2)} frames per diameter, mean "
+        "\\|error\\| per frame:", "", *cond, "",
+        f"A frame searched in full (no previous frame), median: {timing}.", "",
+        _measured(d["run"])])
+
+
+def beyond_paper() -> str:
+    """The methods and fusion over the bench's twelve conditions."""
+    d = _load("beyond_paper")
+    rows = [r"| method | mean \|error\| per frame | bias | std | std(error / uncertainty) |",
+            "|---|---:|---:|---:|---:|"]
+    for m, v in d["methods"].items():
+        name = f"**{m}**" if m == "axis" else m
+        rows.append(f"| {name} | {_um(v['mean_abs_error_um'])} | {_um(v['bias_um'])} | "
+                    f"{_um(v['std_um'])} | {v['z_std']:.2f} |")
+    f = d["fusion"]
+    return "\n".join([
+        f"Arcs of {d['arc_deg'][0]:.0f}-{d['arc_deg'][1]:.0f} degrees; `axis` "
+        f"{d['axis_gain_vs_geometric']:.1f}x better than `geometric` and "
+        f"{d['axis_gain_vs_paper']:.1f}x than `paper` per frame.", "", *rows, "",
+        f"Fusing each condition's frames (`axis`): one frame {_um(f['single_mean_abs_um'])}, "
+        f"fused {_um(f['fused_mean_abs_um'])}, **{f['gain']:.1f}x**; after a master check, "
+        f"{_um(f['single_mean_abs_mastered_um'])} -> {_um(f['fused_mean_abs_mastered_um'])} "
+        f"({f['gain_mastered']:.1f}x: the master's own fused error is added to every "
+        "condition).", "", *_by_seed(d), _measured(d["run"])])
+
+
+def _by_seed(d: dict) -> list[str]:
+    """The same bench on other seeds, each its own shafts and frames, and their medians."""
+    seeds = d.get("by_seed", {})
+    if len(seeds) < 2:
+        return []
+    rows = [r"| seed | `axis` mean \|error\| | vs `geometric` | vs `paper` | fused | "
+            "fusion | std(error / uncertainty) |", "|---:|---:|---:|---:|---:|---:|---:|"]
+    rows += [f"| {k} | {_um(b['axis_mean_abs_um'])} | {b['vs_geometric']:.1f}x | "
+             f"{b['vs_paper']:.1f}x | {_um(b['fused_mean_abs_um'])} | "
+             f"**{b['fusion_gain']:.1f}x** | {b['z_std']:.2f} |" for k, b in seeds.items()]
+    med = {k: statistics.median(b[k] for b in seeds.values())
+           for k in ("vs_geometric", "vs_paper", "fusion_gain", "z_std")}
+    return [f"On {len(seeds)} seeds: medians `axis` {med['vs_geometric']:.1f}x better than "
+            f"`geometric` and {med['vs_paper']:.1f}x than `paper`, fusion "
+            f"{med['fusion_gain']:.1f}x, std(error / uncertainty) {med['z_std']:.2f}.", "",
+            *rows, ""]
+
+
+FAMILY_NAMES = {"clean": "clean", "glints": "glints", "ghost": "ghost", "droplets": "droplets",
+                "background": "stray light", "overexposed": "over-exposed",
+                "feed_marks": "feed marks", "combined": "all at once"}
+
+
+def robustness() -> str:
+    """Every shop-floor disturbance family, development settings and held out."""
+    out = []
+    for name, what in (("robustness", "Development settings"),
+                       ("robustness_held_out", "Held-out settings and seeds")):
+        if not (RESULTS / f"{name}.json").exists():
+            continue
+        d = _load(name)
+        n = next(iter(d["families"].values()))["axis"]["frames"]
+        out += [f"{what} (seeds {', '.join(map(str, d['seeds']))}, {n} frames a family):", "",
+                r"| family | `axis` measured | mean / max \|error\| | frames > 20 um | "
+                "`geometric` measured | `geometric` frames > 20 um |",
+                "|---|---:|---:|---:|---:|---:|"]
+        for fam, v in d["families"].items():
+            a, g = v["axis"], v["geometric"]
+            why = ", ".join(f"{k} {c}" for k, c in sorted(a["refused"].items()))
+            measured = f"{a['measured_pct']:.1f} %" + (f" ({why})" if why else "")
+            err = "-" if a["mean_abs_um"] != a["mean_abs_um"] else \
+                f"{a['mean_abs_um']:.2f} / {a['max_abs_um']:.1f} um"
+            out.append(f"| {FAMILY_NAMES.get(fam, fam)} | {measured} | {err} | "
+                       f"{a['over_limit']} | {g['measured_pct']:.1f} % | {g['over_limit']} |")
+        out += ["", _measured(d["run"]), ""]
+    return "\n".join(out).rstrip("\n")
+
+
+def rig_range() -> str:
+    """``axis`` across rigs: sheet thickness and speckle, per frame and fused, beside the
+    speckle's own floor, and how honest the uncertainty is."""
+    out = []
+    for name, what in (("rig_range", "Development rows"),
+                       ("rig_range_held_out", "Held-out rows (other seeds and diameters)")):
+        if not (RESULTS / f"{name}.json").exists():
+            continue
+        d = _load(name)
+        out += [f"{what}: diameters {', '.join(f'{x:g}' for x in d['diameters_mm'])} mm, "
+                f"{d['frames']} frames each:", "",
+                r"| rig (the rest at the defaults) | measured | mean \|error\| per frame | "
+                "speckle floor | fused, mean / max | fused floor | z-score std | "
+                "z, exact axis |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for row, v in d["rows"].items():
+            out.append(f"| {row} | {v['measured_pct']:.1f} % | {_um(v['mean_abs_um'])} | "
+                       f"{_um(v['floor_mean_abs_um'])} | {v['fused_mean_abs_um']:.2f} / "
+                       f"{_um(v['fused_max_abs_um'])} | {_um(v['floor_fused_um'])} | "
+                       f"{v['z_std']:.2f} | {v['z_std_exact_axis']:.2f} |")
+        out += ["", _measured(d["run"]), ""]
+    return "\n".join(out).rstrip("\n")
+
+
+def closed_loop() -> str:
+    """The compensation laws on the virtual lathe, and which gains oscillate."""
+    d = _load("closed_loop")
+    rows = ["| case | law | parts out (worst seed) | mean | sd | Cpk | offsets (reversed) | "
+            "worst after an insert change |", "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for case, laws in d["rows"].items():
+        for i, (law, v) in enumerate(laws.items()):
+            rows.append(f"| {case if i == 0 else ''} | {law} | {v['out']} ({v['out_max']}) | "
+                        f"{v['mean_um']:.1f} um | {v['sd_um']:.1f} um | {v['cpk']:.2f} | "
+                        f"{v['writes']} ({v['reversals']}) | "
+                        f"{_um(v['overshoot_um'], '{:.1f}')} |")
+    gains = list(next(iter(d["oscillation_map"].values())))
+    osc = [f"| dead parts | {' | '.join(gains)} | limit | predictive, every gain |",
+           "|---:|" + ":---:|" * len(gains) + "---:|:---:|"]
+    for dead, m in d["oscillation_map"].items():
+        cells = ["**oscillates**" if m[g] else "settles" for g in gains]
+        pred = "oscillates" if any(d["oscillation_map_predictive"][dead].values()) \
+            else "settles"
+        osc.append(f"| {dead} | {' | '.join(cells)} | {d['limits'][dead]:.2f} | {pred} |")
+    return "\n".join([
+        f"{d['parts']} parts a case, {d['seeds']} seeds, medians; tolerance "
+        f"+-{d['tolerance_um']:g} um, the gauge {d['gauge_sigma_um']:g} um a part:", "",
+        *rows, "", "Gain against dead time, correcting every measurement (a step, no noise):",
+        "", *osc, "", _measured(d["run"])])
+
+
+def camera_throughput() -> str:
+    """Frames received from the simulated camera on loopback, by receive path."""
+    d = _load("camera_throughput")
+    names = {"packet_socket": "packet socket (Aravis as root)",
+             "udp_socket_auto": "UDP socket, buffer AUTO",
+             "udp_socket_4MiB": "UDP socket, buffer fixed at 4 MiB"}
+    rows = ["| receive path | frames/s | CPU of the receiving process |", "|---|---:|---:|"]
+    for key, what in names.items():
+        if key in d:
+            rows.append(f"| {what} | {d[key]['fps_median']:.1f} | "
+                        f"{d[key]['cpu_percent_median']:.1f} % of one core |")
+    return "\n".join([
+        f"1376x1024 Mono8, camera asked for {d['asked_fps']:g} fps, median of {d['runs']} runs "
+        f"of {d['seconds']:g} s:", "", *rows, "", _measured(d["run"])])
+
+
+def plant_publish() -> str:
+    """What publishing costs the gauge, and fleets of gauges against one Mosquitto."""
+    d = _load("plant_publish")
+    c = d["cost"]
+    meas, dec = c["measurement"]["median_cpu_us_per_message"], \
+        c["decision"]["median_cpu_us_per_message"]
+    rows = ["| fleet | run | delivered | measurements lost | decisions lost, out of order | "
+            "Mosquitto CPU |", "|---|---:|---:|---:|---:|---:|"]
+    broker_us = 0.0
+    for key, f in d["fleets"].items():
+        broker_us = max(broker_us, 1e6 * f["broker_cpu_s"]
+                        / max(f["measurements_received"] + f["decisions_received"], 1))
+        rows.append(f"| {key.replace('_', ' ')} x 10/s + a decision each 5 s | "
+                    f"{f['seconds']:g} s | {f['delivered_per_s']:.1f} messages/s | "
+                    f"{f['measurements_lost']} of {f['measurements_sent']} | "
+                    f"{f['decisions_received']} of {f['decisions_sent']}, "
+                    f"{f['decisions_out_of_order']} | "
+                    f"{100 * f['broker_cpu_s'] / (f['seconds'] + 3):.1f} % of a core |")
+    return "\n".join([
+        "One publisher, 3 runs each, medians, CPU time of the gauge's process: a measurement "
+        f"message (QoS 0) **{meas:.0f} us**; a decision (QoS 1, through the SQLite outbox, "
+        f"acknowledged, removed) **{dec:.0f} us**; at 10 measurements/s "
+        f"**{meas * 10 / 1e4:.2f} % of one core** (paho-mqtt from its own network thread: "
+        f"{c['measurement_paho']['median_cpu_us_per_message']:.0f} us a message).", "",
+        *rows, "", f"Mosquitto: {broker_us:.0f} us of CPU a message in and out.", "",
+        _measured(d["run"])])
+
+
+def principal_point() -> str:
+    """How well each set of calibration views fixes the principal point and focal length."""
+    d = _load("principal_point")
+    rows = ["| board images | principal point std, x / y | focal length std | "
+            "axis point moved |", "|---|---:|---:|---:|"]
+    for name, s in d["sets"].items():
+        rows.append(f"| {name} | {s['cx_std_px']:.2f} / {s['cy_std_px']:.2f} px | "
+                    f"{100 * s['f_std_rel']:.3f} % | {s['axis_shift_mm']:.3f} mm |")
+    return "\n".join([
+        f"Ideal corners with {d['sigma_px']:g} px of noise (what the detector leaves on "
+        f"rendered views), {d['trials']} draws each:", "", *rows, "", _measured(d["run"])])
+
+
 RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
                                         "core_stages": core_stages,
                                         "core_extractors": core_extractors,
                                         "service_throughput": service_throughput,
-                                        "turning_service": turning_service}
+                                        "turning_service": turning_service,
+                                        "paper_comparison": paper_comparison,
+                                        "beyond_paper": beyond_paper,
+                                        "robustness": robustness,
+                                        "rig_range": rig_range,
+                                        "closed_loop": closed_loop,
+                                        "camera_throughput": camera_throughput,
+                                        "plant_publish": plant_publish,
+                                        "principal_point": principal_point}
 
 
 def render_page(text: str) -> str:

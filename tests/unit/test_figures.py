@@ -3,6 +3,8 @@ edited by hand in a rendered block fails here."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from tests.bench import figures
@@ -33,3 +35,44 @@ def test_a_figure_edited_by_hand_is_caught() -> None:
 def test_an_unknown_block_is_named() -> None:
     with pytest.raises(KeyError, match="no figures named 'speed'"):
         figures.render_page("<!-- figures: speed -->\nold\n<!-- /figures -->")
+
+
+# A measured figure typed into a page's prose drifts from the code it measured; what the
+# benches measure is rendered in blocks. What this finds outside a block must be a setting, a
+# unit or a test's input, named here with what it is.
+MEASURED = re.compile(r"(?<![\w.])\d+\.\d+ ?(?:um|us|ms|%|x|frames/s|measurements/s|"
+                      r"messages/s|MiB|MB/s)(?![\w/])")
+NOT_MEASURED = {
+    "0.1 um": "the registers' and AQDEF's resolution",
+    "6.45 um": "the simulated sensor's pixel pitch",
+    "6.5 um": "the default uncertainty limit (measurement.max_uncertainty_mm)",
+    "1.5 x": "MQTT's keep-alive rule",
+    "0.01 %": "packet loss set in the fault suite",
+    "0.1 %": "packet loss set in the fault suite",
+    "0.2 %": "a test's tolerance on the focal length",
+    "1.5 um": "the gauge's noise in the LinuxCNC loop test",
+    "2.5 um": "the tool wear a part in the LinuxCNC loop test",
+    "0.4 um": "the embedded default's simulated tool wear a minute",
+}
+
+
+def figures_outside_blocks(text: str) -> list[str]:
+    """The measured-looking figures of a page outside its rendered blocks and its code."""
+    prose = re.sub(r"```.*?```", "", figures.BLOCK.sub("", text), flags=re.S)
+    prose = re.sub(r"`[^`\n]*`", "", prose)
+    return MEASURED.findall(prose)
+
+
+def test_no_measured_figure_is_typed_into_the_manual() -> None:
+    pages = [*sorted(figures.DOCS.glob("*.md")), figures.ROOT / "README.md"]
+    typed = {p.name: sorted({f for f in figures_outside_blocks(p.read_text())
+                             if f not in NOT_MEASURED}) for p in pages}
+    typed = {k: v for k, v in typed.items() if v}
+    assert not typed, (f"{typed}: measured figures outside a rendered block (render them from "
+                       "a bench's results, or name them in NOT_MEASURED if they are settings)")
+
+
+def test_a_figure_typed_into_prose_is_caught() -> None:
+    page = "A tracked frame takes 2.76 ms.\n<!-- figures: x -->\n| 1.97 ms |\n<!-- /figures -->"
+    assert figures_outside_blocks(page) == ["2.76 ms"]
+    assert figures_outside_blocks("`--max-uncertainty-um 6.5` and 31.1x faster") == ["31.1x"]
