@@ -132,6 +132,11 @@ def _v1(db: sqlite3.Connection) -> None:
         db.execute(statement)
 
 
+def _v2(db: sqlite3.Connection) -> None:
+    for column in ("tir_mm", "ront_mm"):
+        db.execute(f"ALTER TABLE measurements ADD COLUMN {column} REAL")
+
+
 @dataclass(frozen=True)
 class Migration:
     """One step of the schema: to ``version``, what it does, and how."""
@@ -145,6 +150,8 @@ MIGRATIONS = (
     Migration(1, "every table and column of the releases before versions (2026-11-22 to "
                  "2026-12-02), created where missing; the decision log's later columns added",
               _v1),
+    Migration(2, "the measurement archive keeps the surface's run-out (TIR) and roundness "
+                 "(RONt) where they were known, for the AQDEF export", _v2),
 )
 SCHEMA_VERSION = MIGRATIONS[-1].version
 

@@ -267,7 +267,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                                    api.session_expiry_h)
     if comp_log is not None and settings.store.archive_hz > 0:  # for the AQDEF export
         feed.on_publish(MeasurementArchive(comp_log, settings.store.archive_hz,
-                                           compensation.feature))
+                                           compensation.feature, health.form_position))
     spc = SpcService(settings.spc, ms.fuse_frames, compensation.feature)
     feed.on_publish(spc)
     q = settings.quality

@@ -77,7 +77,7 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
                                        keys))
     api.include_router(quality.router(g.spc, g.studies, g.compensation, keys))
     api.include_router(export.router(g.log, gauge_identity(g.settings.mqtt)[0],
-                                     g.context.store_error))
+                                     g.context.store_error, g.settings.spindle.max_tir_mm))
 
     @api.get("/status", tags=["system"], summary="Camera, PLC, pipeline, calibration, "
              "compensation")

@@ -17,8 +17,10 @@ MAX_ROWS = 1_000_000
 Text = Annotated[str, Query(min_length=1, max_length=80, pattern=r"^[^\r\n\t]+$")]
 
 
-def router(log: CompensationLog | None, gauge_id: str, store_error: str) -> APIRouter:
-    """Reads the measurement archive (``store.archive_hz`` values a second are kept)."""
+def router(log: CompensationLog | None, gauge_id: str, store_error: str,
+           max_tir_mm: float | None = None) -> APIRouter:
+    """Reads the measurement archive (``store.archive_hz`` values a second are kept; the
+    run-out's characteristic has ``max_tir_mm`` as its upper limit)."""
     r = APIRouter(tags=["export"])
     # The file name goes into a header (latin-1, quoted): the gauge id as a safe word.
     safe_id = re.sub(r"[^A-Za-z0-9._-]+", "_", gauge_id) or "gauge"
@@ -39,7 +41,7 @@ def router(log: CompensationLog | None, gauge_id: str, store_error: str) -> APIR
             raise HTTPException(422, f"from ({from_.isoformat()}) is after to "
                                 f"({to.isoformat()})")
         rows = await asyncio.to_thread(log.measurements, lo, hi, MAX_ROWS)
-        text = from_archive(rows, gauge_id, part, characteristic)
+        text = from_archive(rows, gauge_id, part, characteristic, max_tir_mm)
         name = f"shaftgauge-{safe_id}-{dt.datetime.now(dt.UTC):%Y%m%dT%H%M%SZ}.dfq"
         return Response(text.encode("latin-1", "replace"),
                         media_type="text/plain; charset=iso-8859-1",

@@ -9,6 +9,11 @@ events (0: none), K0006 batch (here: the calibration the value was measured with
 K0008 operator (the gauge: it measures unattended), K0012 gauge (test equipment) and K0014
 part ident (the gauge's measurement sequence number). Values and limits in mm with a decimal
 point; text fields without line breaks.
+
+A part may have more characteristics than its diameter (the surface's run-out and roundness,
+when the spindle's angle is known): characteristic *i* has its own K2xxx/*i* fields, and a
+part's value of it its own ``K0001/i`` line with its K00xx/*i* fields; a characteristic a part
+has no value of (the run-out not known yet) has no value line for it.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 @dataclass(frozen=True)
@@ -48,14 +53,31 @@ class AqdefPart:
     decimals: int = 4
 
 
+    more: tuple[AqdefCharacteristic, ...] = ()
+
+
+@dataclass(frozen=True)
+class AqdefCharacteristic:
+    """A characteristic after the first (K2001/i ... for i = 2, 3, ...): its number,
+    description and limits (mm; None: left out)."""
+
+    number: str
+    description: str
+    nominal_mm: float | None = None
+    lower_limit_mm: float | None = None
+    upper_limit_mm: float | None = None
+
+
 @dataclass(frozen=True)
 class AqdefValue:
-    """One measured value (mm) of one part at ``time_s`` (Unix seconds)."""
+    """One measured value (mm) of one part at ``time_s`` (Unix seconds), and its values of
+    the part's further characteristics (None: not measured)."""
 
     value_mm: float
     time_s: float
     part_ident: str
     batch: str = ""
+    more: tuple[float | None, ...] = ()
 
 
 def _text(s: str) -> str:
@@ -68,25 +90,30 @@ def aqdef_lines(part: AqdefPart, values: Iterable[AqdefValue]) -> list[str]:
     A value that is not finite is left out (a transfer file has no "not a number").
     """
     fmt = f"{{:.{part.decimals}f}}"
-    out = ["K0100 1", f"K1001 {_text(part.part_number)}",
-           f"K1002 {_text(part.part_description)}",
-           f"K2001/1 {_text(part.characteristic_number)}",
-           f"K2002/1 {_text(part.characteristic_description)}",
-           f"K2022/1 {part.decimals}"]
-    for key, v in (("K2101", part.nominal_mm), ("K2110", part.lower_limit_mm),
-                   ("K2111", part.upper_limit_mm)):
-        if v is not None and math.isfinite(v):
-            out.append(f"{key}/1 {fmt.format(v)}")
-    out.append("K2142/1 mm")
+    chars = [AqdefCharacteristic(part.characteristic_number, part.characteristic_description,
+                                 part.nominal_mm, part.lower_limit_mm, part.upper_limit_mm),
+             *part.more]
+    out = [f"K0100 {len(chars)}", f"K1001 {_text(part.part_number)}",
+           f"K1002 {_text(part.part_description)}"]
+    for i, c in enumerate(chars, 1):
+        out += [f"K2001/{i} {_text(c.number)}", f"K2002/{i} {_text(c.description)}",
+                f"K2022/{i} {part.decimals}"]
+        for key, v in (("K2101", c.nominal_mm), ("K2110", c.lower_limit_mm),
+                       ("K2111", c.upper_limit_mm)):
+            if v is not None and math.isfinite(v):
+                out.append(f"{key}/{i} {fmt.format(v)}")
+        out.append(f"K2142/{i} mm")
     gauge = _text(part.gauge_id)
     for v in values:
-        if not math.isfinite(v.value_mm):
-            continue
         stamp = time.strftime("%d.%m.%Y/%H:%M:%S", time.localtime(v.time_s))
-        out += [f"K0001/1 {fmt.format(v.value_mm)}", f"K0004/1 {stamp}", "K0005/1 0"]
-        if v.batch:
-            out.append(f"K0006/1 {_text(v.batch)}")
-        out += [f"K0008/1 {gauge}", f"K0012/1 {gauge}", f"K0014/1 {_text(v.part_ident)}"]
+        for i, x in enumerate((v.value_mm, *v.more[:len(chars) - 1]), 1):
+            if x is None or not math.isfinite(x):
+                continue
+            out += [f"K0001/{i} {fmt.format(x)}", f"K0004/{i} {stamp}", f"K0005/{i} 0"]
+            if v.batch:
+                out.append(f"K0006/{i} {_text(v.batch)}")
+            out += [f"K0008/{i} {gauge}", f"K0012/{i} {gauge}",
+                    f"K0014/{i} {_text(v.part_ident)}"]
     return out
 
 
@@ -95,29 +122,41 @@ def aqdef_text(part: AqdefPart, values: Iterable[AqdefValue]) -> str:
     return "\r\n".join(aqdef_lines(part, values)) + "\r\n"
 
 
+RUNOUT = AqdefCharacteristic("2", "run-out TIR", nominal_mm=0.0)
+ROUNDNESS = AqdefCharacteristic("3", "roundness RONt", nominal_mm=0.0)
+
+
 def from_archive(rows: list[dict], gauge_id: str, part_number: str = "shaft",
-                 characteristic: str = "diameter") -> str:
+                 characteristic: str = "diameter", max_tir_mm: float | None = None) -> str:
     """A transfer file of archived measurements (``CompensationLog.measurements`` rows).
 
     Each good row is one value: its fused diameter where it has one (what compensation
     judges), else its own. The nominal and limits are those in force at the latest row that
-    had a nominal (rows without one have no limits).
+    had a nominal (rows without one have no limits). Where any row knew the surface's
+    run-out (``tir_mm``) or roundness (``ront_mm``), those are characteristics 2 and 3, the
+    run-out with ``max_tir_mm`` as its upper limit.
     """
     good = [r for r in rows if r["status"] == "ok" and (
         r["fused_diameter_mm"] is not None or r["diameter_mm"] is not None)]
     judged = [r for r in rows if r.get("nominal_mm") is not None]
     last = judged[-1] if judged else None
     nominal = None if last is None else last["nominal_mm"]
+    more = [c for c, key in ((replace(RUNOUT, upper_limit_mm=max_tir_mm), "tir_mm"),
+                             (ROUNDNESS, "ront_mm"))
+            if any(r.get(key) is not None for r in good)]
+    keys = ["tir_mm" if c.number == RUNOUT.number else "ront_mm" for c in more]
     part = AqdefPart(
         part_number=part_number, part_description=f"{part_number} measured by {gauge_id}",
         characteristic_number="1", characteristic_description=characteristic,
         nominal_mm=nominal,
         lower_limit_mm=None if last is None else nominal + last["tol_lower_mm"],
         upper_limit_mm=None if last is None else nominal + last["tol_upper_mm"],
-        gauge_id=gauge_id)
+        gauge_id=gauge_id, more=tuple(replace(c, number=str(i))
+                                      for i, c in enumerate(more, 2)))
     values = [AqdefValue(
         r["fused_diameter_mm"] if r["fused_diameter_mm"] is not None else r["diameter_mm"],
         r["wall_time"], str(r["seq"]),
-        "" if r.get("calibration_id") is None else f"cal{r['calibration_id']}")
+        "" if r.get("calibration_id") is None else f"cal{r['calibration_id']}",
+        tuple(r.get(k) for k in keys))
         for r in good]
     return aqdef_text(part, values)

@@ -15,6 +15,7 @@ from asyncua import Client
 from drivers.sim.control import control
 from tests.e2e.conftest import free_port, start_service, stop_service, wait_ready
 from tests.faults.test_service_faults import applied_in, until
+from tests.unit.plant.test_aqdef import read_aqdef
 
 OFF_AXIS = {"eccentricity_mm": 0.05, "eccentricity_deg": 30.0, "spindle_deg_per_frame": 45.0}
 
@@ -130,6 +131,16 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
         # And the plant's OPC UA client.
         tir = asyncio.run(read_monitoring(f"opc.tcp://127.0.0.1:{opcua}", "RunoutTir"))
         assert abs(tir - 0.100) <= 0.007, tir
+        # And the quality department's AQDEF export: the run-out (limit 20 um) and the
+        # roundness as characteristics 2 and 3 of the archived parts.
+        time.sleep(1.5)  # an archived row (one a second) after the roundness was known
+        header, parts = read_aqdef(svc.get("/api/v1/export/aqdef").content.decode("latin-1"))
+        assert header["2002/2"] == "run-out TIR" and header["2111/2"] == "0.0200", header
+        assert header["2002/3"] == "roundness RONt", header
+        tirs = [float(p["0001/2"]) for p in parts if "0001/2" in p]
+        assert tirs and abs(tirs[-1] - 0.100) <= 0.007, tirs
+        ronts = [float(p["0001/3"]) for p in parts if "0001/3" in p]
+        assert ronts and ronts[-1] < 0.004, ronts
         time.sleep(6.0)  # long enough for offsets at the test's tuning (window 5, 10/s)
         assert applied_in(plc_log) == [], "an offset was written from an off-axis surface"
         log = svc.get("/api/v1/compensation/log", params={"limit": 200}).json()["items"]

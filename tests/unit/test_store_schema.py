@@ -124,7 +124,8 @@ def test_version_migrate_backup_and_restore_from_the_command_line(tmp_path, caps
     assert code == 0 and out["pending"] and "applied" not in out
     assert _counts(path) == before
     code, out = _cli("store", "migrate", "--store", str(path), capsys=capsys)
-    assert code == 0 and out["applied"] == [1] and out["schema_version"] == 1
+    assert code == 0 and out["applied"] == [m.version for m in schema.MIGRATIONS]
+    assert out["schema_version"] == schema.SCHEMA_VERSION
     code, out = _cli("store", "backup", "--store", str(path), str(tmp_path / "b.db"),
                      capsys=capsys)
     assert code == 0
@@ -157,3 +158,24 @@ def test_the_command_line_names_a_missing_or_foreign_file(tmp_path, capsys) -> N
     code, err = _cli("store", "backup", "--store", str(junk), str(tmp_path / "x.db"),
                      capsys=capsys)
     assert code != 0 and "junk.db" in err and "Traceback" not in err
+
+
+def test_a_version_1_store_gains_the_archive_s_form_columns_keeping_its_rows(tmp_path
+                                                                           ) -> None:
+    path = tmp_path / "shaftgauge.db"
+    db = sqlite3.connect(str(path))
+    schema.MIGRATIONS[0].apply(db)
+    db.execute("INSERT INTO measurements (seq, wall_time, status, diameter_mm) "
+               "VALUES (7, 1.8e9, 'ok', 30.001)")
+    db.execute("PRAGMA user_version = 1")
+    db.commit()
+    db.close()
+    store, log_, _ = _open_all(path)
+    try:
+        (row,) = log_.measurements()
+        assert row["seq"] == 7 and row["diameter_mm"] == 30.001
+        assert row["tir_mm"] is None and row["ront_mm"] is None
+    finally:
+        log_.close()
+        store.close()
+    assert len(list(tmp_path.glob("shaftgauge.db.v1-*.bak"))) == 1

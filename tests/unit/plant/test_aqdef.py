@@ -17,8 +17,8 @@ K_LINE = re.compile(r"^K(\d{4})(?:/(\d+))? (.*)$")
 
 
 def read_aqdef(text: str) -> tuple[dict[str, str], list[dict[str, str]]]:
-    """(header fields by K number, values as dicts of K number -> text) of one
-    characteristic."""
+    """(header fields by K number, values as dicts of K number -> text), one value a part:
+    the first characteristic's fields by K number, characteristic i's as ``K/i``."""
     header: dict[str, str] = {}
     values: list[dict[str, str]] = []
     assert text.endswith("\r\n")
@@ -26,14 +26,18 @@ def read_aqdef(text: str) -> tuple[dict[str, str], list[dict[str, str]]]:
         m = K_LINE.match(line)
         assert m, f"not a K-field line: {line!r}"
         key, index, value = m.groups()
+        name = key if index in (None, "1") else f"{key}/{index}"
         if key.startswith("00") and key != "0100":
-            assert index in (None, "1")
-            if key == "0001":
+            if name == "0001":
                 values.append({})
             assert values, f"{line!r} before any K0001"
-            values[-1][key] = value
+            assert name not in values[-1], f"{line!r}: twice for one part"
+            values[-1][name] = value
         else:
-            header[key] = value
+            header[name] = value
+    if "0100" in header:
+        n = int(header["0100"])
+        assert all(f"2001/{i}" in header for i in range(2, n + 1)), header
     return header, values
 
 
@@ -80,11 +84,12 @@ def test_values_round_trip_to_the_written_resolution(diameters: list[float],
 
 
 def row(seq: int, status: str = "ok", fused: float | None = 30.001,
-        nominal: float | None = 30.0) -> dict:
+        nominal: float | None = 30.0, tir: float | None = None,
+        ront: float | None = None) -> dict:
     return {"seq": seq, "wall_time": 1.7e9 + seq, "status": status, "diameter_mm": 30.002,
             "uncertainty_mm": 0.002, "fused_diameter_mm": fused, "deviation_mm": 0.001,
             "in_tolerance": 1, "calibration_id": 2, "nominal_mm": nominal,
-            "tol_lower_mm": -0.02, "tol_upper_mm": 0.03}
+            "tol_lower_mm": -0.02, "tol_upper_mm": 0.03, "tir_mm": tir, "ront_mm": ront}
 
 
 def test_from_archive_takes_good_rows_fused_first_and_the_latest_feature() -> None:
@@ -95,3 +100,25 @@ def test_from_archive_takes_good_rows_fused_first_and_the_latest_feature() -> No
                                                                 "31.0300")
     assert [(v["0014"], v["0001"], v["0006"]) for v in values] == [
         ("1", "30.0010", "cal2"), ("3", "30.0020", "cal2"), ("4", "30.0010", "cal2")]
+
+
+def test_run_out_and_roundness_are_characteristics_2_and_3_where_known() -> None:
+    rows = [row(1), row(2, tir=0.0123), row(3, tir=0.0121, ront=0.0041)]
+    header, values = read_aqdef(from_archive(rows, "g", max_tir_mm=0.02))
+    assert header["0100"] == "3"
+    assert (header["2002/2"], header["2101/2"], header["2111/2"], header["2142/2"]) == (
+        "run-out TIR", "0.0000", "0.0200", "mm")
+    assert header["2002/3"] == "roundness RONt" and "2111/3" not in header
+    assert [v.get("0001/2") for v in values] == [None, "0.0123", "0.0121"]
+    assert [v.get("0001/3") for v in values] == [None, None, "0.0041"]
+    assert values[2]["0014/3"] == "3" and values[2]["0006/2"] == "cal2"
+
+
+def test_without_run_out_the_file_has_the_diameter_alone() -> None:
+    header, values = read_aqdef(from_archive([row(1), row(2)], "g", max_tir_mm=0.02))
+    assert header["0100"] == "1" and not [k for k in header if "/" in k]
+    assert all("0001/2" not in v for v in values)
+    # roundness alone known: it is characteristic 2
+    header, values = read_aqdef(from_archive([row(1, ront=0.002)], "g"))
+    assert header["0100"] == "2" and header["2002/2"] == "roundness RONt"
+    assert values[0]["0001/2"] == "0.0020"
