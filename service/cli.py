@@ -64,8 +64,8 @@ def cmd_measure(args: argparse.Namespace) -> int:
         return _fail(f"--reflection-check-hz must be 0 or more, got {args.reflection_check_hz}")
     params = MeasureParams(max_uncertainty_mm=args.max_uncertainty_um / 1000.0)
     if args.form and args.spindle_deg is None:
-        return _fail("--form needs --spindle-deg: the run-out and the roundness come from "
-                     "the frames' spindle angles")
+        return _fail("--form needs --spindle-deg (the angles, or `estimate`): the run-out "
+                     "and the roundness come from the frames' spindle angles")
     if args.spindle_deg is not None:
         return _measure_turning(args, params)
     try:
@@ -106,7 +106,8 @@ def _measure_turning(args: argparse.Namespace, params: MeasureParams) -> int:
         return _fail("--spindle-deg measures by the axis method about the surface's own "
                      "centre: without --method, --fuse or --correction")
     try:
-        angles = parse_spindle_angles(args.spindle_deg, len(args.images))
+        angles = None if args.spindle_deg.strip().lower() == "estimate" else \
+            parse_spindle_angles(args.spindle_deg, len(args.images))
         calibration = load_calibration(args.calibration)
         turning = measure_turning_files(args.images, calibration, angles, params, args.form,
                                         args.upr)
@@ -543,7 +544,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         rows = log_.measurements(args.start, args.end)
     finally:
         log_.close()
-    text = from_archive(rows, args.gauge_id, args.part, args.characteristic)
+    text = from_archive(rows, args.gauge_id, args.part, args.characteristic,
+                        None if args.max_tir_um is None else args.max_tir_um / 1000.0)
     out = Path(args.output)
     try:
         out.write_bytes(text.encode("latin-1", "replace"))
@@ -602,7 +604,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spindle-deg", metavar="A1,A2,...",
                    help="each image's spindle angle, degrees, right-handed about the "
                    "calibration's axis direction: the frames are measured about the "
-                   "surface's own centre (its run-out from all of them)")
+                   "surface's own centre (its run-out from all of them); `estimate`: the "
+                   "images in the order taken at a steady frame rate and spindle speed, "
+                   "the spindle's turn per frame told from the frames themselves")
     p.add_argument("--form", action="store_true",
                    help="with --spindle-deg: one JSON line of the diameter, the run-out "
                    "(eccentricity, phase, TIR) and the roundness (RONt, harmonics)")
@@ -799,6 +803,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gauge-id", default=socket.gethostname(), help="K0012 (default: host)")
     p.add_argument("--part", default="shaft", help="K1001 part number")
     p.add_argument("--characteristic", default="diameter", help="K2002")
+    p.add_argument("--max-tir-um", type=float, default=None, metavar="UM",
+                   help="the run-out characteristic's upper limit (spindle.max_tir_mm), where "
+                        "the archive has run-out")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("demo", help="offline demo: render the paper's shafts and measure them")

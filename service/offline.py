@@ -204,7 +204,8 @@ def parse_spindle_angles(text: str, count: int) -> list[float]:
     return out
 
 
-def measure_turning_files(paths: list[str], calibration: Calibration, spindle_deg: list[float],
+def measure_turning_files(paths: list[str], calibration: Calibration,
+                          spindle_deg: list[float] | None,
                           params: MeasureParams | None = None, form: bool = False,
                           upr: int = 50) -> TurningFrames:
     """``measure_turning`` over image files (each checked first, as ``measure_images``)."""
@@ -236,7 +237,10 @@ def form_record(paths: list[str], turning: TurningFrames) -> dict[str, Any]:
         turning.axis_check.ok else [rnd(v) for v in turning.axis_check.axis_shift_mm],
         "ront_mm": None, "ront_uncertainty_mm": None, "harmonics": [],
         "dominant_lobes": None, "odd_lobing": None,
-        "spindle_angle_source": "given (--spindle-deg)",
+        "spindle_angle_source": "given (--spindle-deg)" if turning.spindle is None else
+        "estimated from the frames" if turning.spindle.ok else "none (not told by the frames)",
+        "spindle_deg_per_frame": None if turning.spindle is None or not turning.spindle.ok
+        else rnd(turning.spindle.deg_per_frame, 4),
         "reason": "; ".join(reasons) or f.reason,
     }
     if shape is not None and shape.ok:

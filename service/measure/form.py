@@ -50,7 +50,9 @@ class Runout:
     eccentricity_mm, eccentricity_deg : float
         How far the surface's axis lies off the spindle's and in which material direction.
     tir_mm : float
-        Total indicated run-out, ``2 e``.
+        Total indicated run-out, ``2 e`` with the noise's share of ``e`` taken out: the
+        length of a noisy vector overstates the true one (its square by the trace of its
+        covariance), which on a concentric surface would read as run-out that is not there.
     eccentricity_uncertainty_mm, eccentricity_deg_uncertainty, tir_uncertainty_mm : float
         Standard uncertainties.
     axis_shift_mm : tuple of float
@@ -162,7 +164,8 @@ def fit_runout(centres_mm: np.ndarray, covs_mm2: np.ndarray, spindle_deg: np.nda
     shift = (float(p[2]), float(p[3])) if fit_axis else (0.0, 0.0)
     shift_cov = (float(p_cov[2, 2]), float(p_cov[2, 3]), float(p_cov[3, 3])) if fit_axis \
         else (0.0, 0.0, 0.0)
-    return Runout(True, e, math.degrees(math.atan2(ey, ex)) % 360.0, 2.0 * e, e_std,
+    tir = 2.0 * math.sqrt(max(e * e - float(np.trace(e_cov)), 0.0))
+    return Runout(True, e, math.degrees(math.atan2(ey, ex)) % 360.0, tir, e_std,
                   min(phase_std, 180.0), 2.0 * e_std, shift, shift_cov, chi2 / dof, p_cov, n)
 
 

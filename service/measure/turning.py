@@ -5,7 +5,9 @@ spindle angle.
 The ``axis`` method pins each frame's circle to the spindle axis. A surface off that axis
 (raw stock, a second clamping) breaks it; given each frame's spindle angle, the frames' free
 fits tell where the surface's centre goes round (``form.fit_runout``), and each frame is
-measured again about its own centre there. Without angles the frames are only checked
+measured again about its own centre there. Without angles the spindle's turn per frame may be
+estimated from the free fits themselves (``spindle_estimate``: frames in order at a steady
+frame rate and speed); where it cannot be, the frames are only checked
 (``concentricity_check``), and refused when they say the surface is not concentric. Pure:
 images and angles in, measurements and figures out.
 """
@@ -32,6 +34,7 @@ from service.measure.form import (
 from service.measure.fuse import Fused, fuse
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement, Method, Status
+from service.measure.spindle_estimate import SpindleStep, estimate_spindle_step
 
 FORM_SIGNIFICANCE = 4.5
 """A harmonic of the form taken off the frames' points stands above this many of its standard
@@ -89,6 +92,8 @@ class TurningFrames:
     axis_check : Runout or None
         The run-out fitted with the spindle axis free (its ``axis_shift_mm``: where the
         frames put the axis relative to the calibrated one), when the angles go round.
+    spindle : SpindleStep or None
+        The turn per frame estimated from the frames, when no angles were given.
     """
 
     measurements: list[Measurement]
@@ -96,6 +101,7 @@ class TurningFrames:
     fused: Fused
     roundness: Roundness | None = None
     axis_check: Runout | None = None
+    spindle: SpindleStep | None = None
 
 
 def centre_sigma_at(runout: Runout, spindle_deg: float) -> float:
@@ -109,7 +115,7 @@ def centre_sigma_at(runout: Runout, spindle_deg: float) -> float:
 
 
 def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
-                    spindle_deg: Sequence[float], params: MeasureParams | None = None,
+                    spindle_deg: Sequence[float] | None, params: MeasureParams | None = None,
                     form: bool = False, upr: int = 50) -> TurningFrames:
     """Measure frames of one surface taken at known spindle angles.
 
@@ -127,8 +133,10 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
         The frames, in the order taken.
     geometry : RigGeometry
         Calibration (with its axis point).
-    spindle_deg : sequence of float
-        Each frame's spindle angle, right-handed about the calibration's axis direction.
+    spindle_deg : sequence of float or None
+        Each frame's spindle angle, right-handed about the calibration's axis direction;
+        None: estimated from the frames (in the order taken, at a steady frame rate and
+        spindle speed), and where that fails each frame is checked for concentricity.
     params : MeasureParams, optional
         Settings.
     form : bool
@@ -138,8 +146,8 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
     """
     # The free fits are what tells where the surface's centre goes.
     params = replace(params or MeasureParams(), free_fit=True)
-    angles = np.asarray(spindle_deg, np.float64).ravel()
-    if len(angles) != len(images):
+    angles = None if spindle_deg is None else np.asarray(spindle_deg, np.float64).ravel()
+    if angles is not None and len(angles) != len(images):
         raise ValueError(f"{len(images)} frames but {len(angles)} spindle angles")
     axis = axis_center(geometry)
     if axis is None:
@@ -156,6 +164,15 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
     centres = np.array([first[i].free_center_mm for i in use]).reshape(-1, 2)
     covs = np.array([[[c[0], c[1]], [c[1], c[2]]] for c in
                      (first[i].free_center_cov for i in use)]).reshape(-1, 2, 2)
+    spindle = None
+    if angles is None:
+        spindle = estimate_spindle_step(centres, covs, axis, np.array(use))
+        if not spindle.ok:
+            watch = ConcentricityWatch(window=max(len(images), 1))
+            ms = [concentricity_check(m, watch, axis, params.axis_sigma_mm) for m in first]
+            return TurningFrames(ms, Runout(False, frames=len(use), reason=spindle.reason),
+                                 fuse(ms), spindle=spindle)
+        angles = spindle.angles(np.arange(len(images)))
     # About the calibrated axis: fitting the axis too lets the free fits' own bias along
     # each arc's bisector (a micrometre or two, the same at every angle) move it, and every
     # diameter with it (3-5 um in the simulator); the frames' axis is reported as a check.
@@ -164,7 +181,7 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
     if not runout.ok:
         watch = ConcentricityWatch(window=max(len(images), 1))
         ms = [concentricity_check(m, watch, axis, params.axis_sigma_mm) for m in first]
-        return TurningFrames(ms, runout, fuse(ms), axis_check=axis_check)
+        return TurningFrames(ms, runout, fuse(ms), axis_check=axis_check, spindle=spindle)
     second, near = [], None
     for im, theta in zip(images, angles, strict=True):
         centre = runout.center_at(axis, float(theta))
@@ -185,7 +202,8 @@ def measure_turning(images: Sequence[np.ndarray], geometry: RigGeometry,
             break
         runout, second = again, refitted
         shape = roundness_of(second, angles, upr)
-    return TurningFrames(second, runout, fuse(second), shape if form else None, axis_check)
+    return TurningFrames(second, runout, fuse(second), shape if form else None, axis_check,
+                         spindle)
 
 
 def significant_lobes(shape: Roundness) -> list[tuple[int, float, float]]:

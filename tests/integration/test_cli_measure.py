@@ -259,6 +259,20 @@ def test_measure_form_prints_the_run_out_and_the_roundness(turning) -> None:
     assert len(ok) >= 10 and all(abs(r["diameter_mm"] - 30.0) < 0.008 for r in ok)
 
 
+def test_measure_form_estimates_the_turn_when_told_to(turning) -> None:
+    """The same frames without their angles: the spindle's turn per frame (30 degrees) is
+    told from the frames, and the record says so."""
+    cal, paths, _ = turning
+    res = run("measure", "--calibration", str(cal), "--form", "--spindle-deg", "estimate",
+              *map(str, paths))
+    assert res.returncode == 0, res.stderr
+    (rec,) = lines(res.stdout)
+    assert rec["spindle_angle_source"] == "estimated from the frames", rec
+    assert abs(rec["spindle_deg_per_frame"] - 30.0) < 0.5, rec
+    assert rec["status"] == "ok" and abs(rec["diameter_mm"] - 30.0) < 0.004
+    assert abs(rec["tir_mm"] - 0.08) < 0.002 + 0.05 * 0.08
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--form"], "--form needs --spindle-deg"),
     (["--spindle-deg", "0,30"], "gives 2 angles for 12 images"),

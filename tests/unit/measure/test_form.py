@@ -54,12 +54,33 @@ def test_runout_recovers_eccentricity_and_phase(e_um: float, phi: float) -> None
     assert ro.ok, ro.reason
     assert ro.eccentricity_mm == pytest.approx(e_um / 1000.0, abs=max(
         3.0 * ro.eccentricity_uncertainty_mm, 0.0005))
-    assert ro.tir_mm == pytest.approx(2.0 * ro.eccentricity_mm)
+    assert ro.tir_mm == pytest.approx(2.0 * math.sqrt(max(
+        ro.eccentricity_mm ** 2 - np.trace(ro.parameter_cov[:2, :2]), 0.0)))
+    assert ro.tir_mm == pytest.approx(2.0 * e_um / 1000.0, abs=max(
+        6.0 * ro.eccentricity_uncertainty_mm, 0.001))
     if e_um >= 10.0:
         gap = (ro.eccentricity_deg - phi + 180.0) % 360.0 - 180.0
         assert abs(gap) <= max(3.0 * ro.eccentricity_deg_uncertainty, 1.0)
     assert np.hypot(*ro.axis_shift_mm) < 0.001  # the calibrated axis stands
     assert 0.2 < ro.chi2_per_dof < 5.0
+
+
+def test_noise_alone_does_not_read_as_run_out() -> None:
+    """On a concentric surface the fitted eccentricity is noise, and its length is always
+    positive: 2 |e| would read as run-out. The TIR takes the noise's share out: over many
+    draws its mean stays near zero, where 2 |e| does not."""
+    angles = np.arange(0.0, 360.0, 7.5)
+    naive, tirs, sigmas = [], [], []
+    for seed in range(30):
+        data = frames(0.0, 0.0, [], angles, noise_mm=0.004, seed=100 + seed, n=150)
+        centres, covs = free_fits(data)
+        ro = fit_runout(centres, covs, angles, AXIS)
+        naive.append(2.0 * ro.eccentricity_mm)
+        tirs.append(ro.tir_mm)
+        sigmas.append(ro.eccentricity_uncertainty_mm)
+    sigma = float(np.mean(sigmas))
+    assert np.mean(naive) > 2.0 * sigma  # 2 |e| of pure noise: about 2.5 sigma
+    assert np.mean(tirs) < 0.5 * np.mean(naive), (np.mean(tirs), np.mean(naive))
 
 
 def test_runout_finds_a_calibrated_axis_that_is_off() -> None:

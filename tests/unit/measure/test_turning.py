@@ -89,3 +89,33 @@ def test_a_surface_out_of_round_and_off_the_axis_is_measured_without_its_form() 
     assert np.abs(errors).max() < 0.010
     assert (np.abs(errors) <= 4 * np.array([m.uncertainty_mm for m in ok])).all()
     assert all("form taken off" in m.note for m in ok)
+
+
+@pytest.mark.parametrize(("eccentricity_mm", "step_deg"), [(0.06, 13.0), (0.03, -29.0)])
+def test_without_angles_the_turn_is_told_from_the_frames(eccentricity_mm: float,
+                                                         step_deg: float) -> None:
+    """Frames in order at a steady turn per frame (not given): the turn is estimated from
+    the free centres, and the diameters and TIR are those of the frames with angles."""
+    rig = ShaftRenderer(RigConfig(turning=Turning(eccentricity_mm, 130.0)), seed=8)
+    angles = (np.arange(32) * step_deg + 50.0) % 360.0
+    images = [rig.render(DIAMETER_MM, i, spindle_deg=a) for i, a in enumerate(angles)]
+    got = measure_turning(images, geometry_of(rig.calibration), None)
+    assert got.spindle is not None and got.spindle.ok, got.spindle
+    assert abs(got.spindle.deg_per_frame - step_deg) < 0.3, got.spindle
+    r = got.runout
+    assert r.ok and abs(r.tir_mm - 2 * eccentricity_mm) <= 0.002 + 0.05 * 2 * eccentricity_mm
+    ok = [m for m in got.measurements if m.status is Status.OK]
+    assert len(ok) >= 0.9 * len(images)
+    errors = np.array([m.diameter_mm - DIAMETER_MM for m in ok])
+    assert np.abs(errors).max() < 0.010
+    assert (np.abs(errors) <= 4 * np.array([m.uncertainty_mm for m in ok])).all()
+
+
+def test_without_angles_a_surface_that_runs_true_is_checked_not_guessed() -> None:
+    images, _, rig = frames(0.0, n=16)
+    got = measure_turning(images, geometry_of(rig.calibration), None)
+    assert got.spindle is not None and not got.spindle.ok
+    assert not got.runout.ok and "do not go round" in got.runout.reason
+    ok = [m for m in got.measurements if m.status is Status.OK]
+    assert len(ok) >= 0.9 * len(images)  # concentric: the axis method's frames stand
+    assert max(abs(m.diameter_mm - DIAMETER_MM) for m in ok) < 0.008
