@@ -34,6 +34,12 @@ def _measured(run: dict) -> str:
             f"({run['machine'].split(',')[0]}), commit `{run['commit']}`{dirty}.*")
 
 
+def _present(*runs: tuple[str, str]) -> list[tuple[str, dict]]:
+    """(caption, results) of each run whose results file is there (a held-out set is scored
+    by hand, so its file may not be)."""
+    return [(what, _load(name)) for name, what in runs if (RESULTS / f"{name}.json").exists()]
+
+
 def core_throughput() -> str:
     """The measurement core on one core against the fair plain Steger of the same run."""
     d = _load("core_throughput")
@@ -120,12 +126,8 @@ def turning_service() -> str:
         return "-" if x is None else fmt.format(x)
 
     out = []
-    for name, what in (("turning_service", "Tuning set"),
-                       ("turning_service_held_out", "Held out (scored once)")):
-        path = RESULTS / f"{name}.json"
-        if not path.exists():
-            continue
-        d = _load(name)
+    for what, d in _present(("turning_service", "Tuning set"),
+                            ("turning_service_held_out", "Held out (scored once)")):
         scored = d["cases"][0]["frames"]
         out += [f"{what}: the last {scored} of {d['frames']} frames a case scored (the "
                 f"run-out is learnt in the first), seeds "
@@ -234,11 +236,8 @@ FAMILY_NAMES = {"clean": "clean", "glints": "glints", "ghost": "ghost", "droplet
 def robustness() -> str:
     """Every shop-floor disturbance family, development settings and held out."""
     out = []
-    for name, what in (("robustness", "Development settings"),
-                       ("robustness_held_out", "Held-out settings and seeds")):
-        if not (RESULTS / f"{name}.json").exists():
-            continue
-        d = _load(name)
+    for what, d in _present(("robustness", "Development settings"),
+                            ("robustness_held_out", "Held-out settings and seeds")):
         n = next(iter(d["families"].values()))["axis"]["frames"]
         out += [f"{what} (seeds {', '.join(map(str, d['seeds']))}, {n} frames a family):", "",
                 r"| family | `axis` measured | mean / max \|error\| | frames > 20 um | "
@@ -260,11 +259,8 @@ def rig_range() -> str:
     """``axis`` across rigs: sheet thickness and speckle, per frame and fused, beside the
     speckle's own floor, and how honest the uncertainty is."""
     out = []
-    for name, what in (("rig_range", "Development rows"),
-                       ("rig_range_held_out", "Held-out rows (other seeds and diameters)")):
-        if not (RESULTS / f"{name}.json").exists():
-            continue
-        d = _load(name)
+    for what, d in _present(("rig_range", "Development rows"),
+                            ("rig_range_held_out", "Held-out rows (other seeds and diameters)")):
         out += [f"{what}: diameters {', '.join(f'{x:g}' for x in d['diameters_mm'])} mm, "
                 f"{d['frames']} frames each:", "",
                 r"| rig (the rest at the defaults) | measured | mean \|error\| per frame | "
