@@ -382,8 +382,9 @@ class ConcentricityWatch:
     turning surface and at a fixed angle; 5 um at a fixed angle along the arc's bisector it
     cannot tell from a change of diameter (that needs the spindle's angle: ``fit_runout``).
     A single frame whose own centre lies beyond ``frame_limit`` sigmas is off the axis too
-    (the first frames of a part clamped off it, before the window has judged). Pure: centres
-    in, a verdict out.
+    (the first frames of a part clamped off it, before the window has judged). A centre equal
+    to one in the window is the same frame again and counts once. Pure: centres in, a verdict
+    out.
     """
 
     window: int = 40
@@ -429,17 +430,23 @@ class ConcentricityWatch:
         return self._verdict
 
     def _judge(self) -> Concentricity:
-        n = len(self._d)
+        # The same centre twice is the same pixels again (a camera replaying its frames, a
+        # stuck sensor): no new information, and counted twice it would shrink the mean's
+        # uncertainty. Each frame is counted once; the window still forgets by arrival.
+        _, first = np.unique(np.array(self._d).reshape(-1, 2), axis=0, return_index=True)
+        keep = np.sort(first)
+        n = len(keep)
         if n < self.min_frames:
             return Concentricity(True, frames=n, reason=f"{n} free fits, judged from "
                                  f"{self.min_frames}")
-        d, w = np.array(self._d), np.array(self._w)
+        d, w = np.array(self._d)[keep], np.array(self._w)[keep]
         m2 = np.einsum("ni,nij,nj->n", d, w, d)
         spread = float(m2.mean()) / 2.0
         info = w.sum(axis=0)
         mean = np.linalg.solve(info, np.einsum("nij,nj->i", w, d))
         offset = math.sqrt(max(float(mean @ info @ mean), 0.0))
-        ecc = math.sqrt(max(float(np.mean(np.sum(d * d, axis=1)) - np.mean(self._var)), 0.0))
+        var = np.array(self._var)[keep]
+        ecc = math.sqrt(max(float(np.mean(np.sum(d * d, axis=1)) - np.mean(var)), 0.0))
         ecc = max(ecc, math.hypot(*mean))
         if spread > self.spread_limit or offset > self.offset_limit:
             return Concentricity(

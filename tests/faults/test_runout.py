@@ -21,7 +21,9 @@ OFF_AXIS = {"eccentricity_mm": 0.05, "eccentricity_deg": 30.0, "spindle_deg_per_
 
 
 def test_a_part_clamped_off_the_axis_holds_offsets_until_it_runs_true(tmp_path) -> None:
-    svc = start_service(tmp_path)
+    # Two revolutions in the camera's ring: the watch counts each frame once, and judges
+    # from ten.
+    svc = start_service(tmp_path, camera_toml="sim_replay_frames = 16\n")
     plc_log = svc.data / "sim-plc.log"
     try:
         assert wait_ready(svc)

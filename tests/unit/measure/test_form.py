@@ -179,13 +179,30 @@ def test_the_watch_needs_frames_and_forgets() -> None:
     from service.measure.form import ConcentricityWatch
 
     w = ConcentricityWatch(window=20, min_frames=5)
-    for _ in range(4):
-        w.update(np.array([0.05, 0.0]), np.eye(2) * 1e-5)
+    for k in range(4):
+        w.update(np.array([0.05, k * 1e-6]), np.eye(2) * 1e-5)
     assert w.verdict().concentric and "judged from 5" in w.verdict().reason
-    w.update(np.array([0.05, 0.0]), np.eye(2) * 1e-5)
+    w.update(np.array([0.05, 4e-6]), np.eye(2) * 1e-5)
     assert not w.verdict().concentric
     w.clear()
     assert w.verdict().frames == 0
+
+
+def test_the_same_frames_again_are_not_counted_twice() -> None:
+    """A camera replaying a ring of frames (and a measurement rate that aliases with it) shows
+    the watch the same centres again: counted each time, twelve frames each 1 sigma off along
+    one direction would read sqrt(40) = 6.3 sigma, not their 3.5."""
+    from service.measure.form import ConcentricityWatch
+
+    rng = np.random.default_rng(2)
+    ring = [np.array([1e-3, 0.0]) + rng.normal(0.0, 1e-6, 2) for _ in range(12)]
+    once, replayed = ConcentricityWatch(), ConcentricityWatch()
+    for d in ring:
+        once.update(d, np.eye(2) * 1e-6)
+    for k in range(40):
+        assert replayed.update(ring[k % 12], np.eye(2) * 1e-6) == pytest.approx(1.0, abs=0.01)
+    assert once.verdict().concentric and once.verdict().offset_sigmas == pytest.approx(3.46, 0.01)
+    assert replayed.verdict() == once.verdict()
 
 
 def test_noise_alone_is_not_read_as_form() -> None:
