@@ -148,6 +148,34 @@ def turning_service() -> str:
     return "\n".join(out).rstrip("\n")
 
 
+def turning_summary() -> str:
+    """The held-out turning set per case (its seeds together), for the front door: refusals,
+    the diameters' error against the concentric case's, the run-out's and the form's errors."""
+    d = _load("turning_service_held_out")
+    cases: dict[str, list[dict]] = {}
+    for r in d["cases"]:
+        cases.setdefault(r["case"], []).append(r)
+
+    def worst(rows: list[dict], key: str) -> str:
+        vals = [r[key] for r in rows if r[key] is not None]
+        return "-" if not vals else f"{max(vals, key=abs):+.1f} um"
+
+    out = [r"| surface | refused | mean \|error\| | TIR error | RONt error | lobes found |",
+           "|---|---:|---:|---:|---:|---:|"]
+    for case, rows in cases.items():
+        measured = [r["mean_abs_error_um"] for r in rows if r["mean_abs_error_um"] is not None]
+        lobes = ", ".join(f"{r['lobes'] if r['lobes'] is not None else '-'} of "
+                          f"{r['lobes_true']}" for r in rows)
+        out.append(f"| {case} | {sum(r['frames'] - r['measured'] for r in rows)} of "
+                   f"{sum(r['frames'] for r in rows)} | "
+                   f"{_um(max(measured) if measured else None)} | {worst(rows, 'tir_error_um')} | "
+                   f"{worst(rows, 'ront_error_um')} | {lobes} |")
+    seeds = ", ".join(str(s) for s in d["seeds"])
+    return "\n".join([f"Held-out turning set (scored once; seeds {seeds}; the worst seed shown), "
+                      f"{d['cases'][0]['frames']} frames a case and seed at 100 frames/s:", "",
+                      *out, "", _measured(d["run"])])
+
+
 def _um(x: float | None, fmt: str = "{:.2f}") -> str:
     return "-" if x is None or x != x else fmt.format(x) + " um"
 
@@ -363,6 +391,7 @@ RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
                                         "core_extractors": core_extractors,
                                         "service_throughput": service_throughput,
                                         "turning_service": turning_service,
+                                        "turning_summary": turning_summary,
                                         "paper_comparison": paper_comparison,
                                         "beyond_paper": beyond_paper,
                                         "robustness": robustness,
@@ -384,9 +413,14 @@ def render_page(text: str) -> str:
     return BLOCK.sub(block, text)
 
 
+def pages() -> list[Path]:
+    """The pages that hold figures: the manual's and the README's."""
+    return [*sorted(DOCS.glob("*.md")), ROOT / "README.md"]
+
+
 def stale_pages() -> list[Path]:
     """The pages whose figures blocks are not what the bench results render."""
-    return [p for p in sorted(DOCS.glob("*.md")) if render_page(p.read_text()) != p.read_text()]
+    return [p for p in pages() if render_page(p.read_text()) != p.read_text()]
 
 
 def main() -> int:

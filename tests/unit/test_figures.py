@@ -17,9 +17,9 @@ def test_every_figures_block_is_what_the_bench_results_render() -> None:
 
 
 def test_the_manual_shows_the_rendered_figures() -> None:
-    """Each renderer's block is on a page of the manual (the speed figures in *developing*,
-    the turning figures in *how it works*)."""
-    text = "".join(p.read_text() for p in sorted(figures.DOCS.glob("*.md")))
+    """Each renderer's block is on a page of the manual or the README (the speed figures in
+    *developing*, the turning figures in *how it works*, their summary in the README)."""
+    text = "".join(p.read_text() for p in figures.pages())
     for name in figures.RENDER:
         assert f"<!-- figures: {name} -->" in text, name
 
@@ -64,7 +64,7 @@ def figures_outside_blocks(text: str) -> list[str]:
 
 
 def test_no_measured_figure_is_typed_into_the_manual() -> None:
-    pages = [*sorted(figures.DOCS.glob("*.md")), figures.ROOT / "README.md"]
+    pages = figures.pages()
     typed = {p.name: sorted({f for f in figures_outside_blocks(p.read_text())
                              if f not in NOT_MEASURED}) for p in pages}
     typed = {k: v for k, v in typed.items() if v}
