@@ -24,14 +24,15 @@ linuxcnc-demo: setup
 
 ## make test: lint, then the whole suite (short fault runs included, long soak runs left out):
 ## first the tests timed against a rate or a baseline, alone; then the rest on four workers
-## (many tests wait on a service, LinuxCNC or a lathe they started: four keep both cores busy),
-## the long groups first (tests/conftest.py FIRST).
+## (many tests wait on a service, LinuxCNC or a lathe they started: four keep both cores busy).
+## xdist's own order (the files with most tests first) mixes unit files with the services;
+## the long service files first made them meet, and a streaming service's CPU grows with its
+## wall (598 s against 469 s for this phase).
 test: setup docs
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
 	$(PY) -m pytest -m "alone and not slow" -q; alone=$$?; \
 	$(PY) -m pytest -m "not slow and not wheel and not alone" -q -n 4 --dist loadgroup \
-		--no-loadscope-reorder \
 		--durations=20; rest=$$?; exit $$((alone || rest))
 
 ## make check: the fast layer for a developer's loop (lint, unit and property tests, on both

@@ -54,22 +54,6 @@ def _group_of(path: Path) -> str:
     return _GROUP[path]
 
 
-FIRST = ("tests/integration/linuxcnc/", "tests/e2e/", "tests/faults/")
-"""What the workers take first (``make test`` keeps this order: ``--no-loadscope-reorder``):
-the long groups, LinuxCNC's one after another above all, so that none is left to run alone at
-the end while the other workers have finished; the many short unit tests fill in last."""
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    root = Path(__file__).resolve().parents[1]
-
-    def tier(item: pytest.Item) -> int:
-        rel = Path(item.fspath).relative_to(root).as_posix()
-        return next((i for i, d in enumerate(FIRST) if rel.startswith(d)), len(FIRST))
-
-    items.sort(key=tier)  # stable: the files' own order within a tier
-
-
 def pytest_itemcollected(item: pytest.Item) -> None:
     # As each test is collected: xdist reads the groups into the test ids after collection.
     item.add_marker(pytest.mark.xdist_group(_group_of(Path(item.fspath))))
