@@ -433,13 +433,13 @@ class ConcentricityWatch:
         # The same centre twice is the same pixels again (a camera replaying its frames, a
         # stuck sensor): no new information, and counted twice it would shrink the mean's
         # uncertainty. Each frame is counted once; the window still forgets by arrival.
-        _, first = np.unique(np.array(self._d).reshape(-1, 2), axis=0, return_index=True)
-        keep = np.sort(first)
+        seen = np.array(self._d).reshape(-1, 2)
+        keep = np.sort(np.unique(seen, axis=0, return_index=True)[1])
         n = len(keep)
         if n < self.min_frames:
             return Concentricity(True, frames=n, reason=f"{n} free fits, judged from "
                                  f"{self.min_frames}")
-        d, w = np.array(self._d)[keep], np.array(self._w)[keep]
+        d, w = seen[keep], np.array(self._w)[keep]
         m2 = np.einsum("ni,nij,nj->n", d, w, d)
         spread = float(m2.mean()) / 2.0
         info = w.sum(axis=0)
