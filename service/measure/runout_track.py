@@ -19,20 +19,25 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.measure.form import Roundness, Runout, fit_runout, rotations, span_deg
+from service.measure.form import (
+    Roundness,
+    Runout,
+    fit_runout,
+    form_of_frames,
+    rotations,
+    span_deg,
+)
 from service.measure.result import Measurement, Status
 from service.measure.turning import (
     MIN_CENTRE_SIGMA_MM,
+    about_centre,
     centre_sigma_at,
-    roundness_of,
     significant_lobes,
 )
-
-_NO_POINTS = np.empty((0, 2))
 
 
 @dataclass(frozen=True)
@@ -92,23 +97,20 @@ class Settling:
 
 @dataclass
 class FormFrames:
-    """Frames measured about the surface's own centre, kept for its roundness (the radius
-    over the material's angle: ``turning.roundness_of``): the latest of each ``bins``-th of a
-    revolution of spindle angle, so that they cover the material's angles whatever the frame
-    rate and the spindle's speed make of the frames' angles; each thinned to at most
-    ``points`` of its arc (the form's harmonics up to 50 need a few thousand points over a
-    revolution, not every one: 36 frames of 400 cost 130 ms, of 100 35 ms).
+    """Frames measured about the surface's own centre, kept for its roundness (the radius over
+    the material's angle, ``form.form_of_frames``, each frame with its own mean radius): the
+    latest of each ``bins``-th of a revolution of spindle angle, so that they cover the
+    material's angles whatever the frame rate and the spindle's speed make of the frames'
+    angles, and a frame seen again (a camera replaying its frames) replaces itself rather
+    than counting twice. Each keeps its points as material angles and radii (a few kB).
 
     Parameters
     ----------
     bins : int
         Frames kept, one per ``360 / bins`` degrees of spindle angle.
-    points : int
-        Points kept of each.
     """
 
-    bins: int = 36
-    points: int = 100
+    bins: int = 360
     added: int = 0
     lobes: list = field(default_factory=list)
     """The harmonics (order, amplitude mm, phase rad) of the last form made that stand above
@@ -121,9 +123,8 @@ class FormFrames:
         if not m.about_runout or m.spindle_deg is None or m.center_mm is None \
                 or m.status not in (Status.OK, Status.UNCERTAIN) or len(m.section_mm) == 0:
             return
-        step = max(1, -(-len(m.section_mm) // self.points))
         slot = int(m.spindle_deg % 360.0 * self.bins / 360.0) % self.bins
-        self._kept[slot] = replace(m, section_mm=m.section_mm[::step], points_px=_NO_POINTS)
+        self._kept[slot] = about_centre(m.section_mm, np.asarray(m.center_mm), m.spindle_deg)
         self.added += 1
 
     def clear(self) -> None:
@@ -134,10 +135,9 @@ class FormFrames:
     def roundness(self, upr: int = 50) -> Roundness:
         """The form of the frames kept (``ok`` False with the reason when they do not cover
         the material's angles); its significant harmonics become ``lobes``."""
-        kept = list(self._kept.values())
-        if not kept:
+        if not self._kept:
             return Roundness(False, reason="no frame measured about the surface's centre yet")
-        shape = roundness_of(kept, np.array([m.spindle_deg for m in kept]), upr)
+        shape = form_of_frames(list(self._kept.values()), upr)
         self.lobes = significant_lobes(shape)
         return shape
 

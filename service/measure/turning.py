@@ -28,8 +28,8 @@ from service.measure.form import (
     Roundness,
     Runout,
     fit_runout,
+    form_of_frames,
     rotation,
-    roundness,
 )
 from service.measure.fuse import Fused, fuse
 from service.measure.geometry import RigGeometry
@@ -285,22 +285,26 @@ def about_the_form(m: Measurement, centre_mm: np.ndarray, centre_sigma_mm: float
         note="measured with the surface's form taken off")
 
 
+def about_centre(points_mm: np.ndarray, centre_mm: np.ndarray, spindle_deg: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's points as (material angle rad, radius mm) about the surface's centre at its
+    spindle angle, in their order along the arc (the noise's correlation is read along it)."""
+    d = np.asarray(points_mm, np.float64) - np.asarray(centre_mm, np.float64)
+    d = d[order_along_arc(d, np.zeros(2))]
+    return (np.arctan2(d[:, 1], d[:, 0]) - math.radians(spindle_deg),
+            np.hypot(d[:, 0], d[:, 1]))
+
+
 def roundness_of(ms: list[Measurement], angles: np.ndarray, upr: int) -> Roundness:
     """Every fitted frame's points (as its fit took them) as radii about its own centre at
-    their material angles (the angle in the section less the frame's spindle angle)."""
-    material, radius = [], []
-    for m, theta in zip(ms, angles, strict=True):
-        # Frames refused only as uncertain count too: a form the run-out does not model
-        # (lobes) leaves most of them uncertain until it is known.
-        if m.status not in (Status.OK, Status.UNCERTAIN) or m.center_mm is None \
-                or len(m.section_mm) == 0:
-            continue
-        # In arc order: the form's noise correlation is estimated along each frame's arc.
-        d = m.section_mm - np.asarray(m.center_mm)
-        d = d[order_along_arc(d, np.zeros(2))]
-        material.append(np.degrees(np.arctan2(d[:, 1], d[:, 0])) - theta)
-        radius.append(np.hypot(d[:, 0], d[:, 1]))
-    if not material:
+    their material angles (the angle in the section less the frame's spindle angle), each
+    frame with its own mean radius (``form.form_of_frames``)."""
+    # Frames refused only as uncertain count too: a form the run-out does not model (lobes)
+    # leaves most of them uncertain until it is known.
+    kept = [about_centre(m.section_mm, np.asarray(m.center_mm), float(theta))
+            for m, theta in zip(ms, angles, strict=True)
+            if m.status in (Status.OK, Status.UNCERTAIN) and m.center_mm is not None
+            and len(m.section_mm) > 0]
+    if not kept:
         return Roundness(False, reason="no frame was measured")
-    return roundness(np.concatenate(material), np.concatenate(radius), upr=upr,
-                     correlation=None)
+    return form_of_frames(kept, upr)

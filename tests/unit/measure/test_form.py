@@ -221,3 +221,53 @@ def test_noise_alone_is_not_read_as_form() -> None:
     assert plain.ront_mm > 0.003
     assert judged.ront_mm < 0.001 and judged.dominant_order == 0
     assert judged.ront_uncertainty_mm > plain.ront_uncertainty_mm  # the correlation counts
+
+
+def lobed_frames(lobes, frames_n: int, offset_mm: float, noise_mm: float, seed: int,
+                 arc_deg: float = 110.0, n: int = 300):
+    """Frames of radii about the surface's centre on arcs at turning material angles, each
+    frame's radii shifted by its own error (a frame's diameter error), with noise."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for j in range(frames_n):
+        start = (37.0 * j) % 360.0
+        beta = np.radians(start + np.linspace(0.0, arc_deg, n))
+        r = R + sum(a * np.cos(k * beta - math.radians(p)) for k, a, p in lobes)
+        out.append((beta, r + rng.normal(0.0, offset_mm) + rng.normal(0.0, noise_mm, n)))
+    return out
+
+
+def test_each_frames_own_radius_error_comes_out_of_the_form() -> None:
+    """Five lobes of 1.5 um under frames whose radii are each 5 um off (a frame's diameter
+    error): pooled as one set of points, the frames' errors are noise over the material's
+    angle and bury the lobes; with each frame's own mean, the lobes come out whole (the
+    arcs' means of each harmonic are kept in the normal equations)."""
+    from service.measure.form import form_of_frames
+
+    lobes = [(5, 0.0015, 200.0), (2, 0.002, 40.0)]
+    data = lobed_frames(lobes, 150, 0.005, 0.004, seed=3)
+    got = form_of_frames(data, upr=50)
+    pooled = roundness(np.degrees(np.concatenate([b for b, _ in data])),
+                       np.concatenate([r for _, r in data]), correlation=None)
+    assert got.ok, got.reason
+    by_order = {h.order: h for h in got.harmonics}
+    for k, a, p in lobes:
+        h = by_order[k]
+        assert h.amplitude_mm == pytest.approx(a, abs=4.0 * h.amplitude_uncertainty_mm)
+        assert h.amplitude_mm > 4.5 * h.amplitude_uncertainty_mm
+        gap = (h.phase_deg - p + 180.0) % 360.0 - 180.0
+        assert abs(gap) < 10.0
+    assert got.dominant_order == 2
+    assert got.radius_mm == pytest.approx(R, abs=0.001)
+    assert {h.order for h in got.harmonics
+            if h.amplitude_mm > 4.5 * h.amplitude_uncertainty_mm} == {2, 5}
+    pooled_5 = {h.order: h for h in pooled.harmonics}[5]
+    assert pooled_5.amplitude_uncertainty_mm > 3.0 * by_order[5].amplitude_uncertainty_mm
+
+
+def test_frames_must_cover_the_revolution() -> None:
+    from service.measure.form import form_of_frames
+
+    assert not form_of_frames([]).ok
+    short = [(b * 0.25, r) for b, r in lobed_frames([], 10, 0.0, 0.001, seed=2, arc_deg=20.0)]
+    assert "cover" in form_of_frames(short).reason

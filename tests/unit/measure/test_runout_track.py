@@ -201,3 +201,26 @@ def test_the_publisher_takes_the_known_form_off_a_frame() -> None:
         plain_err.append(abs(plain.diameter - 30.0))
         got_err.append(abs(got.diameter_mm - 30.0))
     assert np.mean(got_err) < 0.5 * np.mean(plain_err), (np.mean(got_err), np.mean(plain_err))
+
+
+def test_a_frame_seen_again_counts_once_in_the_form() -> None:
+    """A camera replaying its frames shows the form the same points again at the same
+    angles: counted each time, their noise would shrink the harmonics' uncertainty and read
+    as lobes. Each replaces itself."""
+    from service.measure.result import Measurement, Method, Status
+    from service.measure.runout_track import FormFrames
+
+    deg = np.array([SpindleAngles(37.0).at(i) for i in range(20)])
+    ring = [Measurement(Status.OK, Method.AXIS, 30.0, center_mm=tuple(centre),
+                        section_mm=pts, spindle_deg=float(theta), about_runout=True)
+            for theta, (pts, centre) in zip(deg, frames(0.05, 30.0, [], deg), strict=True)]
+    once, replayed = FormFrames(), FormFrames()
+    for m in ring:
+        once.add(m)
+    for k in range(200):
+        replayed.add(ring[k % len(ring)])
+    assert once.added == 20 and replayed.added == 200
+    a, b = once.roundness(), replayed.roundness()
+    assert a.ok and b.ok
+    assert [h.amplitude_uncertainty_mm for h in a.harmonics] == \
+        [h.amplitude_uncertainty_mm for h in b.harmonics]
