@@ -30,7 +30,7 @@ from service.measure.geometry import geometry_of
 from service.measure.result import Method, Status
 from service.measure.runout_track import RunoutTracker, SpindleAngles
 from service.runtime.calibration import CalibrationInUse
-from service.runtime.pipeline import frame_prior
+from service.runtime.pipeline import FREE_FIT_HZ, frame_prior
 from service.runtime.publish import judged
 from tests.bench.results import save_report
 
@@ -71,9 +71,9 @@ FORM_EVERY = 40
 """The form made again every this many frames (the service: every 2 s; 200 frames at 100
 frames a second, but the bench's cases are short)."""
 
-FREE_EVERY = 8
-"""Once the position is settled, a free fit every this many frames: 12 a second at 100
-frames a second, as the service (every frame until then)."""
+FREE_EVERY = max(1, round(100.0 / FREE_FIT_HZ))
+"""Once the position is settled, a free fit every this many frames at 100 frames a second, as
+the service (``pipeline.FREE_FIT_HZ``; every frame until then)."""
 
 
 def run_case(case: Case, seed: int, frames: int, rig: RigConfig) -> dict:
@@ -124,6 +124,8 @@ def run_case(case: Case, seed: int, frames: int, rig: RigConfig) -> dict:
         "tir_true_um": 2.0 * case.eccentricity_mm * 1000.0,
         "tir_error_um": None if r is None else r.tir_mm * 1000.0
         - 2.0 * case.eccentricity_mm * 1000.0,
+        "tir_uncertainty_um": None if r is None else r.tir_uncertainty_mm * 1000.0,
+        "runout_frames": None if r is None else r.frames,
         "runout_reason": in_use.runout.reason or None,
         "ront_true_um": true_ront,
         "ront_error_um": shape.ront_mm * 1000.0 - true_ront if shape.ok else None,
