@@ -127,7 +127,8 @@ def turning_service() -> str:
 
     out = []
     for what, d in _present(("turning_service", "Tuning set"),
-                            ("turning_service_held_out", "Held out (scored once)")):
+                            ("turning_service_held_out",
+                             "Held out (never tuned on, scored at the end of a piece of work)")):
         scored = d["cases"][0]["frames"]
         out += [f"{what}: the last {scored} of {d['frames']} frames a case scored (the "
                 f"run-out is learnt in the first), seeds "
@@ -171,7 +172,8 @@ def turning_summary() -> str:
                    f"{_um(max(measured) if measured else None)} | {worst(rows, 'tir_error_um')} | "
                    f"{worst(rows, 'ront_error_um')} | {lobes} |")
     seeds = ", ".join(str(s) for s in d["seeds"])
-    return "\n".join([f"Held-out turning set (scored once; seeds {seeds}; the worst seed shown), "
+    return "\n".join([f"Held-out turning set (never tuned on; seeds {seeds}; the worst seed "
+                      "shown), "
                       f"{d['cases'][0]['frames']} frames a case and seed at 100 frames/s:", "",
                       *out, "", _measured(d["run"])])
 

@@ -61,6 +61,12 @@ HELD_OUT = [
     Case("10 um off, 4 lobes of 5 um", 0.010, ((4, 0.005, 10.0),), 43.0, 32.0),
     Case("35 um off, 7 lobes of 1 um", 0.035, ((7, 0.001, 0.0),), 31.0, 27.5),
     Case("80 um off, locked to the spindle", 0.080, (), 720.0, 27.5),
+    # Added on 6 December, after the cases above had been scored: the range of lobes
+    # (2-10 um, 2-7 of them), which the two small-lobed cases above lie below.
+    Case("60 um off, 2 lobes of 2 um", 0.060, ((2, 0.002, 120.0),), 29.0, 27.5),
+    Case("25 um off, 3 lobes of 8 um", 0.025, ((3, 0.008, 300.0),), 31.0, 32.0),
+    Case("concentric, 6 lobes of 3 um", 0.0, ((6, 0.003, 45.0),), 43.0, 27.5),
+    Case("100 um off, 7 lobes of 2 um", 0.100, ((7, 0.002, 250.0),), 17.0, 32.0),
 ]
 
 WARM_UP = 40
