@@ -18,7 +18,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.sim.board_kernels import integrate_pixels
 from drivers.sim.rig import RigConfig, ShaftRenderer, _rotation
 from service.calibrate.board import DEFAULT_BOARD, Board, parse_board
 
@@ -147,6 +146,10 @@ class BoardRenderer:
         board = np.array([b.square_mm, b.cols, b.rows, b.margin_squares], float)
         sheet = np.array([*p.plane_normal, p.plane_d, self.cfg.sheet_sigma_mm], float)
         shape = rx.shape
+        # Imported here: the kernels are numba's (0.6 s to import), and a simulator that
+        # never shows a board (most of them) need not pay it.
+        from drivers.sim.board_kernels import integrate_pixels
+
         acc, lit, edge = integrate_pixels(
             np.ascontiguousarray(rx, float).ravel(), np.ascontiguousarray(ry, float).ravel(),
             offsets, np.ascontiguousarray(pose.R, float), np.asarray(pose.t, float), board,

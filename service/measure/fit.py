@@ -21,7 +21,6 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from service.measure import circle_kernels as ck
 from service.measure.robust import median
@@ -498,6 +497,10 @@ def fit_paper(points: np.ndarray) -> CircleFit:
             np.sum((o - mid_ac) * dir_ac, axis=1),
             np.sum((o - mid_bd) * dir_bd, axis=1),
         ])
+
+    # Imported here: scipy.optimize costs 0.7 s at every start of a process that measures,
+    # and only the paper's method uses it.
+    from scipy.optimize import least_squares
 
     x0 = np.array([start.center[0], start.center[1], start.radius])
     sol = least_squares(residuals, x0, method="lm", xtol=1e-12, ftol=1e-12)

@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from service.measure.robust import row_index, rows
-from service.measure.stripe import StripePoints
+
+if TYPE_CHECKING:  # an annotation only: the extractor's kernels are numba's (0.6 s to import)
+    from service.measure.stripe import StripePoints
 
 
 def orthonormal_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,6 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from service.measure import steger_kernels as kernels
 from service.measure.band import (
@@ -327,6 +326,10 @@ def keep_long_chains(points: StripePoints, gap_px: float, min_chain: int,
             long_line = (sizes >= 5 * min_chain) & ~is_patch
             is_patch &= keep
             if is_patch.any() and long_line.any():
+                # Imported here: scipy.spatial costs half a second at every start of a process
+                # that measures, and only a frame with a patch of light needs it.
+                from scipy.spatial import cKDTree
+
                 near, _ = cKDTree(points.xy[long_line]).query(points.xy[is_patch],
                                                               distance_upper_bound=2 * gap_px)
                 touching = np.unique(labels[is_patch][np.isfinite(near)])
