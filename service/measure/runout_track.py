@@ -64,8 +64,9 @@ class Settling:
     that a frame may go without a free fit of its own.
 
     Each frame's free fit is what judges its position (the concentricity watch, the run-out's
-    gate); above ``pipeline.FREE_FIT_HZ`` frames a second the service fits freely only that
-    often once the position is *settled*: ``frames`` free fits in a row passed it. Anything
+    gate); above ``pipeline.RUNOUT_FREE_FIT_HZ`` frames a second (``FREE_FIT_HZ`` without the
+    spindle's angle) the service fits freely only that often once the position is
+    *settled*: ``frames`` free fits in a row passed it. Anything
     that may mean another surface unsettles it until that many pass again, every frame
     fitted freely meanwhile: a free fit refused as off the axis or its run-out, a frame with
     no stripe on a shaft (a part taken out, the laser blocked), a pause of more than

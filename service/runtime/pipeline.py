@@ -36,10 +36,13 @@ from service.runtime.roi import KEEP, RegionFollower
 log = logging.getLogger("shaftgauge.pipeline")
 
 OnResult = Callable[[Frame, Measurement, CalibrationInUse], None]
-FREE_FIT_HZ = 100.0
-"""Free fits a second once the surface's position is settled (every frame up to 100 frames a
-second): the run-out's uncertainty shrinks with their number, and one costs a fortieth of a
-frame's measurement (started from the frame's own circle)."""
+FREE_FIT_HZ = 12.0
+"""Free fits a second once the surface's position is settled, without the spindle's angle:
+the axis moves over minutes."""
+RUNOUT_FREE_FIT_HZ = 100.0
+"""The same with the spindle's angle (every frame up to 100 frames a second): the run-out's
+uncertainty shrinks with their number, and one costs a fortieth of a frame's measurement
+(started from the frame's own circle)."""
 SHARED_MIN_BYTES = 256 * 1024
 """Frames from this size on reach a worker process through shared memory; a smaller region
 is pickled through the pool's pipe, which measured faster for it (a 170x347 region at 100
@@ -106,7 +109,8 @@ class FramePipeline:
         self._follower: RegionFollower | None = None
         self._whole_until = 0.0
         # The free circle (for the axis tracker and the surface's position) is fitted at most
-        # FREE_FIT_HZ times a second once the position is settled.
+        # FREE_FIT_HZ times a second once the position is settled (RUNOUT_FREE_FIT_HZ with the
+        # spindle's angle: the run-out is fitted from them).
         self._free_fit_s = -1e9
         # A reflection is looked for a few times a second, and on every frame while one is
         # there (``ReflectionWatch``); the measurement itself checks every lopsided stripe.
@@ -207,12 +211,14 @@ class FramePipeline:
         if self._slots_shm is not None:
             self._slots_shm.close()
 
-    def _params_now(self, in_use: CalibrationInUse) -> MeasureParams:
+    def _params_now(self, in_use: CalibrationInUse, angled: bool = False) -> MeasureParams:
         """The settings for the next frame: with the free fit (every frame until the
-        surface's position is settled, then when due) and the reflection check when due."""
+        surface's position is settled, then when due: more often for a frame with a spindle
+        angle, ``angled``) and the reflection check when due."""
         now = time.monotonic()
+        hz = RUNOUT_FREE_FIT_HZ if angled else FREE_FIT_HZ
         free = self.params.free_fit and (not in_use.settling.settled
-                                         or now - self._free_fit_s >= 1.0 / FREE_FIT_HZ)
+                                         or now - self._free_fit_s >= 1.0 / hz)
         if free:
             self._free_fit_s = now
         return self._variants[(free, self.reflections.due(now))]
@@ -258,7 +264,7 @@ class FramePipeline:
                     self.counters["frames_without_calibration"] += 1
                     continue
                 prior, spindle = frame_prior(frame.frame_id, in_use, self.context.spindle)
-                params = self._params_now(in_use)
+                params = self._params_now(in_use, spindle is not None)
                 pool, ref = self._pool, self._shared(frame, in_use)
                 try:
                     fut = loop.run_in_executor(pool, measure_timed,

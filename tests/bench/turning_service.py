@@ -30,7 +30,7 @@ from service.measure.geometry import geometry_of
 from service.measure.result import Method, Status
 from service.measure.runout_track import RunoutTracker, SpindleAngles
 from service.runtime.calibration import CalibrationInUse
-from service.runtime.pipeline import FREE_FIT_HZ, frame_prior
+from service.runtime.pipeline import RUNOUT_FREE_FIT_HZ, frame_prior
 from service.runtime.publish import judged
 from tests.bench.results import save_report
 
@@ -77,9 +77,10 @@ FORM_EVERY = 40
 """The form made again every this many frames (the service: every 2 s; 200 frames at 100
 frames a second, but the bench's cases are short)."""
 
-FREE_EVERY = max(1, round(100.0 / FREE_FIT_HZ))
+FREE_EVERY = max(1, round(100.0 / RUNOUT_FREE_FIT_HZ))
 """Once the position is settled, a free fit every this many frames at 100 frames a second, as
-the service (``pipeline.FREE_FIT_HZ``; every frame until then)."""
+the service with the spindle's angle (``pipeline.RUNOUT_FREE_FIT_HZ``; every frame until
+then)."""
 
 
 def run_case(case: Case, seed: int, frames: int, rig: RigConfig) -> dict:

@@ -108,7 +108,8 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
             return items if all(m["about_runout"] for m in items) else None
 
         items = until(about_runout, 10, "a revolution of frames about the surface's centre")
-        assert all(m["status"] == "ok" and m["spindle_deg"] is not None for m in items), items
+        assert all(m["status"] == "ok" and m["spindle_deg"] is not None for m in items), \
+            [(m["frame_id"], m["status"], m["reason"]) for m in items if m["status"] != "ok"]
         # (A concentric 30 mm in the ring of 8: mean |error| 1.2-1.9 um, at most 2.7.)
         errors = [abs(m["diameter_mm"] - 30.012) for m in items]
         assert sum(errors) / len(errors) < 0.004, errors
