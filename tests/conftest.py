@@ -59,6 +59,27 @@ def pytest_itemcollected(item: pytest.Item) -> None:
     item.add_marker(pytest.mark.xdist_group(_group_of(Path(item.fspath))))
 
 
+EARLY = ("tests/faults/test_soak.py", "tests/e2e/test_lathe_loop.py")
+"""Files of a test or two that mostly wait for a minute (a soak, a lathe turning parts): in
+xdist's own order (the groups with most tests first) they came last, and the suite's last
+minute ran on half the machine."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    # xdist's order (its --loadscope-reorder: the groups with most tests first), with EARLY's
+    # groups before the rest; make test runs xdist with --no-loadscope-reorder to keep it.
+    root = Path(__file__).resolve().parents[1]
+    group = {id(i): _group_of(Path(i.fspath)) for i in items}
+    size: dict[str, int] = {}
+    for g in group.values():
+        size[g] = size.get(g, 0) + 1
+    early = {group[id(i)] for i in items
+             if Path(i.fspath).relative_to(root).as_posix() in EARLY}
+    first = {g: n for n, g in enumerate(dict.fromkeys(group.values()))}
+    items.sort(key=lambda i: (group[id(i)] not in early, -size[group[id(i)]],
+                              first[group[id(i)]]))
+
+
 @pytest.fixture(scope="session")
 def renderer() -> ShaftRenderer:
     """The default simulated rig (geometry like the reference paper's)."""
