@@ -6,6 +6,7 @@ import fcntl
 import os
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -68,11 +69,12 @@ minute ran on half the machine."""
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     # xdist's order (its --loadscope-reorder: the groups with most tests first), with EARLY's
     # groups before the rest; make test runs xdist with --no-loadscope-reorder to keep it.
+    # Only xdist's workers collect for a schedule: a run on one process keeps its order.
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        return
     root = Path(__file__).resolve().parents[1]
     group = {id(i): _group_of(Path(i.fspath)) for i in items}
-    size: dict[str, int] = {}
-    for g in group.values():
-        size[g] = size.get(g, 0) + 1
+    size = Counter(group.values())
     early = {group[id(i)] for i in items
              if Path(i.fspath).relative_to(root).as_posix() in EARLY}
     first = {g: n for n, g in enumerate(dict.fromkeys(group.values()))}

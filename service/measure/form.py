@@ -364,13 +364,9 @@ def roundness(material_deg: np.ndarray, radius_mm: np.ndarray, noise_mm: float |
         from 36 frames of a round simulated surface); at 4.5 a harmonic of noise alone
         passes once in 25,000 (Rayleigh), one of fifty once in 500.
     """
-    order = max(1, min(int(max_order), int(upr)))
-    r = np.asarray(radius_mm, np.float64).ravel()
-    if int(np.isfinite(r).sum()) < 2 * order + 1:
-        return Roundness(False, reason=f"{int(np.isfinite(r).sum())} points, need "
-                         f"{2 * order + 1}")
-    return form_of_frames([(np.radians(np.asarray(material_deg, np.float64)), r)], upr,
-                          max_order, noise_mm, correlation, bins, min_coverage, significance)
+    return form_of_frames([(np.radians(np.asarray(material_deg, np.float64)),
+                            np.asarray(radius_mm, np.float64))], upr, max_order, noise_mm,
+                          correlation, bins, min_coverage, significance)
 
 
 def _form(radius_mm: float, coef: np.ndarray, coef_cov: np.ndarray, upr: int, max_order: int,
