@@ -4,6 +4,11 @@ VENV  := .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.shaftgauge-installed
 
+# Before anything runs: the project's own bytecode (bootstrap compiles the packages'; with
+# PYTHONDONTWRITEBYTECODE set nothing else writes it), then the measurement's kernels.
+PREPARE := $(PY) -m compileall -q -j 0 service drivers calib_store tests && \
+	$(PY) -m service.measure.compiled
+
 .PHONY: setup run test check docs bench soak lint clean linuxcnc-demo lock wheel wheel-test
 
 setup: $(STAMP)
@@ -13,13 +18,13 @@ $(STAMP): pyproject.toml deploy/bootstrap.sh deploy/requirements-test.lock
 
 ## make run: the service on its embedded default (simulated GigE camera and PLC on loopback).
 run: setup docs
-	$(PY) -m service.measure.compiled
+	$(PREPARE)
 	$(VENV)/bin/shaftgauge serve
 
 ## make linuxcnc-demo: the gauge with LinuxCNC's simulated lathe taking its offsets (pull
 ## handshake, deploy/linuxcnc/); Ctrl-C ends it.
 linuxcnc-demo: setup
-	$(PY) -m service.measure.compiled
+	$(PREPARE)
 	bash deploy/linuxcnc/demo.sh
 
 ## make test: lint, then the whole suite (short fault runs included, long soak runs left out):
@@ -35,7 +40,7 @@ linuxcnc-demo: setup
 ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OPENCV_FOR_THREADS_NUM=1
 test: setup docs
 	$(VENV)/bin/ruff check .
-	$(PY) -m service.measure.compiled
+	$(PREPARE)
 	$(PY) -m pytest -m "alone and not slow" -q; alone=$$?; \
 	$(ONE_THREAD) $(PY) -m pytest -m "not slow and not wheel and not alone" -q -n 4 --dist loadgroup \
 		--no-loadscope-reorder --durations=20; rest=$$?; exit $$((alone || rest))
@@ -44,7 +49,7 @@ test: setup docs
 ## cores): under two minutes.
 check: setup
 	$(VENV)/bin/ruff check .
-	$(PY) -m service.measure.compiled
+	$(PREPARE)
 	$(PY) -m pytest -m "not slow and not wheel" -q -n 2 tests/unit tests/fuzz
 
 ## make lock: renew the lock files from pyproject.toml (pip-tools, in a venv of its own):
@@ -81,7 +86,7 @@ docs: setup
 ## sets are scored by hand at the end of a piece of work (robustness, rig_range and
 ## turning_service with --held-out); their committed results are rendered too.
 bench: setup
-	$(PY) -m service.measure.compiled
+	$(PREPARE)
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PY) -m tests.bench.core_throughput
 	$(PY) -m tests.bench.paper_comparison
 	$(PY) -m tests.bench.beyond_paper
@@ -104,7 +109,7 @@ bench: setup
 
 ## make soak: the long soak and fault runs (an hour; SHAFTGAUGE_SOAK_S=600 for ten minutes).
 soak: setup
-	$(PY) -m service.measure.compiled
+	$(PREPARE)
 	$(PY) -m pytest -m slow -q
 
 lint: setup
