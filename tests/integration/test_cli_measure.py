@@ -1,7 +1,16 @@
-"""`shaftgauge measure` as scripts use it: a subprocess, JSON lines, exit codes 0 and 2."""
+"""`shaftgauge measure` as scripts use it: JSON lines on standard output, exit codes 0 and 2,
+one line of error on standard error.
+
+The script itself (``run``: a subprocess of the installed console script) for each way it
+ends: lines for every image, a line that reports a frame without a stripe, a file it cannot
+use, arguments it refuses. What each option does, through the same ``main`` in this process
+(``call``): a subprocess costs 1.8 s of CPU to start (its imports and numba's kernels loaded
+from their cache), and this file made forty of them."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import subprocess
 import sys
@@ -12,13 +21,27 @@ import numpy as np
 import pytest
 
 from drivers.sim.frames import write_frames
+from service.cli import main
 
 SHAFTGAUGE = str(Path(sys.executable).with_name("shaftgauge"))
 KEYS = {"image", "method", "status", "diameter_mm", "n_points", "arc_deg", "rms_residual_mm"}
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
+    """The installed ``shaftgauge`` script in a process of its own."""
     return subprocess.run([SHAFTGAUGE, *args], capture_output=True, text=True, timeout=120)
+
+
+def call(*args: str) -> subprocess.CompletedProcess:
+    """The same command through the script's ``main`` in this process: its exit code (an
+    argument error's ``SystemExit`` too), standard output and standard error."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 1
+    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 
 
 @pytest.fixture(scope="module")
@@ -37,12 +60,12 @@ def test_measure_prints_one_json_line_per_image(frames, method) -> None:
     cal, paths = frames
     extra = ["--method", method] if method else []
     if method not in ("axis", None):  # these fits are more uncertain than the default limit
-        refused = lines(run("measure", "--calibration", str(cal), *extra,
+        refused = lines(call("measure", "--calibration", str(cal), *extra,
                             *map(str, paths)).stdout)
         assert all(r["status"] == "uncertain" and "uncertain by" in r["reason"]
                    for r in refused)
         extra += ["--max-uncertainty-um", "inf"]
-    res = run("measure", "--calibration", str(cal), *extra, *map(str, paths))
+    res = call("measure", "--calibration", str(cal), *extra, *map(str, paths))
     assert res.returncode == 0, res.stderr
     recs = lines(res.stdout)
     assert [r["image"] for r in recs] == [str(p) for p in paths]
@@ -78,14 +101,14 @@ def test_a_bad_correction_file_is_refused_naming_what_is_wrong(frames, tmp_path,
     cal, paths = frames
     bad = tmp_path / "master.json"
     bad.write_text(content)
-    err = one_line_error(run("measure", "--calibration", str(cal), "--correction", str(bad),
+    err = one_line_error(call("measure", "--calibration", str(cal), "--correction", str(bad),
                              str(paths[0])))
     assert says in err and "master.json" in err
 
 
 def test_a_missing_correction_file_is_refused(frames, tmp_path) -> None:
     cal, paths = frames
-    err = one_line_error(run("measure", "--calibration", str(cal), "--correction",
+    err = one_line_error(call("measure", "--calibration", str(cal), "--correction",
                              str(tmp_path / "none.json"), str(paths[0])))
     assert "none.json" in err and "cannot read" in err
 
@@ -104,7 +127,7 @@ def test_bad_calibration_field_exits_2_naming_the_field(frames, tmp_path) -> Non
     doc["light_plane"]["normal"] = [1.0, 0.1, 0.0]
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(doc))
-    err = one_line_error(run("measure", "--calibration", str(bad), str(paths[0])))
+    err = one_line_error(call("measure", "--calibration", str(bad), str(paths[0])))
     assert "light_plane.normal" in err and "unit vector" in err
 
 
@@ -113,7 +136,7 @@ def test_corrupt_calibration_exits_2(frames, tmp_path, content) -> None:
     _, paths = frames
     bad = tmp_path / "corrupt.json"
     bad.write_text(content)
-    err = one_line_error(run("measure", "--calibration", str(bad), str(paths[0])))
+    err = one_line_error(call("measure", "--calibration", str(bad), str(paths[0])))
     assert str(bad) in err
 
 
@@ -134,7 +157,7 @@ def test_non_image_file_exits_2_before_any_output(frames, tmp_path) -> None:
 
 def test_missing_image_exits_2(frames, tmp_path) -> None:
     cal, _ = frames
-    err = one_line_error(run("measure", "--calibration", str(cal), str(tmp_path / "no.png")))
+    err = one_line_error(call("measure", "--calibration", str(cal), str(tmp_path / "no.png")))
     assert "no such file" in err
 
 
@@ -142,7 +165,7 @@ def test_image_of_another_size_exits_2(frames, tmp_path) -> None:
     cal, _ = frames
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), np.zeros((480, 640), np.uint8))
-    err = one_line_error(run("measure", "--calibration", str(cal), str(small)))
+    err = one_line_error(call("measure", "--calibration", str(cal), str(small)))
     assert "640x480" in err and "1376x1024" in err
 
 
@@ -159,7 +182,7 @@ def test_sixteen_bit_png_measures(frames, tmp_path) -> None:
     img = cv2.imread(str(paths[0]), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 257
     p16 = tmp_path / "f16.png"
     cv2.imwrite(str(p16), img)
-    res = run("measure", "--calibration", str(cal), str(p16))
+    res = call("measure", "--calibration", str(cal), str(p16))
     assert res.returncode == 0
     assert abs(lines(res.stdout)[0]["diameter_mm"] - 20.113) < 0.1
 
@@ -175,14 +198,18 @@ def test_render_writes_frames_and_calibration(tmp_path) -> None:
 def test_every_line_has_an_uncertainty_and_axis_is_the_default(frames) -> None:
     cal, paths = frames
     res = run("measure", "--calibration", str(cal), *map(str, paths))
-    for rec in lines(res.stdout):
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+    recs = lines(res.stdout)
+    assert [r["image"] for r in recs] == [str(p) for p in paths]
+    for rec in recs:
+        assert rec["status"] == "ok" and rec.keys() >= KEYS
         assert rec["method"] == "axis" and 0 < rec["uncertainty_mm"] < 0.05
 
 
 def test_fuse_prints_one_line(frames, tmp_path) -> None:
     cal, _ = frames
     paths = write_frames(tmp_path, [31.473], count=5, seed=11)
-    res = run("measure", "--calibration", str(cal), "--fuse", *map(str, paths))
+    res = call("measure", "--calibration", str(cal), "--fuse", *map(str, paths))
     assert res.returncode == 0, res.stderr
     (rec,) = lines(res.stdout)
     assert rec["status"] == "ok" and rec["n_frames"] == 5 and rec["images"] == 5
@@ -191,12 +218,12 @@ def test_fuse_prints_one_line(frames, tmp_path) -> None:
 
 def test_part_temperature_adds_the_diameter_at_20c(frames) -> None:
     cal, paths = frames
-    res = run("measure", "--calibration", str(cal), "--part-temp", "30", str(paths[1]))
+    res = call("measure", "--calibration", str(cal), "--part-temp", "30", str(paths[1]))
     (rec,) = lines(res.stdout)
     assert rec["part_temp_c"] == 30
     shrink_um = (rec["diameter_mm"] - rec["diameter_20c_mm"]) * 1000
     assert shrink_um == pytest.approx(47.062 * 11.5e-6 * 10 * 1000, rel=0.01)
-    bad = run("measure", "--calibration", str(cal), "--part-temp", "900", str(paths[1]))
+    bad = call("measure", "--calibration", str(cal), "--part-temp", "900", str(paths[1]))
     assert bad.returncode == 2 and "temperature" in bad.stderr
 
 
@@ -206,13 +233,13 @@ def test_part_temperature_adds_the_diameter_at_20c(frames) -> None:
                                               "--reflection-check-hz")])
 def test_a_bad_cadence_is_refused_by_name(frames, args, named) -> None:
     cal, paths = frames
-    res = run("measure", "--calibration", str(cal), *args, str(paths[0]))
+    res = call("measure", "--calibration", str(cal), *args, str(paths[0]))
     assert res.returncode == 2 and named in res.stderr and not res.stdout, res.stderr
 
 
 def test_every_image_checked_when_asked(frames) -> None:
     cal, paths = frames
-    res = run("measure", "--calibration", str(cal), "--reflection-check-hz", "inf",
+    res = call("measure", "--calibration", str(cal), "--reflection-check-hz", "inf",
               *map(str, paths))
     assert res.returncode == 0 and all(r["status"] == "ok" for r in lines(res.stdout))
 
@@ -237,7 +264,7 @@ def turning(tmp_path_factory) -> tuple[Path, list[Path], list[float]]:
 def test_measure_form_prints_the_run_out_and_the_roundness(turning) -> None:
     cal, paths, angles = turning
     spindle = ",".join(f"{a:g}" for a in angles)
-    res = run("measure", "--calibration", str(cal), "--form", "--spindle-deg", spindle,
+    res = call("measure", "--calibration", str(cal), "--form", "--spindle-deg", spindle,
               *map(str, paths))
     assert res.returncode == 0, res.stderr
     (rec,) = lines(res.stdout)
@@ -251,7 +278,7 @@ def test_measure_form_prints_the_run_out_and_the_roundness(turning) -> None:
     assert rec["harmonics"][0].keys() == {"order", "amplitude_mm", "phase_deg",
                                           "amplitude_uncertainty_mm"}
     # Without --form: each frame about the surface's own centre, one line each.
-    res = run("measure", "--calibration", str(cal), "--spindle-deg", spindle,
+    res = call("measure", "--calibration", str(cal), "--spindle-deg", spindle,
               *map(str, paths))
     recs = lines(res.stdout)
     assert [r["image"] for r in recs] == [str(p) for p in paths]
@@ -263,7 +290,7 @@ def test_measure_form_estimates_the_turn_when_told_to(turning) -> None:
     """The same frames without their angles: the spindle's turn per frame (30 degrees) is
     told from the frames, and the record says so."""
     cal, paths, _ = turning
-    res = run("measure", "--calibration", str(cal), "--form", "--spindle-deg", "estimate",
+    res = call("measure", "--calibration", str(cal), "--form", "--spindle-deg", "estimate",
               *map(str, paths))
     assert res.returncode == 0, res.stderr
     (rec,) = lines(res.stdout)
@@ -281,5 +308,5 @@ def test_measure_form_estimates_the_turn_when_told_to(turning) -> None:
 ])
 def test_measure_turning_bad_arguments_are_named(turning, args, message) -> None:
     cal, paths, _ = turning
-    res = run("measure", "--calibration", str(cal), *args, *map(str, paths))
+    res = call("measure", "--calibration", str(cal), *args, *map(str, paths))
     assert res.returncode == 2 and message in res.stderr and not res.stdout
