@@ -45,19 +45,9 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$lock" -nt "$stamp
   # The exact versions (and hashes) of the lock, then the package itself over them: every
   # install is the same ("make lock" renews the lock).
   echo "bootstrap: installing shaftgauge and its test tools into .venv from $lock"
-  # --no-compile: pip compiles module by module on one core (half of the install's 33 s);
-  # the bytecode is compiled below on every core.
+  # --no-compile: Python compiles what is imported when it is first imported; compiling
+  # every module of every package at install took half of the install's 33 s.
   .venv/bin/python -m pip install -q --no-compile --require-hashes -r "$lock"
   .venv/bin/python -m pip install -q --no-compile --no-deps -e .
   touch "$stamp"
-fi
-# The packages' bytecode, once an install: a shell with PYTHONDONTWRITEBYTECODE set (as
-# containers and CI runners often have) never writes it, and then every process the tests
-# start compiles numba, scipy and FastAPI anew (a service's start: 4.5 s of CPU, 2.8 with it).
-compiled=.venv/.shaftgauge-bytecode
-if [ ! -f "$compiled" ] || [ "$stamp" -nt "$compiled" ]; then
-  echo "bootstrap: compiling the packages' bytecode"
-  .venv/bin/python -m compileall -q -j 0 .venv/lib/python3*/site-packages > /dev/null \
-    || echo "bootstrap: some packages' modules did not compile (Python compiles them if used)"
-  touch "$compiled"
 fi
