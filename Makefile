@@ -33,11 +33,12 @@ linuxcnc-demo: setup
 ## (many tests wait on a service, LinuxCNC or a lathe they started: four keep both cores busy).
 ## xdist's own order (the files with most tests first) mixes unit files with the services;
 ## the long service files first made them meet, and a streaming service's CPU grows with its
-## wall (598 s against 469 s for this phase). Only the two files that mostly wait for a minute
-## (the short soak, the lathe loop) go first (tests/conftest.py EARLY; --no-loadscope-reorder
-## keeps that order): last, they left the phase's last minute on half the machine. Beside each other, the workers and the services
-## they start each use one thread for BLAS, OpenCV and numba: more threads than cores only
-## wait for each other (the calibration tests: 74 s of CPU with them, 69 s without).
+## wall (598 s against 469 s for this phase). Only the files of a test or two that mostly wait
+## (the short soak, the lathe loop, a backup, the plant) go first (tests/conftest.py EARLY;
+## --no-loadscope-reorder keeps that order): last, they left the phase's end on half the
+## machine. Beside each other, the workers and the services they start each use one thread
+## for BLAS, OpenCV and numba: more threads than cores only wait for each other (the
+## calibration tests: 74 s of CPU with them, 69 s without).
 ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OPENCV_FOR_THREADS_NUM=1
 test: setup docs
 	$(VENV)/bin/ruff check .

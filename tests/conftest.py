@@ -60,10 +60,12 @@ def pytest_itemcollected(item: pytest.Item) -> None:
     item.add_marker(pytest.mark.xdist_group(_group_of(Path(item.fspath))))
 
 
-EARLY = ("tests/faults/test_soak.py", "tests/e2e/test_lathe_loop.py")
-"""Files of a test or two that mostly wait for a minute (a soak, a lathe turning parts): in
+EARLY = ("tests/faults/test_soak.py", "tests/e2e/test_lathe_loop.py",
+         "tests/e2e/test_store_backup.py", "tests/e2e/test_plant.py")
+"""Files of a test or two that mostly wait on what they started (a soak, a lathe turning
+parts, a service backed up or reporting to the plant: 20-70 s each, a fifth of it CPU): in
 xdist's own order (the groups with most tests first) they came last, and the suite's last
-minute ran on half the machine."""
+half minute or minute ran on half the machine."""
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
