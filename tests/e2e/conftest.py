@@ -189,6 +189,19 @@ def service(tmp_path) -> Iterator[Service]:
         stop_service(svc)
 
 
+@pytest.fixture(scope="class")
+def watched(tmp_path_factory) -> Iterator[Service]:
+    """``service`` shared by a class of tests that only read from it (a start: 5 s, and
+    4.7 s of CPU with its simulators); stopped after the class, not the module, so that it
+    does not stream beside the next tests' own services."""
+    svc = start_service(tmp_path_factory.mktemp("watched"))
+    try:
+        wait_ready(svc)
+        yield svc
+    finally:
+        stop_service(svc)
+
+
 def wait_for_js(page, expression: str, timeout_s: float = 10.0) -> None:
     """Until ``expression`` is true in the page. Polled from here with ``page.evaluate``:
     Playwright's own ``wait_for_function`` polls by evaluating a string in the page, which

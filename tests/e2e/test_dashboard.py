@@ -72,28 +72,101 @@ def shot(page: Page, name: str) -> None:
     page.screenshot(path=str(SHOTS / f"{name}.png"))
 
 
-def test_operator_view_is_live(service, browser) -> None:
-    page = open_page(browser, service.url + "/ui/#operator")
-    expect(page.locator("#link")).to_have_text("live", timeout=15000)
-    first = page.locator("#status").inner_text()
-    expect(page.locator("#status")).not_to_have_text(first, timeout=10000)  # it moves
-    expect(page.locator("#diameter")).to_contain_text("mm")
-    d = float(page.locator("#diameter").inner_text().split()[0])
-    assert abs(d - 30.0) < 0.02
-    expect(page.locator("#verdict")).to_have_text("in tolerance")
-    expect(page.locator("#nominal")).to_have_text("30.0000 mm")
-    expect(page.locator("#camera")).to_contain_text("streaming")
-    expect(page.locator("#plc")).to_contain_text("connected", timeout=15000)
-    wait_for_js(page, "document.getElementById('frame').naturalWidth > 0")
-    page.wait_for_timeout(1500)  # a few points on the trend
-    shot(page, "operator-1280x800")
-    assert page.evaluate("document.documentElement.scrollHeight") <= 800 + 40
-    assert not page.errors  # type: ignore[attr-defined]
-    phone = open_page(browser, service.url + "/ui/#operator", 390, 844)
-    expect(phone.locator("#link")).to_have_text("live", timeout=15000)
-    phone.wait_for_timeout(1000)
-    shot(phone, "operator-phone")
-    assert phone.evaluate("document.documentElement.scrollWidth") <= 391
+class TestWatching:
+    """What only looks at a service: one started for the class (a start is 5 s, with its
+    simulators' 4.7 s of CPU)."""
+
+    def test_operator_view_is_live(self, watched, browser) -> None:
+        page = open_page(browser, watched.url + "/ui/#operator")
+        expect(page.locator("#link")).to_have_text("live", timeout=15000)
+        first = page.locator("#status").inner_text()
+        expect(page.locator("#status")).not_to_have_text(first, timeout=10000)  # it moves
+        expect(page.locator("#diameter")).to_contain_text("mm")
+        d = float(page.locator("#diameter").inner_text().split()[0])
+        assert abs(d - 30.0) < 0.02
+        expect(page.locator("#verdict")).to_have_text("in tolerance")
+        expect(page.locator("#nominal")).to_have_text("30.0000 mm")
+        expect(page.locator("#camera")).to_contain_text("streaming")
+        expect(page.locator("#plc")).to_contain_text("connected", timeout=15000)
+        wait_for_js(page, "document.getElementById('frame').naturalWidth > 0")
+        page.wait_for_timeout(1500)  # a few points on the trend
+        shot(page, "operator-1280x800")
+        assert page.evaluate("document.documentElement.scrollHeight") <= 800 + 40
+        assert not page.errors  # type: ignore[attr-defined]
+        phone = open_page(browser, watched.url + "/ui/#operator", 390, 844)
+        expect(phone.locator("#link")).to_have_text("live", timeout=15000)
+        phone.wait_for_timeout(1000)
+        shot(phone, "operator-phone")
+        assert phone.evaluate("document.documentElement.scrollWidth") <= 391
+
+    def test_the_dashboard_links_to_the_manual_it_serves(self, watched, browser) -> None:
+        """The manual (``make docs``) is served by the gauge itself, for a closed plant network:
+        from the dashboard's footer to its operating page, with nothing fetched from outside."""
+        built = Path(__file__).resolve().parents[2] / "service" / "web" / "manual" / "index.html"
+        assert built.exists(), "the manual is not built: `make docs` (make test runs it first)"
+        page = open_page(browser, watched.url + "/ui/#operator")
+        outside: list[str] = []
+        page.on("request", lambda r: outside.append(r.url)
+                if not r.url.startswith(watched.url) else None)
+        page.click("#manual")
+        expect(page).to_have_title(re.compile("shaftgauge"))
+        page.get_by_role("link", name="Operating", exact=True).first.click()
+        expect(page.locator("h1")).to_have_text("Operating the gauge")
+        expect(page.locator("body")).to_contain_text("not_concentric")
+        assert not outside, outside
+
+    def test_charts_read_like_charts(self, watched, browser) -> None:
+        """Every chart has axes with values and units; the X-bar chart says why it has no limits
+        while its baseline fills (what the canvas is told to write, spied)."""
+        page = open_page(browser, watched.url + "/ui/#operator")
+        got = page.evaluate("""async () => {
+            const c = await import("./chart.js");
+            const canvas = Object.assign(document.createElement("canvas"),
+                                         { width: 600, height: 200 });
+            canvas.style.width = "600px"; canvas.style.height = "200px";
+            document.body.append(canvas);
+            const said = [];
+            const real = CanvasRenderingContext2D.prototype.fillText;
+            CanvasRenderingContext2D.prototype.fillText = function (t, ...rest) {
+                said.push(String(t)); return real.call(this, t, ...rest); };
+            const draw = (f) => { said.length = 0; f(); return [...said]; };
+            const pts = [29.996, 30.001, 30.004].map((d, i) => ({ seq: 40 + i * 10, d }));
+            const out = {
+                ticks: c.ticks(29.994, 30.006).map((v) => v.toFixed(3)),
+                trend: draw(() => c.drawTrend(canvas, pts,
+                                              { lo: 29.99, hi: 30.01, nominal: 30.0 }, [])),
+                xbar: draw(() => c.drawLines(canvas, [29.998, 30.002, 30.0], [], new Set(),
+                    { unit: "mm", xUnit: "subgroup", note:
+                      "no control limits until the baseline is complete (3 of 25 subgroups)" })),
+                hist: draw(() => c.drawHistogram(canvas, [29.998, 30.0, 30.0, 30.002], 29.99,
+                                                 30.01, 30.0)),
+            };
+            CanvasRenderingContext2D.prototype.fillText = real;
+            return out;
+        }""")
+        assert got["ticks"] == ["29.994", "29.996", "29.998", "30.000", "30.002", "30.004",
+                                "30.006"]
+        for name, unit in (("trend", "mm"), ("xbar", "mm"), ("hist", "count")):
+            assert unit in got[name], (name, got[name])
+        assert "measurement" in got["trend"] and "subgroup" in got["xbar"]
+        assert "30.000" in got["trend"] and "30.000" in got["xbar"]
+        assert any(t == "50" for t in got["trend"])  # measurement numbers along the bottom
+        assert "no control limits until the baseline is complete (3 of 25 subgroups)" in got["xbar"]
+        assert "LSL" in got["hist"] and "USL" in got["hist"] and "mm" in got["hist"]
+
+    def test_the_trend_shows_the_uncompensated_process(self, watched, browser) -> None:
+        """Measured less the offsets in force when the surface was cut: an offset applied after
+        measurement 2 shows from measurement 2 + the dead time on."""
+        page = open_page(browser, watched.url + "/ui/#operator")
+        got = page.evaluate("""async () => {
+            const m = await import("./operator.js");
+            const pts = [1, 3, 4, 5, 9].map((seq) => ({ seq, d: 30.0 }));
+            return [m.uncompensated(pts, [], 2),
+                    m.uncompensated(pts, [{ seq: 2, offset_mm: -0.01 },
+                                          { seq: 4, offset_mm: 0.004 }],
+                                    2).map((p) => Math.round(p.d * 1e4) / 1e4)];
+        }""")
+        assert got == [[], [30.0, 30.0, 30.0, 30.01, 30.006]]
 
 
 def test_the_operator_sees_the_run_out_and_the_form(tmp_path, browser) -> None:
@@ -123,77 +196,6 @@ def test_the_operator_sees_the_run_out_and_the_form(tmp_path, browser) -> None:
         assert not page.errors  # type: ignore[attr-defined]
     finally:
         stop_service(svc)
-
-
-def test_the_dashboard_links_to_the_manual_it_serves(service, browser) -> None:
-    """The manual (``make docs``) is served by the gauge itself, for a closed plant network:
-    from the dashboard's footer to its operating page, with nothing fetched from outside."""
-    built = Path(__file__).resolve().parents[2] / "service" / "web" / "manual" / "index.html"
-    assert built.exists(), "the manual is not built: `make docs` (make test runs it first)"
-    page = open_page(browser, service.url + "/ui/#operator")
-    outside: list[str] = []
-    page.on("request", lambda r: outside.append(r.url)
-            if not r.url.startswith(service.url) else None)
-    page.click("#manual")
-    expect(page).to_have_title(re.compile("shaftgauge"))
-    page.get_by_role("link", name="Operating", exact=True).first.click()
-    expect(page.locator("h1")).to_have_text("Operating the gauge")
-    expect(page.locator("body")).to_contain_text("not_concentric")
-    assert not outside, outside
-
-
-def test_charts_read_like_charts(service, browser) -> None:
-    """Every chart has axes with values and units; the X-bar chart says why it has no limits
-    while its baseline fills (what the canvas is told to write, spied)."""
-    page = open_page(browser, service.url + "/ui/#operator")
-    got = page.evaluate("""async () => {
-        const c = await import("./chart.js");
-        const canvas = Object.assign(document.createElement("canvas"),
-                                     { width: 600, height: 200 });
-        canvas.style.width = "600px"; canvas.style.height = "200px";
-        document.body.append(canvas);
-        const said = [];
-        const real = CanvasRenderingContext2D.prototype.fillText;
-        CanvasRenderingContext2D.prototype.fillText = function (t, ...rest) {
-            said.push(String(t)); return real.call(this, t, ...rest); };
-        const draw = (f) => { said.length = 0; f(); return [...said]; };
-        const pts = [29.996, 30.001, 30.004].map((d, i) => ({ seq: 40 + i * 10, d }));
-        const out = {
-            ticks: c.ticks(29.994, 30.006).map((v) => v.toFixed(3)),
-            trend: draw(() => c.drawTrend(canvas, pts,
-                                          { lo: 29.99, hi: 30.01, nominal: 30.0 }, [])),
-            xbar: draw(() => c.drawLines(canvas, [29.998, 30.002, 30.0], [], new Set(),
-                { unit: "mm", xUnit: "subgroup",
-                  note: "no control limits until the baseline is complete (3 of 25 subgroups)" })),
-            hist: draw(() => c.drawHistogram(canvas, [29.998, 30.0, 30.0, 30.002], 29.99,
-                                             30.01, 30.0)),
-        };
-        CanvasRenderingContext2D.prototype.fillText = real;
-        return out;
-    }""")
-    assert got["ticks"] == ["29.994", "29.996", "29.998", "30.000", "30.002", "30.004",
-                            "30.006"]
-    for name, unit in (("trend", "mm"), ("xbar", "mm"), ("hist", "count")):
-        assert unit in got[name], (name, got[name])
-    assert "measurement" in got["trend"] and "subgroup" in got["xbar"]
-    assert "30.000" in got["trend"] and "30.000" in got["xbar"]
-    assert any(t == "50" for t in got["trend"])  # measurement numbers along the bottom
-    assert "no control limits until the baseline is complete (3 of 25 subgroups)" in got["xbar"]
-    assert "LSL" in got["hist"] and "USL" in got["hist"] and "mm" in got["hist"]
-
-
-def test_the_trend_shows_the_uncompensated_process(service, browser) -> None:
-    """Measured less the offsets in force when the surface was cut: an offset applied after
-    measurement 2 shows from measurement 2 + the dead time on."""
-    page = open_page(browser, service.url + "/ui/#operator")
-    got = page.evaluate("""async () => {
-        const m = await import("./operator.js");
-        const pts = [1, 3, 4, 5, 9].map((seq) => ({ seq, d: 30.0 }));
-        return [m.uncompensated(pts, [], 2),
-                m.uncompensated(pts, [{ seq: 2, offset_mm: -0.01 }, { seq: 4, offset_mm: 0.004 }],
-                                2).map((p) => Math.round(p.d * 1e4) / 1e4)];
-    }""")
-    assert got == [[], [30.0, 30.0, 30.0, 30.01, 30.006]]
 
 
 def test_compensation_view_and_shadow_switch(service, browser) -> None:

@@ -34,52 +34,70 @@ def wait_for(predicate, timeout_s: float, step_s: float = 0.2):
     return None
 
 
-def test_rest_measures_the_simulated_shaft(service) -> None:
-    assert service.get("/readyz").status_code == 200, service.get("/readyz").text
-    time.sleep(2.0)  # let the fusion window fill
-    m = service.get("/api/v1/measurements/latest").json()
-    assert m["status"] == "ok"
-    assert abs(m["diameter_mm"] - 30.0) < 0.010, m
-    assert abs(m["fused_diameter_mm"] - 30.0) < 0.005, m
-    st = service.get("/api/v1/status").json()
-    assert st["healthy"] and st["camera"]["state"] == "streaming"
-    assert st["pipeline"]["rate_hz"] > 5
+class TestReading:
+    """What only reads from a service: one started for the class (a start is 5 s, with its
+    simulators' 4.7 s of CPU)."""
 
+    def test_rest_measures_the_simulated_shaft(self, watched) -> None:
+        assert watched.get("/readyz").status_code == 200, watched.get("/readyz").text
+        time.sleep(2.0)  # let the fusion window fill
+        m = watched.get("/api/v1/measurements/latest").json()
+        assert m["status"] == "ok"
+        assert abs(m["diameter_mm"] - 30.0) < 0.010, m
+        assert abs(m["fused_diameter_mm"] - 30.0) < 0.005, m
+        st = watched.get("/api/v1/status").json()
+        assert st["healthy"] and st["camera"]["state"] == "streaming"
+        assert st["pipeline"]["rate_hz"] > 5
 
-def test_sse_delivers_updates(service) -> None:
-    seqs = []
-    with httpx.stream("GET", service.url + "/api/v1/stream", timeout=15) as r:
-        assert r.headers["content-type"].startswith("text/event-stream")
-        event = None
-        for line in r.iter_lines():
-            if line.startswith("event:"):
-                event = line.split(":", 1)[1].strip()
-            elif line.startswith("data:") and event == "measurement":
-                seqs.append(json.loads(line[5:])["seq"])
-                if len(seqs) >= 4:
-                    break
-    assert seqs == sorted(seqs) and len(set(seqs)) == 4
+    def test_sse_delivers_updates(self, watched) -> None:
+        seqs = []
+        with httpx.stream("GET", watched.url + "/api/v1/stream", timeout=15) as r:
+            assert r.headers["content-type"].startswith("text/event-stream")
+            event = None
+            for line in r.iter_lines():
+                if line.startswith("event:"):
+                    event = line.split(":", 1)[1].strip()
+                elif line.startswith("data:") and event == "measurement":
+                    seqs.append(json.loads(line[5:])["seq"])
+                    if len(seqs) >= 4:
+                        break
+        assert seqs == sorted(seqs) and len(set(seqs)) == 4
 
+    def test_modbus_registers_agree_with_rest(self, watched) -> None:
+        async def read() -> tuple[int, int]:
+            c = AsyncModbusTcpClient("127.0.0.1", port=watched.modbus_port)
+            await c.connect()
+            rr = await c.read_holding_registers(0, count=30, device_id=1)
+            c.close()
+            regs = rr.registers
+            return (from_words(regs[6:8], RegisterType.I32, WordOrder.BIG),
+                    from_words(regs[10:12], RegisterType.U32, WordOrder.BIG))
 
-def test_modbus_registers_agree_with_rest(service) -> None:
-    async def read() -> tuple[int, int]:
-        c = AsyncModbusTcpClient("127.0.0.1", port=service.modbus_port)
-        await c.connect()
-        rr = await c.read_holding_registers(0, count=30, device_id=1)
-        c.close()
-        regs = rr.registers
-        return (from_words(regs[6:8], RegisterType.I32, WordOrder.BIG),
-                from_words(regs[10:12], RegisterType.U32, WordOrder.BIG))
+        for _ in range(20):
+            diameter_units, seq = asyncio.run(read())
+            rest = watched.get("/api/v1/measurements", params={"limit": 50}).json()["items"]
+            same = [r for r in rest if r["seq"] == seq]
+            if same:  # the register holds exactly the REST diameter, in 0.1 um
+                assert diameter_units == mm_to_units(same[0]["diameter_mm"])
+                assert abs(units_to_mm(diameter_units) - same[0]["diameter_mm"]) <= 0.5e-4
+                return
+        raise AssertionError("never saw the same measurement over Modbus and REST")
 
-    for _ in range(20):
-        diameter_units, seq = asyncio.run(read())
-        rest = service.get("/api/v1/measurements", params={"limit": 50}).json()["items"]
-        same = [r for r in rest if r["seq"] == seq]
-        if same:  # the register holds exactly the REST diameter, in 0.1 um
-            assert diameter_units == mm_to_units(same[0]["diameter_mm"])
-            assert abs(units_to_mm(diameter_units) - same[0]["diameter_mm"]) <= 0.5e-4
-            return
-    raise AssertionError("never saw the same measurement over Modbus and REST")
+    def test_every_answer_carries_the_security_headers_and_a_foreign_host_is_refused(self, watched
+                                                                                     ) -> None:
+        for path in ("/ui/", "/api/v1/status", "/ui/manual/"):
+            r = watched.get(path)
+            assert r.status_code == 200, path
+            assert r.headers["x-content-type-options"] == "nosniff"
+            assert r.headers["x-frame-options"] == "DENY"
+            csp = r.headers["content-security-policy"]
+            assert "frame-ancestors 'none'" in csp and "default-src 'self'" in csp
+            assert ("'unsafe-inline'" in csp) == path.startswith("/ui/manual"), (path, csp)
+        # A DNS-rebinding page names its own host: refused, and nothing of the gauge read.
+        r = watched.get("/api/v1/measurements/latest", headers={"Host": "evil.example:8000"})
+        assert r.status_code == 400 and "trusted_hosts" in r.json()["detail"]
+        assert r.headers["x-frame-options"] == "DENY"
+        assert watched.get("/api/v1/status", headers={"Host": "localhost"}).status_code == 200
 
 
 def test_drift_beyond_the_deadband_sends_an_offset_to_the_plc(service) -> None:
@@ -187,19 +205,3 @@ def test_worker_processes_measure_and_one_killed_is_replaced(tmp_path) -> None:
     finally:
         stop_service(svc)
 
-
-def test_every_answer_carries_the_security_headers_and_a_foreign_host_is_refused(service
-                                                                                 ) -> None:
-    for path in ("/ui/", "/api/v1/status", "/ui/manual/"):
-        r = service.get(path)
-        assert r.status_code == 200, path
-        assert r.headers["x-content-type-options"] == "nosniff"
-        assert r.headers["x-frame-options"] == "DENY"
-        csp = r.headers["content-security-policy"]
-        assert "frame-ancestors 'none'" in csp and "default-src 'self'" in csp
-        assert ("'unsafe-inline'" in csp) == path.startswith("/ui/manual"), (path, csp)
-    # A DNS-rebinding page names its own host: refused, and nothing of the gauge read.
-    r = service.get("/api/v1/measurements/latest", headers={"Host": "evil.example:8000"})
-    assert r.status_code == 400 and "trusted_hosts" in r.json()["detail"]
-    assert r.headers["x-frame-options"] == "DENY"
-    assert service.get("/api/v1/status", headers={"Host": "localhost"}).status_code == 200
