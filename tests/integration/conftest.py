@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,13 +94,22 @@ def take_frames(camera, n: int, timeout_s: float = 20.0) -> list:
     return frames
 
 
+_GIVEN: deque[int] = deque(maxlen=256)
+
+
 def free_port() -> int:
-    """A TCP port free on 127.0.0.1 right now."""
+    """A TCP port free on 127.0.0.1 right now, and none that this process gave out lately: the
+    kernel may hand the same free port to two calls in a row (a clean-clone run gave a
+    service's REST and Modbus servers one port, as neither was bound yet)."""
     import socket
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port not in _GIVEN:
+            _GIVEN.append(port)
+            return port
 
 
 @dataclass

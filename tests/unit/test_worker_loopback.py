@@ -49,3 +49,12 @@ def test_linuxcnc_and_the_speed_guard_always_share_one_worker(monkeypatch) -> No
         assert conftest._group_of(ROOT / "tests/unit/test_architecture.py") == \
             "tests/unit/test_architecture.py"
     conftest._GROUP.clear()
+
+
+def test_free_ports_given_out_one_after_another_differ() -> None:
+    """A service's ports are taken one after another before it binds any: each must differ
+    (two calls in a row once gave its REST and Modbus servers the same port)."""
+    from tests.integration.conftest import free_port
+
+    ports = [free_port() for _ in range(200)]
+    assert len(set(ports)) == len(ports)
