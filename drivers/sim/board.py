@@ -146,7 +146,7 @@ class BoardRenderer:
         board = np.array([b.square_mm, b.cols, b.rows, b.margin_squares], float)
         sheet = np.array([*p.plane_normal, p.plane_d, self.cfg.sheet_sigma_mm], float)
         shape = rx.shape
-        # Imported here: the kernels are numba's (0.6 s to import), and a simulator that
+        # Imported here: the kernels are numba's (0.2 s to import), and a simulator that
         # never shows a board (most of them) need not pay it.
         from drivers.sim.board_kernels import integrate_pixels
 

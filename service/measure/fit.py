@@ -498,7 +498,7 @@ def fit_paper(points: np.ndarray) -> CircleFit:
             np.sum((o - mid_bd) * dir_bd, axis=1),
         ])
 
-    # Imported here: scipy.optimize costs 0.7 s at every start of a process that measures,
+    # Imported here: scipy.optimize costs 0.4 s at every start of a process that measures,
     # and only the paper's method uses it.
     from scipy.optimize import least_squares
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from service.measure.robust import row_index, rows
 
-if TYPE_CHECKING:  # an annotation only: the extractor's kernels are numba's (0.6 s to import)
+if TYPE_CHECKING:  # an annotation only: the extractor's kernels are numba's (0.2 s to import)
     from service.measure.stripe import StripePoints
 
 
