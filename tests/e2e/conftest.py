@@ -80,6 +80,9 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     ``compensation_toml`` the whole ``[compensation]`` table in place of the tests' own;
     ``executable`` another installed ``shaftgauge`` (an installed wheel's)."""
     api, modbus = free_port(), free_port()
+    # The embedded default's OPC UA port (4840) is one a run's other services, or a gauge a
+    # developer left running, could hold: a port of the test's own.
+    opcua_port = opcua_port or (free_port() if embedded else None)
     plc = plc_port or free_port()
     data = data or tmp_path / "data"
     cfg = tmp_path / "gauge.toml"
@@ -177,6 +180,19 @@ def wait_ready(svc: Service, timeout_s: float = 60.0) -> bool:
             pass
         time.sleep(0.3)
     return False
+
+
+def wait_opcua(svc: Service, timeout_s: float = 30.0) -> dict:
+    """The OPC UA server's status once it serves or says why it cannot (its start, the
+    standard address space and a certificate, runs beside the measuring and, on a busy
+    machine, ends seconds after the first measurements: a plant's client retries)."""
+    deadline, ua = time.monotonic() + timeout_s, {}
+    while time.monotonic() < deadline:
+        ua = svc.get("/api/v1/status").json()["plant"]["opcua"]
+        if ua["running"] or ua["problem"]:
+            break
+        time.sleep(0.3)
+    return ua
 
 
 @pytest.fixture

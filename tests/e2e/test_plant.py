@@ -1,6 +1,6 @@
 """The embedded default on the plant's systems: Mosquitto (Debian's) receives measurements,
 decisions and the state (its last will when the gauge is killed), an OPC UA client reads the
-diameter on opc.tcp://127.0.0.1:4840, and the AQDEF export returns K0001 lines."""
+diameter over opc.tcp, and the AQDEF export returns K0001 lines."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from pathlib import Path
 
 from asyncua import Client
 
-from tests.e2e.conftest import start_service, stop_service, wait_ready
+from tests.e2e.conftest import start_service, stop_service, wait_opcua, wait_ready
+from tests.integration.conftest import free_port
 from tests.integration.plant.conftest import Mosquitto
 
 
@@ -36,7 +37,8 @@ async def read_diameter(url: str) -> float:
 
 def test_the_embedded_default_reports_to_mqtt_opcua_and_aqdef(tmp_path: Path) -> None:
     broker = Mosquitto(tmp_path / "broker").start()
-    svc = start_service(tmp_path, diameter=30.0, opcua_port=4840, env={
+    opcua = free_port()
+    svc = start_service(tmp_path, diameter=30.0, opcua_port=opcua, env={
         "SHAFTGAUGE_MQTT__HOST": "127.0.0.1", "SHAFTGAUGE_MQTT__PORT": str(broker.port),
         "SHAFTGAUGE_MQTT__GAUGE_ID": "e2e-lathe"})
     try:
@@ -48,7 +50,9 @@ def test_the_embedded_default_reports_to_mqtt_opcua_and_aqdef(tmp_path: Path) ->
         assert decision["decision_seq"] >= 1 and decision["kind"]
         assert sub(broker.port, "shaftgauge/e2e-lathe/state", 1) == ["online"]  # retained
 
-        diameter = asyncio.run(read_diameter("opc.tcp://127.0.0.1:4840"))
+        ua = wait_opcua(svc)
+        assert ua["running"], f"{ua}\n{svc.stderr()[-3000:]}"
+        diameter = asyncio.run(read_diameter(f"opc.tcp://127.0.0.1:{opcua}"))
         assert abs(diameter - 30.0) < 0.02
 
         deadline, lines = time.monotonic() + 20, []
