@@ -18,8 +18,11 @@ from service.compensation import (
     State,
 )
 
+# The worked examples are the window law's (a measuring cycle's mean value), with the tuning
+# it shipped with; the predictive law, the default, has its own in test_control_law.py.
 LIVE = CompensationSettings(nominal_mm=30.0, shadow=False, window=3,
-                            dead_time_measurements=2, dead_time_s=0.0)
+                            dead_time_measurements=2, dead_time_s=0.0, law="window",
+                            gain=0.7, deadband_mm=0.003)
 
 
 def live(settings_: CompensationSettings = LIVE, cnc_total_mm: float = 0.0,
@@ -90,12 +93,29 @@ def test_step_is_clipped_and_cumulative_limit_refuses() -> None:
     assert last.kind is Kind.LIMIT and "limit" in last.reason
 
 
-def test_out_of_tolerance_alarms_writes_nothing_until_acknowledged() -> None:
-    c = live(LIVE)
-    d = feed(c, [30.03] * 3)
-    assert d[-1].kind is Kind.ALARM and c.state is State.ALARM
-    assert feed(c, [30.001], start_seq=5, t0=200)[0].kind is Kind.HELD
-    assert c.acknowledge_alarm(300).kind is Kind.ACKNOWLEDGED and c.state is State.ACTIVE
+@pytest.mark.parametrize("law", ["window", "predictive"])
+def test_a_part_out_of_tolerance_is_flagged_and_corrected(law: str) -> None:
+    """A part out is a reason to correct, so that the next one comes back (Renishaw's H,
+    Siemens' _TUL/_TLL): flagged in the decision, and the offset still goes out."""
+    c = live(replace(LIVE, law=law))
+    writes = [x for x in feed(c, [30.03] * 3) if x.kind is Kind.WRITE]
+    assert writes and writes[0].offset_mm < 0, writes
+    assert "out of tolerance" in writes[0].reason and c.state is State.PENDING
+
+
+def test_beyond_the_plausibility_limit_alarms_and_ends_by_itself() -> None:
+    """A deviation beyond the plausibility limit (Siemens' _TDIF, Renishaw's U) writes nothing
+    and alarms; the next plausible measurement ends the alarm without a person."""
+    c = live(replace(LIVE, plausibility_mm=0.05))
+    d = feed(c, [30.03, 30.06, 30.07])
+    assert [x.kind for x in d] == [Kind.HELD, Kind.ALARM, Kind.HELD]
+    assert d[1].code == "implausible" and "plausibility" in d[1].reason
+    assert c.state is State.ALARM
+    back = feed(c, [30.001], start_seq=5, t0=200)[0]
+    assert back.kind is Kind.ACKNOWLEDGED and back.code == "plausible_again"
+    assert c.state is State.ACTIVE
+    feed(c, [30.07], start_seq=6, t0=300)
+    assert c.acknowledge_alarm(400).kind is Kind.ACKNOWLEDGED and c.state is State.ACTIVE
 
 
 def test_beyond_the_safe_area_stops_until_reset() -> None:

@@ -17,7 +17,7 @@ from service.compensation import (
     Kind,
     MeasurementIn,
 )
-from service.control_law import Predictor
+from service.compensation.laws import Predictor
 
 LAW = CompensationSettings(nominal_mm=30.0, tol_upper_mm=0.02, tol_lower_mm=-0.02,
                            shadow=False, law="predictive", gain=0.4, trend_gain=0.2,
@@ -26,8 +26,9 @@ LAW = CompensationSettings(nominal_mm=30.0, tol_upper_mm=0.02, tol_lower_mm=-0.0
 
 
 def test_holt_follows_a_straight_line_exactly() -> None:
-    """Noise-free linear wear: the forecast h steps ahead is the line's value there."""
-    p = Predictor(gain=0.4, trend_gain=0.2, horizon=3)
+    """Noise-free linear wear: the forecast h steps ahead is the line's value there (the
+    mean-value band wide: nothing is doubted)."""
+    p = Predictor(gain=0.4, trend_gain=0.2, horizon=3, band_mm=0.05)
     for k in range(200):
         forecast = p.observe(0.005 + 0.001 * k, 0.0, float(k))
     assert forecast == pytest.approx(0.005 + 0.001 * (199 + 3), abs=1e-9)
@@ -36,7 +37,7 @@ def test_holt_follows_a_straight_line_exactly() -> None:
 def test_offsets_in_flight_do_not_move_the_estimate() -> None:
     """A constant process; an offset applied shows two measurements later. The deviations
     measured meanwhile, before and after it shows, all say the same process."""
-    p = Predictor(gain=0.5, trend_gain=0.0, horizon=3)
+    p = Predictor(gain=0.5, trend_gain=0.0, horizon=3, band_mm=0.05)
     for k in range(20):
         p.observe(0.010, 0.0, float(k))
     p.applied(-0.006, after_measurements=2, visible_at_s=0.0)
@@ -54,9 +55,10 @@ def run_loop(settings: CompensationSettings, dead: int, parts: int, wear_um: flo
     ctrl = CompensationController(replace(settings, dead_time_measurements=dead),
                                   ControllerState())
     ctrl.observe_cnc_total(0.0, 0.0)
-    total, waiting = step_um / 1000, deque()
+    # The step is the process's (a setting-up error): the CNC's total starts at 0.
+    total, waiting = 0.0, deque()
     for k in range(parts):
-        waiting.append(lathe.cut_part(total))
+        waiting.append(lathe.cut_part(total + step_um / 1000))
         if len(waiting) <= dead:
             continue
         part = waiting.popleft()

@@ -1,0 +1,284 @@
+"""The controller's two laws: the measuring cycle's window (``WindowLaw``) and the predictive
+run-to-run law (``Predictor``): the process as the gauge sees it without compensation,
+filtered by a robust double exponentially weighted moving average, corrected with the offsets
+that are applied but not visible yet.
+
+The window law waits out the dead time after each correction, fills a window of good
+measurements and corrects a share (``gain``) of its median or weighted mean: simple, and slow
+(a correction every dead time plus a window).
+
+A correction acts only on what is cut after it, and the gauge sees that ``d`` measurements
+later (the laser behind the tool, or the part measured after the next ones were cut).
+Correcting a share ``g`` of each measured deviation as it comes is a delayed integrator, which
+oscillates unless ``g < 2 sin(pi / (2 (2 d + 1)))`` (0.62 at d = 2). Instead, each measurement
+is tagged with the offsets in force when its surface was cut: the *uncompensated* process is
+
+    u = deviation - (effect of the offsets applied) + (effect of those still in flight),
+
+which no correction moves, so filtering it cannot chase its own corrections. Its level ``L``
+and trend ``T`` follow Holt's double EWMA (``L <- lam u + (1 - lam)(L + T)``,
+``T <- beta (L' - L) + (1 - beta) T``; Butler and Stefani's predictor-corrector: a single
+EWMA leaves a steady lag under linear wear), and the next correction sets the total effect to
+``-(L + h T)``, the process forecast ``h = d + 1`` measurements ahead, where the correction
+will be seen. Stable for ``0 < lam <= 1`` at any dead time the tagging knows
+(Ingolfsson and Sachs: ``0 < lam xi < 2`` for a model gain ``xi``).
+
+Robust: a measurement that the process's own scatter does not explain (beyond the mean-value
+band: four times the robust scale of the one-step surprises, estimated from the data) is set
+aside. Alone, it was an outlier and never moves the estimate; confirmed by the next one on the
+same side, it was a step (a chipped or new insert, a machine that cooled) and the level jumps
+to it at once, the trend kept. Inside the band a surprise counts up to 2.5 scales (Huber), so
+heavy tails move the estimate little. The process is (re)started from two measurements that
+agree (or three on a line), never from one.
+
+Pure: deviations and effects in mm of diameter, time passed in.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import statistics
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+
+def filtered_deviation(window: list[tuple[float, float]], how: str) -> float:
+    """The window of (deviation, uncertainty) as one deviation: the median, or the mean
+    weighted by 1 / uncertainty^2."""
+    devs = [d for d, _ in window]
+    if how == "median":
+        return float(statistics.median(devs))
+    weights = [1.0 / u**2 for _, u in window]
+    return float(sum(w * d for w, d in zip(weights, devs, strict=True)) / sum(weights))
+
+
+@dataclass
+class WindowLaw:
+    """The measuring cycle's window: the measurements after a correction within both dead
+    times are not taken (they were cut before it); then ``size`` good ones make one filtered
+    deviation (``how``: 'median' or 'mean')."""
+
+    size: int
+    how: str
+    dead_measurements: int
+    dead_s: float
+    values: collections.deque = field(default_factory=collections.deque)
+    since_correction: int = 0
+    correction_time: float = -math.inf
+
+    @classmethod
+    def of(cls, settings: Any) -> WindowLaw:
+        """For compensation settings (``window``, ``filter``, the dead times); no dead time
+        at the start."""
+        return cls(settings.window, settings.filter, settings.dead_time_measurements,
+                   settings.dead_time_s, collections.deque(maxlen=settings.window),
+                   settings.dead_time_measurements)
+
+    def retuned(self, settings: Any) -> WindowLaw:
+        """An empty window for new settings, the dead time running on."""
+        return replace(WindowLaw.of(settings), since_correction=self.since_correction,
+                       correction_time=self.correction_time)
+
+    def observe(self, deviation: float, uncertainty: float, now: float
+                ) -> float | tuple[str, str]:
+        """The filtered deviation, or (code, why) it is held."""
+        self.since_correction += 1
+        if self.since_correction <= self.dead_measurements \
+                or now - self.correction_time < self.dead_s:
+            return "dead_time", "dead time after a correction"
+        self.values.append((deviation, max(uncertainty, 1e-6)))
+        if len(self.values) < self.size:
+            return "filling_window", f"filling the window ({len(self.values)} of {self.size})"
+        return filtered_deviation(list(self.values), self.how)
+
+    def corrected(self, now: float) -> None:
+        """An offset was applied now: the dead time starts."""
+        self.since_correction, self.correction_time = 0, now
+
+    def clear(self) -> None:
+        """Start the window afresh."""
+        self.values.clear()
+
+
+@dataclass
+class InFlight:
+    """An offset applied whose effect the gauge has not seen yet."""
+
+    effect_mm: float
+    after_measurements: int   # it shows from the measurement after this many
+    visible_at_s: float       # ... and not before this time
+    seen: int = 0             # measurements since it was applied
+
+    def visible(self, now_s: float) -> bool:
+        """Whether the measurement taken now shows it."""
+        return self.seen > self.after_measurements and now_s >= self.visible_at_s
+
+
+BAND_SCALES = 4.0
+"""The mean-value band, in robust scales of the one-step surprise: a Gaussian surprise
+leaves it once in 16 000; a 15 um outlier among 2.5 um of scatter does not fit in it."""
+HUBER_SCALES = 2.5
+"""Inside the band a surprise counts up to this many scales (Huber's weight)."""
+SCALE_MEMORY = 0.05
+"""The scale's own EWMA weight once it has 20 surprises (1 / n before: the mean)."""
+ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
+"""The mean absolute value of a Gaussian is sigma / this."""
+
+
+@dataclass
+class Predictor:
+    """Level and trend of the uncompensated process, its scatter, and the offsets in flight.
+
+    Attributes
+    ----------
+    gain : float
+        ``lam``, the share of each measurement taken into the level (feedback).
+    trend_gain : float
+        ``beta``, the share of each level change taken into the trend (0: a single EWMA).
+    horizon : int
+        How many measurements ahead the forecast looks (dead time in measurements + 1).
+    band_mm : float
+        The mean-value band: a surprise beyond it is set aside until the next measurement
+        says outlier or step (0: ``BAND_SCALES`` robust scales, from the data).
+    floor_mm : float
+        The band is never narrower than this (the null band: a surprise that would not be
+        corrected anyway need not be doubted).
+    """
+
+    gain: float
+    trend_gain: float
+    horizon: int
+    band_mm: float = 0.0
+    floor_mm: float = 0.0
+    level: float | None = None
+    trend: float = 0.0
+    scale: float | None = None
+    surprises: int = 0
+    in_flight: list[InFlight] = field(default_factory=list)
+    aside: float | None = None
+    """The uncompensated value set aside (a surprise beyond the band), waiting for the next
+    measurement to say outlier or step."""
+    starting: list[float] = field(default_factory=list)
+    """The uncompensated values so far while the level is not known."""
+    skip: InFlight | None = None
+    """After a reset: measurements cut before it (while this is not visible) are not taken."""
+    last_step_mm: float | None = None
+    """The step the last measurement confirmed (mm), or None."""
+
+    @classmethod
+    def of(cls, settings: Any) -> Predictor:
+        """A fresh predictor for compensation settings (``gain``, ``trend_gain``,
+        ``dead_time_measurements``, ``mean_value_band_mm``, ``deadband_mm``)."""
+        return cls(settings.gain, settings.trend_gain, settings.dead_time_measurements + 1,
+                   settings.mean_value_band_mm, settings.deadband_mm)
+
+    def retuned(self, settings: Any) -> Predictor:
+        """This predictor's estimate and offsets in flight with new settings' gains."""
+        return replace(Predictor.of(settings), level=self.level, trend=self.trend,
+                       scale=self.scale, surprises=self.surprises,
+                       in_flight=self.in_flight, aside=self.aside, skip=self.skip,
+                       starting=self.starting)
+
+    def applied(self, effect_mm: float, after_measurements: int, visible_at_s: float) -> None:
+        """An offset was applied (by the gauge, or by someone else at the CNC): its effect on
+        the diameter (mm) shows from the measurement after ``after_measurements`` more, at
+        ``visible_at_s`` at the earliest."""
+        self.in_flight.append(InFlight(effect_mm, after_measurements, visible_at_s))
+
+    def in_flight_mm(self) -> float:
+        """The effect of the offsets not yet visible, mm of diameter."""
+        return sum(f.effect_mm for f in self.in_flight)
+
+    def band(self, uncertainty_mm: float = 0.0) -> float:
+        """The mean-value band now (mm): the setting, or ``BAND_SCALES`` scales of the
+        surprises seen (the measurement's own uncertainty before there are any)."""
+        if self.band_mm > 0:
+            return self.band_mm
+        scale = self.scale if self.scale is not None else uncertainty_mm * math.sqrt(2.0)
+        return max(BAND_SCALES * max(scale, uncertainty_mm), self.floor_mm)
+
+    def observe(self, deviation_mm: float, applied_mm: float, now_s: float,
+                uncertainty_mm: float = 0.0) -> float | tuple[str, str]:
+        """Take a measurement's deviation from nominal, with ``applied_mm`` the effect of all
+        offsets applied so far (``uncertainty_mm`` its standard uncertainty); return the
+        forecast of the uncompensated process ``horizon`` measurements ahead (mm), or
+        (code, why) nothing is forecast on this measurement's word."""
+        self.last_step_mm = None
+        for f in [*self.in_flight, *([self.skip] if self.skip else [])]:
+            f.seen += 1
+        self.in_flight = [f for f in self.in_flight if not f.visible(now_s)]
+        if self.skip is not None:
+            if not self.skip.visible(now_s):
+                return "cut_before_reset", "cut before the reset: not taken"
+            self.skip = None
+        u = deviation_mm - applied_mm + self.in_flight_mm()
+        band = self.band(uncertainty_mm)
+        if self.level is None:
+            return self._start(u, band)
+        before = self.level
+        surprise = u - (before + self.trend)
+        self._learn_scale(surprise, band, uncertainty_mm)
+        if abs(surprise) > band:
+            if self.aside is not None and (self.aside - before) * surprise > 0 \
+                    and abs(u - (self.aside + self.trend)) <= band:
+                # Confirmed: a step. The level jumps to the two; the trend stays the wear's.
+                self.level, self.aside = 0.5 * (u + self.aside + self.trend), None
+                self.last_step_mm = self.level - before
+                return self.forecast()
+            self.aside = u
+            self.level = before + self.trend  # as if this measurement had not come
+            return "set_aside", (f"{surprise * 1000:+.1f} um from the process estimate, "
+                                 f"beyond the mean-value band of {band * 1000:.1f} um: set "
+                                 "aside until the next measurement says outlier or step")
+        self.aside = None
+        counted = max(-HUBER_SCALES * self._scale(), min(HUBER_SCALES * self._scale(),
+                                                         surprise))
+        self.level = before + self.trend + self.gain * counted
+        self.trend = self.trend_gain * (self.level - before) \
+            + (1.0 - self.trend_gain) * self.trend
+        return self.forecast()
+
+    def forecast(self) -> float:
+        """The uncompensated process ``horizon`` measurements ahead (mm)."""
+        assert self.level is not None
+        return self.level + self.horizon * self.trend
+
+    def _start(self, u: float, band: float) -> float | tuple[str, str]:
+        """The process starts from the latest of two measurements that agree, or of three on
+        a line (a tool that wears fast), never from one."""
+        seen = self.starting[-2:] + [u]
+        if len(seen) >= 2 and abs(seen[-1] - seen[-2]) <= band:
+            self.level, self.starting = u, []
+            return self.forecast()
+        if len(seen) == 3 and abs(seen[2] - 2 * seen[1] + seen[0]) <= band:
+            self.level, self.starting = u, []
+            if self.trend_gain > 0:  # a single EWMA (no trend) stays one
+                self.trend = 0.5 * (seen[2] - seen[0])
+            return self.forecast()
+        self.starting = seen
+        return "starting", ("the process estimate starts from two measurements that agree "
+                            f"within {band * 1000:.1f} um, or three on a line: waiting for "
+                            "the next")
+
+    def _scale(self) -> float:
+        return self.scale if self.scale is not None else 0.0
+
+    def _learn_scale(self, surprise: float, band: float, uncertainty_mm: float) -> None:
+        """The robust scale of the surprises: an EWMA of their size, each clipped to the
+        band (an outlier widens it by little), never below the measurement's uncertainty."""
+        self.surprises += 1
+        weight = max(1.0 / self.surprises, SCALE_MEMORY)
+        size = ABS_TO_SIGMA * min(abs(surprise), band)
+        old = self.scale if self.scale is not None else size
+        self.scale = max(old + weight * (size - old), uncertainty_mm)
+
+    def reset(self, after_measurements: int = 0, visible_at_s: float = -math.inf) -> None:
+        """A reset (a new insert): the measurements cut before it (the next
+        ``after_measurements``, and those before ``visible_at_s``) are not taken, then the
+        level starts afresh from two that agree; the trend, the insert's wear per
+        measurement, is kept (the same cut wears the next insert alike), and so is the
+        scatter."""
+        self.level, self.aside, self.starting = None, None, []
+        self.skip = InFlight(0.0, after_measurements, visible_at_s) \
+            if after_measurements > 0 or visible_at_s > -math.inf else None
