@@ -2,9 +2,10 @@
 the gauge's bookkeeping.
 
 The diameter cut is the programmed one plus what moves the tool's tip away from where the
-CNC believes it is: the insert's wear (a rate per part or per minute, an insert change that
-resets it, random chipping steps), the machine's thermal growth (a warm-up curve over the
-first hour) and part-to-part scatter; less the wear offset the CNC applies (its total, read
+CNC believes it is: the insert's wear (a break-in, then a rate per part or per minute that
+may rise toward the end of the insert's life; an insert change that resets it; random
+chipping steps), the machine's thermal growth (a warm-up curve, a cool-down during a stop,
+the warm-up again) and part-to-part scatter; less the wear offset the CNC applies (its total, read
 from the CNC: LinuxCNC's tool table, or the push CNC's applied total). Pure: time passes in
 calls, chance comes from its own seeded generator, and every part's true diameter is logged.
 
@@ -40,6 +41,13 @@ class LatheConfig:
     wear_per_part_mm, wear_per_min_mm : float
         The insert's wear: the part grows by this much per part cut, or per minute of
         cutting (continuous work).
+    break_in_mm, break_in_parts : float
+        A new insert's break-in: a further ``break_in_mm (1 - exp(-n / break_in_parts))``
+        after ``n`` parts (or minutes) on it: its first micrometres come fast.
+    wear_knee_parts, wear_acceleration : float
+        Toward the end of its life the wear rate rises: after ``wear_knee_parts`` parts (or
+        minutes) on an insert it grows by ``wear_acceleration`` times the base rate every
+        ``wear_knee_parts`` more (0: never).
     insert_changes : tuple of int
         Parts (part to part) or whole minutes (continuous) at which a new insert goes in:
         its wear starts from 0 again.
@@ -51,6 +59,11 @@ class LatheConfig:
         A chip's step in the diameter, drawn uniformly (low, high).
     thermal_mm, thermal_tau_min : float
         The machine's warm-up: the diameter moves by ``thermal_mm (1 - exp(-t / tau))``.
+    stops : tuple of (int, float)
+        Part to part: the machine stands still for so many minutes before that part; it
+        cools meanwhile (toward no growth, ``cool_tau_min``) and warms up again after.
+    cool_tau_min : float
+        How fast it cools while it stands.
     part_sigma_mm : float
         Part-to-part scatter (1 sigma), from material, clamping, temperature of the part.
     cycle_min : float
@@ -63,16 +76,33 @@ class LatheConfig:
     nominal_mm: float = 30.0
     wear_per_part_mm: float = 0.0
     wear_per_min_mm: float = 0.0
+    break_in_mm: float = 0.0
+    break_in_parts: float = 5.0
+    wear_knee_parts: float = 0.0
+    wear_acceleration: float = 0.0
     insert_changes: tuple[int, ...] = ()
     insert_every: int = 0
     chip_probability: float = 0.0
     chip_mm: tuple[float, float] = (0.002, 0.006)
     thermal_mm: float = 0.0
     thermal_tau_min: float = 20.0
+    stops: tuple[tuple[int, float], ...] = ()
+    cool_tau_min: float = 30.0
     part_sigma_mm: float = 0.002
     cycle_min: float = 1.0
     feed_mm_per_min: float = 100.0
     laser_distance_mm: float = 50.0
+
+    def wear_after(self, n: float, rate_mm: float) -> float:
+        """An insert's wear after ``n`` parts (or minutes) on it at the base ``rate_mm``."""
+        wear = rate_mm * n
+        if self.break_in_mm:
+            wear += self.break_in_mm * (1.0 - math.exp(-n / self.break_in_parts))
+        if self.wear_knee_parts > 0 and n > self.wear_knee_parts:
+            # The rate grows linearly past the knee: its integral.
+            wear += rate_mm * self.wear_acceleration * (n - self.wear_knee_parts) ** 2 \
+                / (2.0 * self.wear_knee_parts)
+        return wear
 
     @property
     def dead_time_min(self) -> float:
@@ -106,7 +136,10 @@ class VirtualLathe:
         self._wear = 0.0
         self._chips = 0.0
         self._part = 0
+        self._on_insert = 0       # parts cut on the insert in the holder
         self._minute = 0
+        self._stopped_min = 0.0   # part to part: minutes stood still so far
+        self._theta = (0.0, 0.0)  # part to part: (time, thermal growth) last worked out
 
     def thermal_at(self, time_min: float) -> float:
         """The machine's thermal growth at a time, mm of diameter."""
@@ -117,16 +150,29 @@ class VirtualLathe:
     def _new_insert(self) -> None:
         self._wear = 0.0
         self._chips = 0.0
+        self._on_insert = 0
+
+    def _thermal_to(self, time_min: float, running: bool) -> float:
+        """Part to part: the thermal growth carried forward to ``time_min``, the machine
+        running (warming toward ``thermal_mm``) or standing (cooling toward 0)."""
+        c = self.config
+        t0, theta = self._theta
+        target, tau = (c.thermal_mm, c.thermal_tau_min) if running else (0.0, c.cool_tau_min)
+        theta = target + (theta - target) * math.exp(-(time_min - t0) / tau) \
+            if tau > 0 else target
+        self._theta = (time_min, theta)
+        return theta
 
     def _chip(self) -> None:
         c = self.config
         if c.chip_probability > 0 and self._rng.random() < c.chip_probability:
             self._chips += self._rng.uniform(*c.chip_mm)
 
-    def _diameter(self, time_min: float, offset_mm: float) -> tuple[float, float, float]:
+    def _diameter(self, time_min: float, offset_mm: float, thermal: float | None = None
+                  ) -> tuple[float, float, float]:
         c = self.config
         wear = self._wear + self._chips
-        thermal = self.thermal_at(time_min)
+        thermal = self.thermal_at(time_min) if thermal is None else thermal
         noise = self._rng.normal(0.0, c.part_sigma_mm) if c.part_sigma_mm > 0 else 0.0
         return c.nominal_mm + wear + thermal + noise + offset_mm, wear, thermal
 
@@ -136,11 +182,18 @@ class VirtualLathe:
         k = self._part
         if self._insert_at(k):
             self._new_insert()
-        time_min = k * c.cycle_min
-        d, wear, thermal = self._diameter(time_min, offset_mm)
+        stop = sum(minutes for at, minutes in c.stops if at == k)
+        if stop:  # it cools while it stands
+            self._thermal_to(k * c.cycle_min + self._stopped_min, running=True)
+            self._stopped_min += stop
+            self._thermal_to(k * c.cycle_min + self._stopped_min, running=False)
+        time_min = k * c.cycle_min + self._stopped_min
+        self._wear = c.wear_after(self._on_insert, c.wear_per_part_mm)
+        d, wear, thermal = self._diameter(time_min, offset_mm,
+                                          self._thermal_to(time_min, running=True))
         part = CutPart(k, time_min, d, offset_mm, wear, thermal)
         self.log.append(part)
-        self._wear += c.wear_per_part_mm
+        self._on_insert += 1
         self._chip()
         self._part += 1
         return part
@@ -155,7 +208,7 @@ class VirtualLathe:
             if self._minute > 0:
                 self._chip()
             self._minute += 1
-        self._wear = c.wear_per_min_mm * (time_min - self._last_change(time_min))
+        self._wear = c.wear_after(time_min - self._last_change(time_min), c.wear_per_min_mm)
         d, wear, thermal = self._diameter(time_min, offset_mm)
         part = CutPart(len(self.log), time_min, d, offset_mm, wear, thermal)
         self.log.append(part)

@@ -74,6 +74,10 @@ from service.compensation.records import (
 )
 from service.compensation.settings import CompensationSettings
 
+REVERSAL_NULL_BANDS = 3.0
+"""An offset that would reverse the gauge's last one must be this many null bands: noise
+does not walk the tool back and forth."""
+
 
 @dataclass
 class CompensationController:
@@ -98,6 +102,7 @@ class CompensationController:
         self._window = WindowLaw.of(self.settings)
         self._predictor = Predictor.of(self.settings)
         self._applied_mm = 0.0  # the effect of every offset applied since the start, mm
+        self._last_step_mm = 0.0  # the effect of the gauge's last offset applied, mm
         # A write handed out but never reported (the service died) is uncertain on restart.
         if self.persisted.state == State.PENDING.value:
             self.persisted.state = State.UNCERTAIN.value
@@ -172,25 +177,28 @@ class CompensationController:
         p = self.persisted
         settled = self.state not in (State.PENDING, State.UNCERTAIN)
         before, p.cnc_total_mm = p.cnc_total_mm, total_mm
+        changed = None if before is None or not settled or same_total(
+            before, total_mm, self.settings) else self._changed_at_cnc(total_mm - before, now)
         if p.baseline_mm is None and not self.settings.shadow and settled:
             p.baseline_mm = total_mm
             return self._decision(Kind.BASELINE, "baseline", f"the CNC's total wear offset "
                                   f"{total_mm * 1000:+.1f} um is the reference of the "
                                   f"cumulative limit (+-{self.settings.max_total_mm * 1000:.0f}"
                                   " um)", now)
-        if before is None or not settled or same_total(before, total_mm, self.settings):
-            return None
-        return self._changed_at_cnc(total_mm - before, now)
+        return changed
 
     def _changed_at_cnc(self, change_mm: float, now: float) -> Decision:
         """Someone else moved the CNC's total by ``change_mm`` (offset units)."""
         s = self.settings
         self._in_flight(effect_mm(s, change_mm), now)
+        # An insert change, most likely: the process estimate starts again from the parts cut
+        # after it, and nothing is corrected before they are seen.
+        self._predictor.reset(s.dead_time_measurements, now + s.dead_time_s)
         return self._decision(
             Kind.BASELINE, "cnc_total_changed", f"the CNC's total wear offset was changed "
-            f"at the CNC by {change_mm * 1000:+.1f} um (an insert change?): parts cut from "
-            "now on are judged with it, and the change is not corrected back; the cumulative "
-            "limit keeps its reference", now)
+            f"at the CNC by {change_mm * 1000:+.1f} um (an insert change?): the process is "
+            "estimated again from the parts cut with it, nothing is corrected before they are "
+            "measured; the cumulative limit keeps its reference", now)
 
     def on_measurement(self, m: MeasurementIn, now: float) -> Decision:
         """Judge one measurement; see the module docstring for the order of the checks."""
@@ -240,10 +248,15 @@ class CompensationController:
         step = self._predictor.last_step_mm if s.law == "predictive" else None
         note = flag + ("" if step is None else f"a step of {step * 1000:+.1f} um in the "
                        "process, confirmed by two measurements: followed; ")
-        if abs(filtered) <= s.deadband_mm:
+        null = s.deadband_mm
+        if s.law == "predictive":
+            null = self._predictor.null_band()
+            if self._last_step_mm * filtered > 0:  # it would reverse the last offset: surer
+                null *= REVERSAL_NULL_BANDS
+        if abs(filtered) <= null:
             return self._decision(Kind.HELD, "deadband", f"{note}filtered deviation "
                                   f"{filtered * 1000:+.1f} um inside the null band (deadband) of "
-                                  f"{s.deadband_mm * 1000:.1f} um", now, **kw)
+                                  f"{null * 1000:.1f} um", now, **kw)
         return self._correct(-gain * filtered / effect_mm(s, 1.0), now, kw, note)
 
     def _implausible(self, deviation: float, gate: str, now: float,
@@ -365,7 +378,8 @@ class CompensationController:
             p.cumulative_mm = before + step
             if p.cnc_total_mm is not None:  # until the next reading says otherwise
                 p.cnc_total_mm += step
-            self._in_flight(effect_mm(self.settings, step), now)
+            self._last_step_mm = effect_mm(self.settings, step)
+            self._in_flight(self._last_step_mm, now)
             return self._decision(Kind.APPLIED, "applied", f"{what} acknowledged by the "
                                   f"CNC{_colon(detail)}", now, before_mm=before,
                                   after_mm=p.cumulative_mm, **kw)

@@ -122,6 +122,10 @@ HUBER_SCALES = 2.5
 """Inside the band a surprise counts up to this many scales (Huber's weight)."""
 SCALE_MEMORY = 0.05
 """The scale's own EWMA weight once it has 20 surprises (1 / n before: the mean)."""
+STOP_INTERVALS = 10.0
+"""A gap between measurements this many intervals long is a stop."""
+NULL_SIGMAS = 1.5
+"""The null band is at least this many standard deviations of the forecast's own noise."""
 ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
 """The mean absolute value of a Gaussian is sigma / this."""
 
@@ -137,7 +141,11 @@ class Predictor:
     trend_gain : float
         ``beta``, the share of each level change taken into the trend (0: a single EWMA).
     horizon : int
-        How many measurements ahead the forecast looks (dead time in measurements + 1).
+        How many measurements ahead the forecast looks at least (dead time in measurements
+        + 1).
+    dead_s : float
+        The dead time in seconds: the forecast looks as many measurements ahead as come in
+        it (at the interval between measurements as seen), + 1, when that is more.
     band_mm : float
         The mean-value band: a surprise beyond it is set aside until the next measurement
         says outlier or step (0: ``BAND_SCALES`` robust scales, from the data).
@@ -151,6 +159,7 @@ class Predictor:
     horizon: int
     band_mm: float = 0.0
     floor_mm: float = 0.0
+    dead_s: float = 0.0
     level: float | None = None
     trend: float = 0.0
     scale: float | None = None
@@ -165,20 +174,31 @@ class Predictor:
     """After a reset: measurements cut before it (while this is not visible) are not taken."""
     last_step_mm: float | None = None
     """The step the last measurement confirmed (mm), or None."""
+    expected: bool = False
+    """A step is expected (a reset, a change at the CNC): the next measurement taken starts
+    the level."""
+    fresh_level: float | None = None
+    """The process as the first part after the last reset or change at the CNC showed it
+    (a new insert on a machine as warm as it then was)."""
+    interval_s: float | None = None
+    """The time between measurements, as seen (an EWMA)."""
+    last_s: float | None = None
 
     @classmethod
     def of(cls, settings: Any) -> Predictor:
         """A fresh predictor for compensation settings (``gain``, ``trend_gain``,
         ``dead_time_measurements``, ``mean_value_band_mm``, ``deadband_mm``)."""
         return cls(settings.gain, settings.trend_gain, settings.dead_time_measurements + 1,
-                   settings.mean_value_band_mm, settings.deadband_mm)
+                   settings.mean_value_band_mm, settings.deadband_mm, settings.dead_time_s)
 
     def retuned(self, settings: Any) -> Predictor:
         """This predictor's estimate and offsets in flight with new settings' gains."""
         return replace(Predictor.of(settings), level=self.level, trend=self.trend,
                        scale=self.scale, surprises=self.surprises,
+                       interval_s=self.interval_s, last_s=self.last_s,
                        in_flight=self.in_flight, aside=self.aside, skip=self.skip,
-                       starting=self.starting)
+                       starting=self.starting, expected=self.expected,
+                       fresh_level=self.fresh_level)
 
     def applied(self, effect_mm: float, after_measurements: int, visible_at_s: float) -> None:
         """An offset was applied (by the gauge, or by someone else at the CNC): its effect on
@@ -205,13 +225,17 @@ class Predictor:
         forecast of the uncompensated process ``horizon`` measurements ahead (mm), or
         (code, why) nothing is forecast on this measurement's word."""
         self.last_step_mm = None
+        self._clock(now_s)
         for f in [*self.in_flight, *([self.skip] if self.skip else [])]:
             f.seen += 1
         self.in_flight = [f for f in self.in_flight if not f.visible(now_s)]
         if self.skip is not None:
             if not self.skip.visible(now_s):
+                if self.level is not None:  # a new insert's level, as the last one's
+                    return self.forecast()
                 return "cut_before_reset", "cut before the reset: not taken"
             self.skip = None
+            self.level = None
         u = deviation_mm - applied_mm + self.in_flight_mm()
         band = self.band(uncertainty_mm)
         if self.level is None:
@@ -234,19 +258,76 @@ class Predictor:
         self.aside = None
         counted = max(-HUBER_SCALES * self._scale(), min(HUBER_SCALES * self._scale(),
                                                          surprise))
-        self.level = before + self.trend + self.gain * counted
-        self.trend = self.trend_gain * (self.level - before) \
-            + (1.0 - self.trend_gain) * self.trend
+        lam, beta = self.gains()
+        self.level = before + self.trend + lam * counted
+        self.trend = beta * (self.level - before) + (1.0 - beta) * self.trend
         return self.forecast()
 
     def forecast(self) -> float:
-        """The uncompensated process ``horizon`` measurements ahead (mm)."""
+        """The uncompensated process ``steps_ahead()`` measurements ahead (mm)."""
         assert self.level is not None
-        return self.level + self.horizon * self.trend
+        return self.level + self.steps_ahead() * self.trend
+
+    def steps_ahead(self) -> int:
+        """How many measurements ahead the next correction will show."""
+        if self.dead_s <= 0 or not self.interval_s:
+            return self.horizon
+        return max(self.horizon, math.ceil(self.dead_s / self.interval_s - 1e-9) + 1)
+
+    def null_band(self) -> float:
+        """The null band in force (mm): the setting (``floor_mm``), or the forecast's own
+        scatter where that is wider (``NULL_SIGMAS`` of it): what the estimate cannot tell
+        from noise is not corrected (Siemens' _TZL, set from the data)."""
+        if self.scale is None:
+            return self.floor_mm
+        return max(self.floor_mm, NULL_SIGMAS * self.scale * self.noise_gain())
+
+    def gains(self) -> tuple[float, float]:
+        """``gain`` and ``trend_gain`` per measurement. They are per dead-time cycle: where
+        the dead time in seconds spans more measurements than the dead time in measurements
+        (continuous cutting, a fused diameter every few seconds), each measurement takes the
+        share that makes the same over the cycle."""
+        per_cycle = self.steps_ahead() / self.horizon
+        if per_cycle <= 1.0:
+            return self.gain, self.trend_gain
+        return (1.0 - (1.0 - self.gain) ** (1.0 / per_cycle),
+                1.0 - (1.0 - self.trend_gain) ** (1.0 / per_cycle))
+
+    def noise_gain(self) -> float:
+        """How much of the measurements' scatter (one scale) reaches the forecast: the root
+        sum of squares of the filter's weights (its response to one surprise)."""
+        lam, beta = self.gains()
+        h, level, trend, total = self.steps_ahead(), lam, 0.0, 0.0
+        for _ in range(round(20 / lam)):
+            total += (level + h * trend) ** 2
+            new = (1.0 - lam) * (level + trend)
+            trend = beta * (new - level) + (1.0 - beta) * trend
+            level = new
+        return math.sqrt(total)
+
+    def _clock(self, now_s: float) -> None:
+        """The interval between measurements, as they come (a stop does not count)."""
+        if self.last_s is not None and 0 < now_s - self.last_s:
+            gap = now_s - self.last_s
+            if self.interval_s is None:
+                self.interval_s = gap
+            elif gap < STOP_INTERVALS * self.interval_s:
+                self.interval_s += 0.1 * (gap - self.interval_s)
+            elif self.level is not None and self.skip is None:
+                # A stop: the machine may have cooled. The first part cut after it sets the
+                # level (the parts measured meanwhile were cut before it).
+                self.skip = InFlight(0.0, self.horizon - 1, -math.inf)
+                self.expected = True
+        self.last_s = now_s
 
     def _start(self, u: float, band: float) -> float | tuple[str, str]:
         """The process starts from the latest of two measurements that agree, or of three on
-        a line (a tool that wears fast), never from one."""
+        a line (a tool that wears fast), never from one; but after a reset or a change at the
+        CNC (a new insert: a step is expected) from the first part cut after it."""
+        if self.expected:
+            self.level, self.starting, self.expected = u, [], False
+            self.fresh_level = u
+            return self.forecast()
         seen = self.starting[-2:] + [u]
         if len(seen) >= 2 and abs(seen[-1] - seen[-2]) <= band:
             self.level, self.starting = u, []
@@ -276,9 +357,11 @@ class Predictor:
     def reset(self, after_measurements: int = 0, visible_at_s: float = -math.inf) -> None:
         """A reset (a new insert): the measurements cut before it (the next
         ``after_measurements``, and those before ``visible_at_s``) are not taken, then the
-        level starts afresh from two that agree; the trend, the insert's wear per
+        level starts afresh from the first after them; the trend, the insert's wear per
         measurement, is kept (the same cut wears the next insert alike), and so is the
-        scatter."""
-        self.level, self.aside, self.starting = None, None, []
+        scatter. Meanwhile the parts being cut are forecast where the last new insert's
+        stood (``fresh_level``), when there was one: what an insert change loses (the wear
+        offset zeroed with the machine's growth in it) is corrected before it is seen."""
+        self.level, self.aside, self.starting, self.expected = self.fresh_level, None, [], True
         self.skip = InFlight(0.0, after_measurements, visible_at_s) \
             if after_measurements > 0 or visible_at_s > -math.inf else None

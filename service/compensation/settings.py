@@ -101,7 +101,7 @@ class CompensationSettings:
     window: int = 5
     filter: Literal["median", "mean"] = "median"
     deadband_mm: float = 0.002
-    gain: float = 0.4
+    gain: float = 0.3
     max_step_mm: float = 0.010
     max_total_mm: float = 0.200
     dead_time_measurements: int = 5
@@ -114,7 +114,7 @@ class CompensationSettings:
     shadow: bool = True
     offset_resolution_mm: float = 0.0001
     law: Literal["window", "predictive"] = "predictive"
-    trend_gain: float = 0.2
+    trend_gain: float = 0.15
     mean_value_band_mm: float = 0.0
     plausibility_mm: float | None = None
 
