@@ -307,7 +307,7 @@ class Predictor:
 
     def _clock(self, now_s: float) -> None:
         """The interval between measurements, as they come (a stop does not count)."""
-        if self.last_s is not None and 0 < now_s - self.last_s:
+        if self.last_s is not None and now_s > self.last_s:
             gap = now_s - self.last_s
             if self.interval_s is None:
                 self.interval_s = gap
@@ -328,7 +328,7 @@ class Predictor:
             self.level, self.starting, self.expected = u, [], False
             self.fresh_level = u
             return self.forecast()
-        seen = self.starting[-2:] + [u]
+        seen = [*self.starting[-2:], u]
         if len(seen) >= 2 and abs(seen[-1] - seen[-2]) <= band:
             self.level, self.starting = u, []
             return self.forecast()
