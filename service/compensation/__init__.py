@@ -8,6 +8,7 @@ would, without I/O (time is passed in).
 - ``exchange``: the offset's arithmetic (step, cumulative limit, resolution) and what the
   CNC's registers say of an offset in flight;
 - ``records``: measurements, decisions, the persisted state;
+- ``handshake``: an offset's life from the order to write it to its settlement;
 - ``controller``: ``CompensationController``, the state machine that ties them.
 """
 

@@ -28,8 +28,20 @@ band: four times the robust scale of the one-step surprises, estimated from the 
 aside. Alone, it was an outlier and never moves the estimate; confirmed by the next one on the
 same side, it was a step (a chipped or new insert, a machine that cooled) and the level jumps
 to it at once, the trend kept. Inside the band a surprise counts up to 2.5 scales (Huber), so
-heavy tails move the estimate little. The process is (re)started from two measurements that
-agree (or three on a line), never from one.
+heavy tails move the estimate little. The process starts from two measurements that agree
+(or three on a line), never from one.
+
+Where a step is expected, the first part cut after it sets the level: after a reset or a
+change of the CNC's total by someone else (an insert change; meanwhile the parts being cut are
+forecast where the last new insert stood, so what the zeroed wear offset loses, the machine's
+growth, is corrected before it is seen), and after a stop (a gap of ten intervals between
+measurements: the machine may have cooled).
+
+The null band is never narrower than the forecast's own noise (1.5 of its standard
+deviations: the scale times the filter's noise gain), and an offset that would reverse the
+last one needs three null bands: what the estimate cannot tell from noise is not corrected.
+The gains are per dead-time cycle: where the dead time in seconds spans several measurements
+(continuous cutting), each takes its share.
 
 Pure: deviations and effects in mm of diameter, time passed in.
 """
@@ -192,13 +204,12 @@ class Predictor:
                    settings.mean_value_band_mm, settings.deadband_mm, settings.dead_time_s)
 
     def retuned(self, settings: Any) -> Predictor:
-        """This predictor's estimate and offsets in flight with new settings' gains."""
-        return replace(Predictor.of(settings), level=self.level, trend=self.trend,
-                       scale=self.scale, surprises=self.surprises,
-                       interval_s=self.interval_s, last_s=self.last_s,
-                       in_flight=self.in_flight, aside=self.aside, skip=self.skip,
-                       starting=self.starting, expected=self.expected,
-                       fresh_level=self.fresh_level)
+        """This predictor (its estimate, scatter and offsets in flight) with new settings'
+        gains, bands and dead time."""
+        fresh = Predictor.of(settings)
+        return replace(self, gain=fresh.gain, trend_gain=fresh.trend_gain,
+                       horizon=fresh.horizon, band_mm=fresh.band_mm, floor_mm=fresh.floor_mm,
+                       dead_s=fresh.dead_s)
 
     def applied(self, effect_mm: float, after_measurements: int, visible_at_s: float) -> None:
         """An offset was applied (by the gauge, or by someone else at the CNC): its effect on

@@ -10,14 +10,14 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 # The pure core: numerics and state machines, no I/O, nothing of the adapters or the app.
-CORE = ["service/measure", "service/quality", "service/compensation.py",
-        "service/control_law.py", "service/record.py",
+CORE = ["service/measure", "service/quality", "service/compensation",
+        "service/record.py",
         "service/calibrate/board.py",
         "service/calibrate/intrinsics.py", "service/calibrate/plane.py",
         "service/calibrate/axis.py", "service/calibrate/report.py",
         "service/calibrate/master.py"]
 CORE_MODULES = ("service.measure", "service.quality", "service.compensation",
-                "service.control_law", "service.record",
+                "service.record",
                 "service.calibrate.board",
                 "service.calibrate.intrinsics", "service.calibrate.plane",
                 "service.calibrate.axis", "service.calibrate.report",
