@@ -136,7 +136,7 @@ SCALE_MEMORY = 0.05
 """The scale's own EWMA weight once it has 20 surprises (1 / n before: the mean)."""
 STOP_INTERVALS = 10.0
 """A gap between measurements this many intervals long is a stop."""
-NULL_SIGMAS = 1.5
+NULL_SIGMAS = 1.0
 """The null band is at least this many standard deviations of the forecast's own noise."""
 ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
 """The mean absolute value of a Gaussian is sigma / this."""
@@ -186,6 +186,9 @@ class Predictor:
     """After a reset: measurements cut before it (while this is not visible) are not taken."""
     last_step_mm: float | None = None
     """The step the last measurement confirmed (mm), or None."""
+    vouched: bool = False
+    """The last forecast rests on more than the last measurement's word: a confirmed step,
+    a step that was expected, a new insert forecast where the last one stood."""
     expected: bool = False
     """A step is expected (a reset, a change at the CNC): the next measurement taken starts
     the level."""
@@ -195,6 +198,7 @@ class Predictor:
     interval_s: float | None = None
     """The time between measurements, as seen (an EWMA)."""
     last_s: float | None = None
+    _response: tuple | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def of(cls, settings: Any) -> Predictor:
@@ -235,7 +239,7 @@ class Predictor:
         offsets applied so far (``uncertainty_mm`` its standard uncertainty); return the
         forecast of the uncompensated process ``horizon`` measurements ahead (mm), or
         (code, why) nothing is forecast on this measurement's word."""
-        self.last_step_mm = None
+        self.last_step_mm, self.vouched = None, False
         self._clock(now_s)
         for f in [*self.in_flight, *([self.skip] if self.skip else [])]:
             f.seen += 1
@@ -243,6 +247,7 @@ class Predictor:
         if self.skip is not None:
             if not self.skip.visible(now_s):
                 if self.level is not None:  # a new insert's level, as the last one's
+                    self.vouched = True
                     return self.forecast()
                 return "cut_before_reset", "cut before the reset: not taken"
             self.skip = None
@@ -259,7 +264,7 @@ class Predictor:
                     and abs(u - (self.aside + self.trend)) <= band:
                 # Confirmed: a step. The level jumps to the two; the trend stays the wear's.
                 self.level, self.aside = 0.5 * (u + self.aside + self.trend), None
-                self.last_step_mm = self.level - before
+                self.last_step_mm, self.vouched = self.level - before, True
                 return self.forecast()
             self.aside = u
             self.level = before + self.trend  # as if this measurement had not come
@@ -267,8 +272,8 @@ class Predictor:
                                  f"beyond the mean-value band of {band * 1000:.1f} um: set "
                                  "aside until the next measurement says outlier or step")
         self.aside = None
-        counted = max(-HUBER_SCALES * self._scale(), min(HUBER_SCALES * self._scale(),
-                                                         surprise))
+        corner = self.corner()
+        counted = max(-corner, min(corner, surprise))
         lam, beta = self.gains()
         self.level = before + self.trend + lam * counted
         self.trend = beta * (self.level - before) + (1.0 - beta) * self.trend
@@ -306,15 +311,30 @@ class Predictor:
 
     def noise_gain(self) -> float:
         """How much of the measurements' scatter (one scale) reaches the forecast: the root
-        sum of squares of the filter's weights (its response to one surprise)."""
+        sum of squares of the filter's weights."""
+        return math.sqrt(sum(r * r for r in self.response()))
+
+    def response(self) -> list[float]:
+        """The forecast's response to a unit surprise, measurement by measurement after it
+        (the process itself unchanged): the filter's weights."""
         lam, beta = self.gains()
-        h, level, trend, total = self.steps_ahead(), lam, 0.0, 0.0
-        for _ in range(round(20 / lam)):
-            total += (level + h * trend) ** 2
-            new = (1.0 - lam) * (level + trend)
-            trend = beta * (new - level) + (1.0 - beta) * trend
-            level = new
-        return math.sqrt(total)
+        key = (lam, beta, self.steps_ahead())
+        if self._response is None or self._response[0] != key:
+            h, level, trend, out = key[2], lam, beta * lam, []
+            for _ in range(round(20 / lam)):
+                out.append(level + h * trend)
+                new = (1.0 - lam) * (level + trend)
+                trend = beta * (new - level) + (1.0 - beta) * trend
+                level = new
+            self._response = (key, out)
+        return self._response[1]
+
+    def corner(self) -> float:
+        """Where Huber's weight starts (mm): ``HUBER_SCALES`` scales, and never so far that
+        one surprise could move the forecast by more than half the null band: a single
+        measurement, however far off, never makes an offset by itself."""
+        reach = max(abs(r) for r in self.response())
+        return min(HUBER_SCALES * self._scale(), 0.5 * self.null_band() / reach)
 
     def _clock(self, now_s: float) -> None:
         """The interval between measurements, as they come (a stop does not count)."""
@@ -337,7 +357,7 @@ class Predictor:
         CNC (a new insert: a step is expected) from the first part cut after it."""
         if self.expected:
             self.level, self.starting, self.expected = u, [], False
-            self.fresh_level = u
+            self.fresh_level, self.vouched = u, True
             return self.forecast()
         seen = [*self.starting[-2:], u]
         if len(seen) >= 2 and abs(seen[-1] - seen[-2]) <= band:

@@ -100,7 +100,7 @@ class CompensationSettings:
     tol_lower_mm: float = -0.02
     window: int = 5
     filter: Literal["median", "mean"] = "median"
-    deadband_mm: float = 0.002
+    deadband_mm: float = 0.001
     gain: float = 0.3
     max_step_mm: float = 0.010
     max_total_mm: float = 0.200

@@ -4,10 +4,13 @@ up to three parts of dead time, wear followed without a steady lag."""
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import replace
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drivers.sim.lathe import LatheConfig, VirtualLathe
 from service.compensation import (
@@ -98,3 +101,140 @@ def test_the_window_law_is_still_there_for_comparison() -> None:
     devs = run_loop(window, 1, 200, 1.0)
     assert max(abs(x) for x in devs[-50:]) < 20.0
     assert sum(devs[-50:]) / 50 > 5.0  # it waits out dead time and window: parts run large
+
+
+# ---- the loop that comes back by itself ---------------------------------------------------
+
+DEFAULTS = replace(CompensationSettings(), nominal_mm=30.0, shadow=False, max_total_mm=1.0,
+                   dead_time_s=0.0, max_age_s=1e9)
+
+
+class Loop:
+    """The controller around a lathe whose process the test writes part by part: each part
+    cut is ``process(k) + total``, measured ``dead`` parts later; offsets applied at once."""
+
+    def __init__(self, settings: CompensationSettings, dead: int) -> None:
+        self.ctrl = CompensationController(replace(settings, dead_time_measurements=dead),
+                                           ControllerState())
+        self.ctrl.observe_cnc_total(0.0, 0.0)
+        self.dead, self.total, self.k = dead, 0.0, 0
+        self.waiting: deque = deque()
+        self.cut: list[float] = []       # deviations cut, um
+        self.decisions: list = []        # (k, decision)
+
+    def part(self, process_mm: float, measured_error_mm: float = 0.0,
+             now: float | None = None) -> None:
+        now = float(self.k) if now is None else now
+        self.cut.append((process_mm + self.total) * 1000)
+        self.waiting.append(30.0 + process_mm + self.total)
+        self.k += 1
+        if len(self.waiting) <= self.dead:
+            return
+        d = self.ctrl.on_measurement(MeasurementIn(
+            self.k, now, "ok", self.waiting.popleft() + measured_error_mm, 0.0015), now)
+        self.decisions.append((self.k, d))
+        if d.kind is Kind.WRITE:
+            assert self.ctrl.check_before_write(d.offset_seq, self.total, now) is None
+            self.total += d.offset_mm
+            self.ctrl.on_write_outcome(d.offset_seq, True, now)
+            self.ctrl.observe_cnc_total(self.total, now)
+
+    def writes_from(self, k: int) -> list:
+        return [d for i, d in self.decisions if i >= k and d.kind is Kind.WRITE]
+
+
+@settings(max_examples=200, deadline=None)
+@given(level_um=st.floats(-15.0, 15.0), dead=st.integers(0, 3),
+       tol_um=st.floats(8.0, 25.0), at=st.integers(0, 20), fraction=st.floats(-1.0, 1.0),
+       gain=st.floats(0.1, 0.6), trend_gain=st.floats(0.0, 0.3))
+def test_no_single_outlier_writes_an_offset(level_um, dead, tol_um, at, fraction, gain,
+                                            trend_gain) -> None:
+    """A settled process (noise-free, so that nothing else would write) and one measurement
+    off by anything up to the plausibility limit: no offset, then or after."""
+    s = replace(DEFAULTS, tol_upper_mm=tol_um / 1000, tol_lower_mm=-tol_um / 1000,
+                gain=gain, trend_gain=trend_gain)
+    loop = Loop(s, dead)
+    for _ in range(60):
+        loop.part(level_um / 1000)
+    assert abs(loop.cut[-1]) <= max(s.deadband_mm * 1000, 2.5), loop.cut  # settled
+    outlier = fraction * s.plausibility()
+    start = loop.k
+    for i in range(30):
+        loop.part(level_um / 1000, outlier if i == at else 0.0)
+    assert not loop.writes_from(start + 1), (outlier, loop.writes_from(start + 1))
+
+
+@pytest.mark.parametrize("dead", [0, 1, 2, 3])
+@pytest.mark.parametrize("step_um", [-12.0, 9.0, 25.0])
+def test_a_real_step_is_followed_within_the_dead_time_and_two(dead: int,
+                                                              step_um: float) -> None:
+    """A chipped or a new insert: the first measurement of it is set aside, the second
+    confirms it and the offset goes out, so the step is corrected from the part cut after
+    the dead time plus two measurements on (and nothing overshoots)."""
+    loop = Loop(DEFAULTS, dead)
+    for _ in range(40):
+        loop.part(0.004)
+    n = loop.k
+    for _ in range(20):
+        loop.part(0.004 + step_um / 1000)
+    writes = loop.writes_from(n)
+    # Part j is measurement j + dead + 1: the step's second part measured is n + dead + 2.
+    assert writes and writes[0].measurement_seq <= n + dead + 2, writes
+    back = loop.cut[n + dead + 2 + math.ceil(abs(step_um) / 10) - 1:]  # max step 10 um
+    assert max(abs(x) for x in back) < 3.0, loop.cut[n:]
+
+
+def test_an_insert_change_zeroed_at_the_cnc_is_judged_with_and_not_corrected_back() -> None:
+    """The operator zeroes the wear offset at an insert change (no reset): the gauge sees the
+    CNC's total move without its offset, logs it, corrects nothing before the parts cut with
+    it are measured, and the new insert's parts come back without an overshoot."""
+    loop = Loop(DEFAULTS, 2)
+    wear = [0.001 * k for k in range(60)]
+    for w in wear:
+        loop.part(0.010 + w)  # 10 um of growth the offset also carries
+    total_before = loop.total
+    assert total_before < -0.05
+    loop.total = 0.0  # the new insert, the wear offset zeroed by hand
+    change = loop.ctrl.observe_cnc_total(0.0, float(loop.k))
+    assert change is not None and change.kind is Kind.BASELINE
+    assert change.code == "cnc_total_changed" and "insert change" in change.reason
+    n = loop.k
+    for k in range(30):
+        loop.part(0.010 + 0.001 * k)
+    new = loop.cut[n:]
+    # The growth lost with the offset is out for at most the dead time plus two parts; the
+    # gauge never pulls the tool back toward the old insert's offset.
+    assert sum(abs(x) > 20.0 for x in new) <= 2 + 2, new
+    assert min(new) > -20.0 and max(abs(x) for x in new[6:]) < 5.0, new
+    assert all(d.offset_mm > -0.02 for d in loop.writes_from(n)), loop.writes_from(n)
+
+
+def test_a_second_insert_change_is_corrected_before_it_is_seen() -> None:
+    """After one insert change the gauge knows where a new insert's parts stand; at the next
+    one the machine's growth the zeroed offset loses is corrected at the first measurement,
+    before the new insert's parts are measured."""
+    loop = Loop(DEFAULTS, 2)
+    for change in range(3):
+        if change:
+            loop.total = 0.0
+            loop.ctrl.observe_cnc_total(0.0, float(loop.k))
+        n = loop.k
+        for k in range(50):
+            loop.part(0.015 + 0.001 * k)
+    third = loop.cut[n:]
+    assert sum(abs(x) > 20.0 for x in third) == 0, third
+    assert max(third[:4]) > 12.0  # the lost growth shows on the parts cut before the offset
+
+
+def test_after_a_stop_the_first_part_sets_the_process() -> None:
+    """An hour's stop cooled the machine by 15 um: the gap between measurements says so,
+    and the first part after it moves the estimate without waiting for a second."""
+    loop = Loop(DEFAULTS, 1)
+    for k in range(40):
+        loop.part(0.010, now=60.0 * k)
+    n = loop.k
+    for k in range(10):
+        loop.part(-0.005, now=60.0 * (40 + k) + 3600.0)
+    writes = loop.writes_from(n)
+    # Part j is measurement j + 2: the first part cut after the stop is measurement n + 2.
+    assert writes and writes[0].measurement_seq == n + 2 and writes[0].offset_mm > 0, writes
