@@ -89,6 +89,11 @@ class CameraSettings(_Section):
     camera's control port (the LinuxCNC demo sets LinuxCNC's tool offset)."""
     sim_lathe_dead_time_s: float = Field(1.2, ge=0, le=600)
     """From the cut to the laser line: laser distance over feed (2 mm at 100 mm/min)."""
+    sim_lathe_thermal_um: float = Field(0.0, ge=-200, le=200)
+    """The virtual lathe's machine grows by this much on the diameter as it warms up ..."""
+    sim_lathe_thermal_tau_s: float = Field(1200.0, gt=0, le=86400)
+    """... with this time constant (what an insert change loses when its wear offset is
+    zeroed)."""
     sim_seed: int = 0
     sim_replay_frames: int = Field(32, ge=0, le=1000)
     """The simulated GigE camera renders a ring of this many frames at start and then only

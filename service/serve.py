@@ -125,7 +125,9 @@ def sim_lathe_args(settings: Settings) -> list[str]:
     lathe = {"wear_per_min_mm": sim_drift_um_per_min(cam) / 1000.0,
              "feed_mm_per_min": SIM_FEED_MM_PER_MIN,
              "laser_distance_mm": cam.sim_lathe_dead_time_s / 60.0 * SIM_FEED_MM_PER_MIN,
-             "insert_every": max(1, round(period)) if period > 0 else 0}
+             "insert_every": max(1, round(period)) if period > 0 else 0,
+             "thermal_mm": cam.sim_lathe_thermal_um / 1000.0,
+             "thermal_tau_min": cam.sim_lathe_thermal_tau_s / 60.0}
     args = ["--lathe", json.dumps(lathe)]
     if plc.source == "sim":
         args += ["--cnc", f"{plc.host}:{plc.port}", "--cnc-total-address",

@@ -68,6 +68,7 @@ class SimPlc:
             state = json.loads(state_path.read_text())
             self.total_units, self.last_seq = state["total_units"], state["last_seq"]
         self._regs: list[int] | None = None
+        self._start = 0
         self._server: ModbusTcpServer | None = None
         self._tasks: set[asyncio.Task] = set()
 
@@ -95,7 +96,7 @@ class SimPlc:
     async def _action(self, fc: int, start: int, address: int, count: int,
                       registers: list[int], values: list[int] | list[bool] | None
                       ) -> ExcCodes | None:
-        self._regs = registers
+        self._regs, self._start = registers, start
         if values is None or fc in (3, 4):
             return None
         m = self.map
@@ -129,12 +130,23 @@ class SimPlc:
             self.last_seq = seq
             self._record({"event": "applied", "seq": seq, "value_units": value,
                           "total_units": self.total_units})
-            if self.state_path:
-                tmp = self.state_path.with_suffix(".tmp")
-                tmp.write_text(json.dumps({"total_units": self.total_units,
-                                           "last_seq": self.last_seq}))
-                tmp.replace(self.state_path)
+            self._keep()
         self._publish(start)
+
+    def set_total_by_hand(self, total_units: int) -> None:
+        """An operator sets the wear offset at the panel (zeroed at an insert change): the
+        total changes without a request (call on the server's loop)."""
+        self.total_units = int(total_units)
+        self._record({"event": "set_by_hand", "total_units": self.total_units})
+        self._keep()
+        self._publish(self._start)
+
+    def _keep(self) -> None:
+        if self.state_path:
+            tmp = self.state_path.with_suffix(".tmp")
+            tmp.write_text(json.dumps({"total_units": self.total_units,
+                                       "last_seq": self.last_seq}))
+            tmp.replace(self.state_path)
 
     def _publish(self, start: int) -> None:
         if self._regs is None:

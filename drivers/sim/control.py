@@ -6,7 +6,8 @@ Requests, one JSON object per line: ``{"set": {"diameter_mm": 30.0, "drift_um_pe
 ``{"set": {"turning": {"eccentricity_mm": 0.05, "spindle_deg_per_frame": 37}}}`` (a surface
 off the spindle axis, ``lobes`` for one out of round: ``drivers.sim.rig.Turning``),
 ``{"set": {"cnc_total_mm": -0.004}}`` (a camera with a virtual lathe: the CNC's total wear
-offset, which the lathe's cut follows),
+offset, which the lathe's cut follows), ``{"do": "new_insert"}`` (its tool gets a new
+insert now),
 ``{"get": "stats"}``, or ``{"show": ...}`` for what the camera looks at: ``"shaft"``, a shot
 of the simulated calibration session by name (``{"show": {"shot": "view_00"}}``;
 ``{"get": "shots"}`` lists them), or a board set up by hand
@@ -117,12 +118,15 @@ def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
                 camera.set_lost_ratio(values["lost_ratio"])
             if "fps" in values:
                 camera.set_fps(values["fps"])
+        elif request.get("do") == "new_insert":
+            camera.new_insert()
         elif "show" in request:
             camera.show_board(*parse_show(request["show"]))
         elif request.get("get") == "shots":
             return {"ok": True, "shots": [s.name for s in session_shots()]}
         elif request.get("get") != "stats":
-            raise ValueError("use {'set': {...}}, {'show': ...}, {'get': 'stats'} or "
+            raise ValueError("use {'set': {...}}, {'show': ...}, {'do': 'new_insert'}, "
+                             "{'get': 'stats'} or "
                              "{'get': 'shots'}")
         return {"ok": True, "stats": camera.stats()}
     except (ValueError, TypeError) as err:

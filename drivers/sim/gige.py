@@ -143,6 +143,12 @@ class CameraLathe:
                     self.cnc_error = str(err) or type(err).__name__
         threading.Thread(target=follow, name="sim-lathe-cnc", daemon=True).start()
 
+    def new_insert(self) -> None:
+        """A new insert goes in now: what is cut from now on (seen a dead time later) starts
+        its wear again. The CNC's wear offset is whoever zeroes it."""
+        with self._lock:
+            self._view.lathe.change_insert_at((time.monotonic() - self._t0) / 60.0)
+
     def diameter_mm(self) -> float:
         """The diameter under the laser now, mm."""
         with self._lock:
@@ -257,6 +263,13 @@ class SimGigECamera:
             raise ValueError("no virtual lathe: start the camera with one (--lathe) to give "
                              "it the CNC's offset")
         self.lathe.set_total(total_mm)
+
+    def new_insert(self) -> None:
+        """The virtual lathe gets a new insert now (``CameraLathe.new_insert``)."""
+        if self.lathe is None:
+            raise ValueError("no virtual lathe: start the camera with one (--lathe) to "
+                             "change its insert")
+        self.lathe.new_insert()
 
     def follow_cnc(self, read_total_mm: Callable[[], float], period_s: float = 0.2) -> None:
         """The virtual lathe follows the CNC's total (``CameraLathe.follow``) until stopped."""

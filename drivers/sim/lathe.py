@@ -139,6 +139,7 @@ class VirtualLathe:
         self._on_insert = 0       # parts cut on the insert in the holder
         self._minute = 0
         self._stopped_min = 0.0   # part to part: minutes stood still so far
+        self._changed_at: list[float] = []  # continuous: inserts changed by hand (minutes)
         self._theta = (0.0, 0.0)  # part to part: (time, thermal growth) last worked out
 
     def thermal_at(self, time_min: float) -> float:
@@ -220,9 +221,15 @@ class VirtualLathe:
         return index in self.config.insert_changes or (every > 0 and index > 0
                                                       and index % every == 0)
 
+    def change_insert_at(self, time_min: float) -> None:
+        """Continuous work: a new insert goes in at ``time_min`` (by hand, not by the
+        config's schedule): what is cut from then on has its wear."""
+        self._changed_at.append(float(time_min))
+
     def _last_change(self, time_min: float) -> float:
         every = self.config.insert_every
-        changes = [m for m in self.config.insert_changes if m <= time_min]
+        changes = [m for m in (*self.config.insert_changes, *self._changed_at)
+                   if m <= time_min]
         if every > 0 and time_min >= every:
             changes.append(math.floor(time_min / every) * every)
         return float(max(changes)) if changes else 0.0

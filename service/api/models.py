@@ -36,7 +36,8 @@ class FeatureIn(_Strict):
 
 
 class CompensationIn(_Strict):
-    """Compensation tuning (see service/compensation.py); omitted fields keep their value."""
+    """Compensation tuning (see service/compensation/settings.py): the bands, the law and the
+    limits; omitted fields keep their value."""
 
     window: int | None = Field(None, ge=1, le=1000)
     filter: Literal["median", "mean"] | None = None
@@ -53,6 +54,8 @@ class CompensationIn(_Strict):
     offset_sign: Literal[1, -1] | None = None
     law: Literal["window", "predictive"] | None = None
     trend_gain: float | None = Field(None, ge=0, lt=1)
+    mean_value_band_mm: float | None = Field(None, ge=0)
+    plausibility_mm: float | None = Field(None, gt=0)
 
 
 class ShadowIn(_Strict):

@@ -257,6 +257,7 @@ class Predictor:
         if self.level is None:
             return self._start(u, band)
         before = self.level
+        u = self._shown_early(u, before + self.trend)
         surprise = u - (before + self.trend)
         self._learn_scale(surprise, band, uncertainty_mm)
         if abs(surprise) > band:
@@ -278,6 +279,22 @@ class Predictor:
         self.level = before + self.trend + lam * counted
         self.trend = beta * (self.level - before) + (1.0 - beta) * self.trend
         return self.forecast()
+
+    def _shown_early(self, u: float, expected: float) -> float:
+        """``u`` with the oldest offsets in flight taken as visible already, when the
+        measurement says so: a dead time set longer than the real one (the cut reached the
+        laser sooner) must not read as a step of the offset's size. Taken when that explains
+        the measurement better by more than the scatter."""
+        best, best_k, shown = u, 0, u
+        for k, f in enumerate(self.in_flight, start=1):
+            shown -= f.effect_mm
+            if abs(shown - expected) < abs(best - expected):
+                best, best_k = shown, k
+        if best_k and abs(u - expected) - abs(best - expected) > max(self._scale(),
+                                                                     self.floor_mm):
+            del self.in_flight[:best_k]
+            return best
+        return u
 
     def forecast(self) -> float:
         """The uncompensated process ``steps_ahead()`` measurements ahead (mm)."""

@@ -81,7 +81,10 @@ def status_words(s: StatusSnapshot) -> tuple[StatusBit, FaultBit, int]:
         status |= StatusBit.SHADOW_MODE
     elif s.compensation in (State.ACTIVE, State.PENDING):
         status |= StatusBit.COMPENSATION_ACTIVE
-    if s.compensation is State.ALARM:
+    # The part just measured is out (flagged: the tool is still corrected), or a deviation
+    # beyond the plausibility limit holds compensation with an alarm.
+    if s.compensation is State.ALARM or (fresh and s.latest_status == "ok"
+                                         and s.latest_in_tolerance is False):
         faults |= FaultBit.OUT_OF_TOLERANCE
     if s.compensation is State.STOPPED:
         faults |= FaultBit.SAFE_AREA_STOP

@@ -5,12 +5,18 @@ total (read over Modbus); the offsets the gauge writes change what it sees a dea
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import threading
 import time
 
 import httpx
 
+from drivers.plc.registers import UM_PER_UNIT
+from drivers.plc.sim import SimPlc
 from drivers.sim.control import control
 from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_ready
+from tests.integration.conftest import free_port
 
 WEAR_UM_PER_MIN = 60.0   # 1 um a second: out of +-20 um in 20 s uncompensated
 TOLERANCE_MM = 0.020
@@ -21,9 +27,12 @@ sim_drift_period_min = 0
 sim_lathe_dead_time_s = 1.0
 sim_replay_frames = 8
 """
-# The controller's dead time covers the lathe's (1 s), the camera's ring (8 frames rendered
-# again after a change) and the window (5 measurements at 10/s).
+# The window law (the default until the predictive one held on varied lathes): its dead time
+# covers the lathe's (1 s), the camera's ring (8 frames rendered again after a change) and the
+# window (5 measurements at 10/s).
 COMPENSATION = f"""[compensation]
+law = "window"
+gain = 0.7
 nominal_mm = 30.0
 tol_upper_mm = {TOLERANCE_MM}
 tol_lower_mm = -{TOLERANCE_MM}
@@ -31,6 +40,17 @@ window = 5
 deadband_mm = 0.003
 dead_time_measurements = 10
 dead_time_s = 3.0
+max_step_mm = 0.010
+shadow = true
+"""
+# The default law, the predictive one, with its dead time as it is: from the cut to the
+# laser (1 s) and the camera's ring (8 frames, 0.8 s) to a measurement that shows it.
+PREDICTIVE = f"""[compensation]
+nominal_mm = 30.0
+tol_upper_mm = {TOLERANCE_MM}
+tol_lower_mm = -{TOLERANCE_MM}
+dead_time_measurements = 0
+dead_time_s = 1.5
 max_step_mm = 0.010
 shadow = true
 """
@@ -88,3 +108,72 @@ def test_offsets_written_by_the_service_hold_the_cut_in_tolerance(tmp_path) -> N
                        params={"kinds": "proposed"}).json()["items"], "nothing proposed"
     finally:
         stop_service(svc)
+
+
+class HandCnc:
+    """The CNC for the insert change: the simulated PLC's offset registers in this process
+    (so the test can zero its wear offset by hand, as an operator at the panel), its total
+    told to the camera's virtual lathe as it changes."""
+
+    def __init__(self) -> None:
+        self.loop = asyncio.new_event_loop()
+        threading.Thread(target=self.loop.run_forever, daemon=True).start()
+        self.plc = SimPlc(port=free_port())
+        self.port = asyncio.run_coroutine_threadsafe(self.plc.start(), self.loop).result(10)
+        self._stop = threading.Event()
+
+    def follow(self, control_port: int) -> None:
+        """Tell the camera's lathe the CNC's total, five times a second, until closed."""
+        def run() -> None:
+            while not self._stop.wait(0.2):
+                total = self.plc.total_units * UM_PER_UNIT / 1000.0
+                with contextlib.suppress(OSError):
+                    control(control_port, {"set": {"cnc_total_mm": total}})
+        threading.Thread(target=run, daemon=True).start()
+
+    def zero_by_hand(self) -> None:
+        self.loop.call_soon_threadsafe(self.plc.set_total_by_hand, 0)
+
+    def close(self) -> None:
+        self._stop.set()
+        asyncio.run_coroutine_threadsafe(self.plc.stop(), self.loop).result(10)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+
+
+def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -> None:
+    """The machine has grown 25 um and the tool worn 20 um when the operator changes the
+    insert and zeroes its wear offset: the parts jump out by the growth the offset carried.
+    Nobody acknowledges anything: the gauge sees the CNC's total changed by hand, takes the
+    parts cut after it as a new insert's, and brings the cut back into the tolerance."""
+    cnc = HandCnc()
+    svc = None
+    try:
+        camera = CAMERA + "sim_lathe_thermal_um = 25.0\nsim_lathe_thermal_tau_s = 4.0\n"
+        svc = start_service(tmp_path, camera_toml=camera, compensation_toml=PREDICTIVE,
+                            plc_port=cnc.port)
+        assert wait_ready(svc)
+        cnc.follow(svc.control_port)
+        r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": False},
+                      headers={"X-API-Key": TECH_KEY}, timeout=10)
+        assert r.status_code == 200, r.text
+        before = follow(svc, 20.0)
+        assert max(abs(s["cut_diameter_mm"] - 30.0) for s in before[-10:]) * 1000 < 20.0
+        assert lathe(svc)["cnc_total_mm"] < -0.030  # growth and wear carried by the offset
+        assert control(svc.control_port, {"do": "new_insert"})["ok"]
+        cnc.zero_by_hand()
+        after = follow(svc, 16.0)
+        deviations_um = [round((s["cut_diameter_mm"] - 30.0) * 1000.0, 1) for s in after]
+        print(f"\nFIGURES insert change, zeroed by hand: {deviations_um} um")
+        assert max(deviations_um) > TOLERANCE_MM * 1000.0, deviations_um  # it went out
+        assert max(abs(d) for d in deviations_um[-12:]) < TOLERANCE_MM * 1000.0, \
+            deviations_um  # and came back by itself
+        log = svc.get("/api/v1/compensation/log", params={"limit": 1000}).json()["items"]
+        assert any(d["code"] == "cnc_total_changed" for d in log), log[:20]
+        assert not any(d["kind"] in ("acknowledged", "reset") and d["who"] != "gauge"
+                       for d in log)
+        assert svc.get("/api/v1/status").json()["compensation"]["state"] in ("active",
+                                                                              "pending")
+    finally:
+        if svc is not None:
+            stop_service(svc)
+        cnc.close()

@@ -304,3 +304,15 @@ def test_measurements_of_another_calibration_are_refused() -> None:
     d = c.on_measurement(MeasurementIn(1, 100.0, "ok", 30.0, 0.001, calibration_id=6), 100.0)
     assert d.kind is Kind.REFUSED and d.code == "other_calibration"
     assert "calibration 6" in d.reason and "7 is active" in d.reason
+
+
+def test_every_outcome_names_the_measurement_its_offset_answers() -> None:
+    """The trend ties each applied offset to the measurement it answered: an offset settled
+    late from the CNC's registers (as the pull handshake settles every offset) names it as
+    one acknowledged at once does."""
+    cnc, loop, _ = run_loop([("measure", 2), ("measure", 3)] + [("tick", None)] * 2, [3, 0])
+    writes = {d.offset_seq: d.measurement_seq for d in loop.decisions if d.kind is Kind.WRITE}
+    outcomes = [d for d in loop.decisions
+                if d.kind in (Kind.APPLIED, Kind.UNCERTAIN, Kind.NOT_APPLIED)]
+    assert outcomes and all(d.measurement_seq is not None for d in outcomes), outcomes
+    assert all(d.measurement_seq == writes[d.offset_seq] for d in outcomes), outcomes

@@ -34,6 +34,7 @@ ROWS = [
     (FaultBit.CAMERA_LOST, {"camera_streaming": False}, {}),
     (FaultBit.NO_MEASUREMENT, {"latest_status": "fit_failed"}, {}),
     (FaultBit.OUT_OF_TOLERANCE, {"compensation": State.ALARM}, {}),
+    (FaultBit.OUT_OF_TOLERANCE, {"latest_in_tolerance": False}, {}),  # flagged, corrected
     (FaultBit.SAFE_AREA_STOP, {"compensation": State.STOPPED}, {}),
     (FaultBit.OFFSET_WRITE_FAILED, {"plc_connected": False, "plc_outage": True},
      {"plc_connected": False}),
