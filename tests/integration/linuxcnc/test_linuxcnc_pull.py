@@ -430,3 +430,58 @@ def test_twenty_parts_in_shadow_mode_leave_the_tolerance(lathe) -> None:
     assert any(d.kind is Kind.PROPOSED for d in decisions)
     out = [k for k, d in enumerate(deviations) if abs(d) > 20.0]
     assert out and out[0] <= 10, deviations
+
+
+def test_an_insert_change_zeroed_by_hand_leaves_the_tolerance_and_comes_back(lathe) -> None:
+    """The machine has grown 25 um and the tool worn when, at part 15, the operator changes
+    the insert and sets the tool's wear offset back by MDI (G10 L1), as a shop does: the
+    part cut next carries the growth the offset held and is out of tolerance. Nobody
+    acknowledges or resets: the gauge reads the CNC's total changed by hand, takes the parts
+    cut after it as a new insert's, and its offsets through the shipped subroutine bring the
+    parts back; the tool table moves by the hand's change and the applied offsets, exactly."""
+    gauge, cnc = lathe
+    program = cnc.run_dir / "nc" / "fast_part.ngc"
+    program.write_text(FAST_PART)
+    cnc.call()
+    reported(gauge)
+    settings = CompensationSettings(nominal_mm=30.0, tol_upper_mm=0.02, tol_lower_mm=-0.02,
+                                    shadow=False, dead_time_measurements=0, dead_time_s=0.0)
+    decisions: list[Decision] = []
+    channel = OffsetChannel(CompensationController(settings, ControllerState()),
+                            gauge.transport, None, on_decision=decisions.append)
+    gauge.run(channel.refresh())
+    lathe_ = VirtualLathe(LatheConfig(nominal_mm=30.0, wear_per_part_mm=0.002,
+                                      thermal_mm=0.025, thermal_tau_min=3.0,
+                                      insert_changes=(15,), part_sigma_mm=0.001), seed=11)
+    rng = np.random.default_rng(12)
+    x0 = cnc.tool_x_mm()
+    deviations, hand_mm = [], 0.0
+    for k in range(30):
+        if k == 15:  # the new insert; its wear offset set back by hand
+            hand_mm = 2.0 * (x0 - cnc.tool_x_mm())
+            cnc.ask(do="mdi", lines=["G8 G21", f"G10 L1 P1 X{x0:.6f}", "G43"])
+        answer = cnc.ask(do="run", path=str(program))
+        assert answer["ok"] and not answer["errors"], answer
+        time.sleep(0.15)  # the report through mb2hal
+        gauge.run(channel.settle())  # the settler: the CNC's answer, its total
+        gauge.run(channel.refresh())
+        part = lathe_.cut_part(2.0 * (cnc.tool_x_mm() - x0))
+        deviations.append((part.diameter_mm - 30.0) * 1000.0)
+        measured = part.diameter_mm + rng.normal(0.0, 0.0015)
+        gauge.run(channel.on_measurement(MeasurementIn(k + 1, time.monotonic(), "ok",
+                                                       measured, 0.0015)))
+    cnc.call()
+    time.sleep(0.3)
+    gauge.run(channel.settle())
+    applied = [d for d in decisions if d.kind is Kind.APPLIED]
+    print(f"\nFIGURES insert change by hand at part 15: deviations "
+          f"{[round(d, 1) for d in deviations]} um, {len(applied)} offsets applied")
+    assert hand_mm > 0.02  # the offset held the growth and the wear
+    assert max(abs(d) for d in deviations[:15]) < 20.0, deviations
+    assert max(deviations[15:17]) > 20.0, deviations  # out: the growth the offset held
+    out_after = [k for k in range(15, 30) if abs(deviations[k]) > 20.0]
+    assert len(out_after) <= 2 and max(abs(d) for d in deviations[18:]) < 20.0, deviations
+    assert any(d.code == "cnc_total_changed" for d in decisions)
+    assert not any(d.kind in (Kind.ALARM, Kind.STOPPED) for d in decisions)
+    assert sum(d.offset_mm for d in applied) + hand_mm == pytest.approx(
+        2.0 * (cnc.tool_x_mm() - x0), abs=1e-9)
