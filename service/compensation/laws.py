@@ -27,8 +27,9 @@ Robust: a measurement that the process's own scatter does not explain (beyond th
 band: four times the robust scale of the one-step surprises, estimated from the data) is set
 aside. Alone, it was an outlier and never moves the estimate; confirmed by the next one on the
 same side, it was a step (a chipped or new insert, a machine that cooled) and the level jumps
-to it at once, the trend kept. Inside the band a surprise counts up to 2.5 scales (Huber), so
-heavy tails move the estimate little. The process starts from two measurements that agree
+to it at once, the trend kept. Inside the band the estimate moves by the median of the last
+three surprises, so one measurement alone, however far off, never moves it, and heavy tails
+move it little. The process starts from two measurements that agree
 (or three on a line), never from one.
 
 Where a step is expected, the first part cut after it sets the level: after a reset or a
@@ -130,8 +131,9 @@ class InFlight:
 BAND_SCALES = 4.0
 """The mean-value band, in robust scales of the one-step surprise: a Gaussian surprise
 leaves it once in 16 000; a 15 um outlier among 2.5 um of scatter does not fit in it."""
-HUBER_SCALES = 2.5
-"""Inside the band a surprise counts up to this many scales (Huber's weight)."""
+MEDIAN_OF = 3
+"""Inside the band the estimate moves by the median of the last three surprises: one
+measurement alone, however far off, never moves it (but the first two after a new level)."""
 SCALE_MEMORY = 0.05
 """The scale's own EWMA weight once it has 20 surprises (1 / n before: the mean)."""
 STOP_INTERVALS = 10.0
@@ -198,6 +200,9 @@ class Predictor:
     interval_s: float | None = None
     """The time between measurements, as seen (an EWMA)."""
     last_s: float | None = None
+    surprise_run: collections.deque = field(
+        default_factory=lambda: collections.deque(maxlen=MEDIAN_OF))
+    """The last surprises inside the band (a step or a new level starts it afresh)."""
     _response: tuple | None = field(default=None, repr=False, compare=False)
 
     @classmethod
@@ -257,7 +262,6 @@ class Predictor:
         if self.level is None:
             return self._start(u, band)
         before = self.level
-        u = self._shown_early(u, before + self.trend)
         surprise = u - (before + self.trend)
         self._learn_scale(surprise, band, uncertainty_mm)
         if abs(surprise) > band:
@@ -265,6 +269,7 @@ class Predictor:
                     and abs(u - (self.aside + self.trend)) <= band:
                 # Confirmed: a step. The level jumps to the two; the trend stays the wear's.
                 self.level, self.aside = 0.5 * (u + self.aside + self.trend), None
+                self.surprise_run.clear()
                 self.last_step_mm, self.vouched = self.level - before, True
                 return self.forecast()
             self.aside = u
@@ -273,28 +278,12 @@ class Predictor:
                                  f"beyond the mean-value band of {band * 1000:.1f} um: set "
                                  "aside until the next measurement says outlier or step")
         self.aside = None
-        corner = self.corner()
-        counted = max(-corner, min(corner, surprise))
+        self.surprise_run.append(surprise)
+        counted = statistics.median(self.surprise_run)
         lam, beta = self.gains()
         self.level = before + self.trend + lam * counted
         self.trend = beta * (self.level - before) + (1.0 - beta) * self.trend
         return self.forecast()
-
-    def _shown_early(self, u: float, expected: float) -> float:
-        """``u`` with the oldest offsets in flight taken as visible already, when the
-        measurement says so: a dead time set longer than the real one (the cut reached the
-        laser sooner) must not read as a step of the offset's size. Taken when that explains
-        the measurement better by more than the scatter."""
-        best, best_k, shown = u, 0, u
-        for k, f in enumerate(self.in_flight, start=1):
-            shown -= f.effect_mm
-            if abs(shown - expected) < abs(best - expected):
-                best, best_k = shown, k
-        if best_k and abs(u - expected) - abs(best - expected) > max(self._scale(),
-                                                                     self.floor_mm):
-            del self.in_flight[:best_k]
-            return best
-        return u
 
     def forecast(self) -> float:
         """The uncompensated process ``steps_ahead()`` measurements ahead (mm)."""
@@ -345,13 +334,6 @@ class Predictor:
                 level = new
             self._response = (key, out)
         return self._response[1]
-
-    def corner(self) -> float:
-        """Where Huber's weight starts (mm): ``HUBER_SCALES`` scales, and never so far that
-        one surprise could move the forecast by more than half the null band: a single
-        measurement, however far off, never makes an offset by itself."""
-        reach = max(abs(r) for r in self.response())
-        return min(HUBER_SCALES * self._scale(), 0.5 * self.null_band() / reach)
 
     def _clock(self, now_s: float) -> None:
         """The interval between measurements, as they come (a stop does not count)."""
@@ -411,5 +393,6 @@ class Predictor:
         stood (``fresh_level``), when there was one: what an insert change loses (the wear
         offset zeroed with the machine's growth in it) is corrected before it is seen."""
         self.level, self.aside, self.starting, self.expected = self.fresh_level, None, [], True
+        self.surprise_run.clear()
         self.skip = InFlight(0.0, after_measurements, visible_at_s) \
             if after_measurements > 0 or visible_at_s > -math.inf else None
