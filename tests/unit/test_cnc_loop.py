@@ -310,7 +310,7 @@ def test_every_outcome_names_the_measurement_its_offset_answers() -> None:
     """The trend ties each applied offset to the measurement it answered: an offset settled
     late from the CNC's registers (as the pull handshake settles every offset) names it as
     one acknowledged at once does."""
-    cnc, loop, _ = run_loop([("measure", 2), ("measure", 3)] + [("tick", None)] * 2, [3, 0])
+    _, loop, _ = run_loop([("measure", 2), ("measure", 3)] + [("tick", None)] * 2, [3, 0])
     writes = {d.offset_seq: d.measurement_seq for d in loop.decisions if d.kind is Kind.WRITE}
     outcomes = [d for d in loop.decisions
                 if d.kind in (Kind.APPLIED, Kind.UNCERTAIN, Kind.NOT_APPLIED)]
