@@ -119,7 +119,10 @@ def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
             if "fps" in values:
                 camera.set_fps(values["fps"])
         elif request.get("do") == "new_insert":
-            camera.new_insert()
+            if camera.lathe is None:
+                raise ValueError("no virtual lathe: start the camera with one (--lathe) to "
+                                 "change its insert")
+            camera.lathe.new_insert()
         elif "show" in request:
             camera.show_board(*parse_show(request["show"]))
         elif request.get("get") == "shots":

@@ -264,13 +264,6 @@ class SimGigECamera:
                              "it the CNC's offset")
         self.lathe.set_total(total_mm)
 
-    def new_insert(self) -> None:
-        """The virtual lathe gets a new insert now (``CameraLathe.new_insert``)."""
-        if self.lathe is None:
-            raise ValueError("no virtual lathe: start the camera with one (--lathe) to "
-                             "change its insert")
-        self.lathe.new_insert()
-
     def follow_cnc(self, read_total_mm: Callable[[], float], period_s: float = 0.2) -> None:
         """The virtual lathe follows the CNC's total (``CameraLathe.follow``) until stopped."""
         if self.lathe is None:

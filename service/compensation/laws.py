@@ -137,7 +137,9 @@ measurement alone, however far off, never moves it (but the first two after a ne
 SCALE_MEMORY = 0.05
 """The scale's own EWMA weight once it has 20 surprises (1 / n before: the mean)."""
 STOP_INTERVALS = 10.0
-"""A gap between measurements this many intervals long is a stop."""
+STOP_MIN_S = 60.0
+"""A gap between measurements this many intervals long, and a minute at least, is a stop
+(the machine may have cooled; a busy host's second is not one)."""
 NULL_SIGMAS = 1.0
 """The null band is at least this many standard deviations of the forecast's own noise."""
 ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
@@ -191,9 +193,9 @@ class Predictor:
     vouched: bool = False
     """The last forecast rests on more than the last measurement's word: a confirmed step,
     a step that was expected, a new insert forecast where the last one stood."""
-    expected: bool = False
-    """A step is expected (a reset, a change at the CNC): the next measurement taken starts
-    the level."""
+    expected: str = ""
+    """A step is expected: ``insert`` (a reset, a change at the CNC) or ``stop``; the next
+    measurement taken starts the level."""
     fresh_level: float | None = None
     """The process as the first part after the last reset or change at the CNC showed it
     (a new insert on a machine as warm as it then was)."""
@@ -343,11 +345,11 @@ class Predictor:
                 self.interval_s = gap
             elif gap < STOP_INTERVALS * self.interval_s:
                 self.interval_s += 0.1 * (gap - self.interval_s)
-            elif self.level is not None and self.skip is None:
+            elif self.level is not None and self.skip is None and gap >= STOP_MIN_S:
                 # A stop: the machine may have cooled. The first part cut after it sets the
                 # level (the parts measured meanwhile were cut before it).
                 self.skip = InFlight(0.0, self.horizon - 1, -math.inf)
-                self.expected = True
+                self.expected = "stop"
         self.last_s = now_s
 
     def _start(self, u: float, band: float) -> float | tuple[str, str]:
@@ -355,8 +357,9 @@ class Predictor:
         a line (a tool that wears fast), never from one; but after a reset or a change at the
         CNC (a new insert: a step is expected) from the first part cut after it."""
         if self.expected:
-            self.level, self.starting, self.expected = u, [], False
-            self.fresh_level, self.vouched = u, True
+            if self.expected == "insert":
+                self.fresh_level = u
+            self.level, self.starting, self.expected, self.vouched = u, [], "", True
             return self.forecast()
         seen = [*self.starting[-2:], u]
         if len(seen) >= 2 and abs(seen[-1] - seen[-2]) <= band:
@@ -392,7 +395,8 @@ class Predictor:
         scatter. Meanwhile the parts being cut are forecast where the last new insert's
         stood (``fresh_level``), when there was one: what an insert change loses (the wear
         offset zeroed with the machine's growth in it) is corrected before it is seen."""
-        self.level, self.aside, self.starting, self.expected = self.fresh_level, None, [], True
+        self.level, self.aside, self.starting = self.fresh_level, None, []
+        self.expected = "insert"
         self.surprise_run.clear()
         self.skip = InFlight(0.0, after_measurements, visible_at_s) \
             if after_measurements > 0 or visible_at_s > -math.inf else None

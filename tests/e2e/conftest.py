@@ -47,8 +47,12 @@ class Service:
 
 # The tests' compensation: a wide band, offsets written (the embedded default: +-0.020 mm,
 # shadow mode).
+# The window law, with the tuning the fault and handshake tests were written with (the
+# exchange with the CNC does not depend on the law; the default law has its own loop tests).
 TEST_COMPENSATION = """[compensation]
 {nominal}
+law = "window"
+gain = 0.7
 tol_upper_mm = 0.05
 tol_lower_mm = -0.05
 window = 5

@@ -18,8 +18,10 @@ from service.compensation import (
 )
 from service.offsets import OffsetChannel
 
-LIVE = CompensationSettings(nominal_mm=30.0, shadow=False, window=3,
-                            dead_time_measurements=0, dead_time_s=0.0)
+# The window law with the tuning these handshakes were written with (a write when the third
+# measurement fills the window); the exchange does not depend on the law.
+LIVE = CompensationSettings(nominal_mm=30.0, shadow=False, window=3, law="window", gain=0.7,
+                            deadband_mm=0.003, dead_time_measurements=0, dead_time_s=0.0)
 
 
 def plc_log(path) -> list[dict]:

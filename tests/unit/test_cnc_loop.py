@@ -138,12 +138,13 @@ plans = st.lists(st.one_of(st.just(0), st.integers(1, 6), st.just("clear"), st.j
                  max_size=40)
 
 
-def run_loop(evts, write_plans, start_total_mm: float = 0.0, deviation_mm: float = 0.008):
+def run_loop(evts, write_plans, start_total_mm: float = 0.0, deviation_mm: float = 0.008,
+             settings_: CompensationSettings = LIVE):
     """Run the events; a burst of measurements reads nominal + ``deviation_mm`` (the part
     keeps its size: a tool that wears while nothing is corrected)."""
     cnc = FakeCnc(total_mm=start_total_mm, plans=list(write_plans))
     cnc_ref = [start_total_mm]  # where the CNC stood at enabling or a person's last reset
-    loop = Loop(cnc, LIVE)
+    loop = Loop(cnc, settings_)
     excursions = []
 
     async def go() -> None:
@@ -207,6 +208,24 @@ def test_no_offset_twice_and_the_log_adds_up_to_the_cnc(evts, write_plans, dev) 
         if d.kind is Kind.WRITE:
             units = d.offset_mm / LIVE.offset_resolution_mm
             assert abs(units - round(units)) < 1e-6, d
+
+
+PREDICTIVE = replace(LIVE, law="predictive", gain=0.3, trend_gain=0.15)
+
+
+@settings(max_examples=250, deadline=None)
+@given(events, plans, st.floats(-0.2, 0.2), deviations)
+def test_the_default_law_keeps_the_same_exchange(evts, write_plans, start_total,
+                                                 dev) -> None:
+    """The same sequences under the predictive law (it writes more often): the limit on the
+    CNC's total, each offset once, the log adding up to the CNC."""
+    cnc, loop, excursions = run_loop(evts, write_plans, start_total, dev, PREDICTIVE)
+    assert all(abs(x) <= LIVE.max_total_mm + 1e-9 for x in excursions), excursions
+    assert len(cnc.sent) == len(set(cnc.sent)), cnc.sent
+    applied_log = [d for d in loop.decisions if d.kind is Kind.APPLIED]
+    assert sorted(d.offset_seq for d in applied_log) == sorted(s for s, _ in cnc.applied)
+    assert sum(d.offset_mm for d in applied_log) + start_total == pytest.approx(
+        cnc.total_mm, abs=1e-9)
 
 
 def test_a_late_acknowledgement_is_applied_not_lost() -> None:

@@ -66,3 +66,33 @@ def test_an_insert_every_so_many_parts_or_minutes() -> None:
     assert minutes.cut_at(9.5, 0.0).diameter_mm == pytest.approx(30.0095)
     assert minutes.cut_at(12.0, 0.0).diameter_mm == pytest.approx(30.002)
     assert minutes.cut_at(25.0, 0.0).diameter_mm == pytest.approx(30.005)
+
+
+def test_break_in_then_linear_then_faster_toward_the_end_of_life() -> None:
+    config = LatheConfig(wear_per_part_mm=0.001, break_in_mm=0.004, break_in_parts=2.0,
+                         wear_knee_parts=10, wear_acceleration=1.0, part_sigma_mm=0.0)
+    lathe = VirtualLathe(config)
+    wear = [lathe.cut_part(0.0).wear_mm for _ in range(30)]
+    assert wear[3] - wear[0] > 3 * 0.001 + 0.003  # the break-in comes fast
+    assert wear[9] - wear[8] == pytest.approx(0.001, rel=0.05)  # then the base rate (+ 3 %)
+    assert wear[29] - wear[28] == pytest.approx(0.001 * (1 + 18.5 / 10), rel=0.01)
+    assert config.wear_after(20, 0.001) == pytest.approx(0.020 + 0.004 * (1 - 2.718281828
+                                                                          ** -10) + 0.005)
+
+
+def test_a_stop_cools_the_machine_and_it_warms_again() -> None:
+    lathe = VirtualLathe(LatheConfig(thermal_mm=0.020, thermal_tau_min=10.0, cool_tau_min=30.0,
+                                     stops=((60, 60.0),), part_sigma_mm=0.0))
+    cut = [lathe.cut_part(0.0) for _ in range(120)]
+    warm = cut[59].thermal_mm
+    assert warm == pytest.approx(0.020 * (1 - 2.718281828 ** -5.9), rel=1e-6)
+    assert cut[60].thermal_mm < 0.5 * warm  # an hour standing
+    assert cut[60].time_min == pytest.approx(120.0)
+    assert cut[119].thermal_mm > 0.99 * 0.020  # warm again
+
+
+def test_an_insert_changed_by_hand_in_continuous_work() -> None:
+    lathe = VirtualLathe(LatheConfig(wear_per_min_mm=0.001, part_sigma_mm=0.0))
+    assert lathe.cut_at(5.0, 0.0).wear_mm == pytest.approx(0.005)
+    lathe.change_insert_at(5.5)
+    assert lathe.cut_at(6.0, 0.0).wear_mm == pytest.approx(0.0005)
