@@ -131,6 +131,8 @@ class InFlight:
 BAND_SCALES = 4.0
 """The mean-value band, in robust scales of the one-step surprise: a Gaussian surprise
 leaves it once in 16 000; a 15 um outlier among 2.5 um of scatter does not fit in it."""
+LAG_RUN = 8
+"""Surprises in a row on one side that say the estimate trails the process."""
 MEDIAN_OF = 3
 """Inside the band the estimate moves by the median of the last three surprises: one
 measurement alone, however far off, never moves it (but the first two after a new level)."""
@@ -205,6 +207,8 @@ class Predictor:
     surprise_run: collections.deque = field(
         default_factory=lambda: collections.deque(maxlen=MEDIAN_OF))
     """The last surprises inside the band (a step or a new level starts it afresh)."""
+    lag_run: list[float] = field(default_factory=list)
+    """The last surprises, while they fall on one side."""
     _response: tuple | None = field(default=None, repr=False, compare=False)
 
     @classmethod
@@ -272,6 +276,7 @@ class Predictor:
                 # Confirmed: a step. The level jumps to the two; the trend stays the wear's.
                 self.level, self.aside = 0.5 * (u + self.aside + self.trend), None
                 self.surprise_run.clear()
+                self.lag_run = []
                 self.last_step_mm, self.vouched = self.level - before, True
                 return self.forecast()
             self.aside = u
@@ -282,6 +287,9 @@ class Predictor:
         self.aside = None
         self.surprise_run.append(surprise)
         counted = statistics.median(self.surprise_run)
+        if self._lagging(surprise):  # the estimate trails the process: catch it up
+            self.level, self.lag_run = before + self.trend + statistics.median(self.lag_run), []
+            return self.forecast()
         lam, beta = self.gains()
         self.level = before + self.trend + lam * counted
         self.trend = beta * (self.level - before) + (1.0 - beta) * self.trend
@@ -378,6 +386,17 @@ class Predictor:
     def _scale(self) -> float:
         return self.scale if self.scale is not None else 0.0
 
+    def _lagging(self, surprise: float) -> bool:
+        """Whether the last ``LAG_RUN`` surprises all fell on one side, by more than the
+        scatter and the null band at their median: a process that moves faster than the
+        estimate follows (a fast warm-up), not noise (one such run in 128 by chance, and then
+        seldom beyond the scatter)."""
+        if self.lag_run and self.lag_run[-1] * surprise <= 0:
+            self.lag_run = []
+        self.lag_run.append(surprise)
+        return len(self.lag_run) >= LAG_RUN and abs(statistics.median(self.lag_run)) > max(
+            self._scale(), self.null_band())
+
     def _learn_scale(self, surprise: float, band: float, uncertainty_mm: float) -> None:
         """The robust scale of the surprises: an EWMA of their size, each clipped to the
         band (an outlier widens it by little), never below the measurement's uncertainty."""
@@ -396,7 +415,7 @@ class Predictor:
         stood (``fresh_level``), when there was one: what an insert change loses (the wear
         offset zeroed with the machine's growth in it) is corrected before it is seen."""
         self.level, self.aside, self.starting = self.fresh_level, None, []
-        self.expected = "insert"
+        self.expected, self.lag_run = "insert", []
         self.surprise_run.clear()
         self.skip = InFlight(0.0, after_measurements, visible_at_s) \
             if after_measurements > 0 or visible_at_s > -math.inf else None
