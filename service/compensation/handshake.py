@@ -53,20 +53,30 @@ class OffsetBook:
                            now: float) -> Decision | None:
         """Just before the pending offset goes out: the CNC's total as read now. None when it
         may be written; otherwise the offset is dropped (never written) and the decision says
-        why: the total cannot be read, or the offset would take it beyond the limit."""
+        why: the total cannot be read, the offset would take it beyond the limit, or someone
+        changed the total at the CNC since the offset was decided (``cnc_total_changed``:
+        an insert change, most likely; the change is taken as the reference of the
+        measurements from now on)."""
         p = self.persisted
         if p.pending_seq != offset_seq or self.state is not State.PENDING:
             return self._drop(offset_seq, "not_in_flight", "it is not the offset in flight",
                               now)
+        change = None
         if total_mm is not None:
             if p.cnc_total_mm is not None and not same_total(p.cnc_total_mm, total_mm,
                                                              self.settings):
-                self._changed_at_cnc(total_mm - p.cnc_total_mm, now)
+                change = total_mm - p.cnc_total_mm
+                self._changed_at_cnc(change, now)
             p.cnc_total_mm = total_mm
         code, why = limit_veto(self.settings, p, total_mm)
         if code:
             return self._drop(offset_seq, code, why, now,
                               kind=Kind.LIMIT if code == "limit" else Kind.NOT_APPLIED)
+        if change is not None:
+            return self._drop(offset_seq, "cnc_total_changed", f"the CNC's total wear offset "
+                              f"was changed at the CNC by {change * 1000:+.1f} um since it was "
+                              "decided (an insert change?): the process is estimated again "
+                              "from the parts cut with it", now)
         p.pending_total_before_mm = total_mm
         return None
 

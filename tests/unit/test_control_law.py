@@ -238,3 +238,18 @@ def test_after_a_stop_the_first_part_sets_the_process() -> None:
     writes = loop.writes_from(n)
     # Part j is measurement j + 2: the first part cut after the stop is measurement n + 2.
     assert writes and writes[0].measurement_seq == n + 2 and writes[0].offset_mm > 0, writes
+
+
+def test_a_change_at_the_cnc_seen_just_before_a_write_drops_the_write_and_says_so() -> None:
+    """The wear offset zeroed between an offset's decision and its write: the fresh reading
+    before the write shows it; that offset (decided for the old total) is not written, and
+    the change is logged as one at the CNC."""
+    c = CompensationController(replace(DEFAULTS, dead_time_measurements=0), ControllerState())
+    c.observe_cnc_total(-0.050, 0.0)
+    d = [c.on_measurement(MeasurementIn(k, float(k), "ok", 30.010, 0.0015), float(k))
+         for k in (1, 2)][-1]
+    assert d.kind is Kind.WRITE
+    veto = c.check_before_write(d.offset_seq, 0.0, 3.0)
+    assert veto is not None and veto.code == "cnc_total_changed", veto
+    assert "insert change" in veto.reason and veto.measurement_seq == 2
+    assert c.state.value == "active" and c.persisted.cnc_total_mm == 0.0
