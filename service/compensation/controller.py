@@ -87,7 +87,7 @@ class CompensationController(OffsetBook):
         self._window = WindowLaw.of(self.settings)
         self._predictor = Predictor.of(self.settings)
         self._applied_mm = 0.0  # the effect of every offset applied since the start, mm
-        self._last_step_mm = 0.0  # the effect of the gauge's last offset applied, mm
+        self._last_offset_mm = 0.0  # the last applied offset's effect, mm
         # A write handed out but never reported (the service died) is uncertain on restart.
         if self.persisted.state == State.PENDING.value:
             self.persisted.state = State.UNCERTAIN.value
@@ -103,7 +103,7 @@ class CompensationController(OffsetBook):
         self._window.clear()
 
     def _applied_now(self, effect: float, now: float) -> None:
-        self._last_step_mm = effect
+        self._last_offset_mm = effect
         self._in_flight(effect, now)
 
     def _in_flight(self, effect: float, now: float) -> None:
@@ -224,7 +224,7 @@ class CompensationController(OffsetBook):
         null = s.deadband_mm
         if s.law == "predictive":
             null = self._predictor.null_band()
-            if self._last_step_mm * filtered > 0:  # it would reverse the last offset: surer
+            if self._last_offset_mm * filtered > 0:  # it would reverse the last offset: surer
                 null *= REVERSAL_NULL_BANDS
         if abs(filtered) <= null:
             return self._decision(Kind.HELD, "deadband", f"{note}filtered deviation "

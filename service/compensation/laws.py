@@ -192,9 +192,6 @@ class Predictor:
     """After a reset: measurements cut before it (while this is not visible) are not taken."""
     last_step_mm: float | None = None
     """The step the last measurement confirmed (mm), or None."""
-    vouched: bool = False
-    """The last forecast rests on more than the last measurement's word: a confirmed step,
-    a step that was expected, a new insert forecast where the last one stood."""
     expected: str = ""
     """A step is expected: ``insert`` (a reset, a change at the CNC) or ``stop``; the next
     measurement taken starts the level."""
@@ -250,7 +247,7 @@ class Predictor:
         offsets applied so far (``uncertainty_mm`` its standard uncertainty); return the
         forecast of the uncompensated process ``horizon`` measurements ahead (mm), or
         (code, why) nothing is forecast on this measurement's word."""
-        self.last_step_mm, self.vouched = None, False
+        self.last_step_mm = None
         self._clock(now_s)
         for f in [*self.in_flight, *([self.skip] if self.skip else [])]:
             f.seen += 1
@@ -258,7 +255,6 @@ class Predictor:
         if self.skip is not None:
             if not self.skip.visible(now_s):
                 if self.level is not None:  # a new insert's level, as the last one's
-                    self.vouched = True
                     return self.forecast()
                 return "cut_before_reset", "cut before the reset: not taken"
             self.skip = None
@@ -277,7 +273,7 @@ class Predictor:
                 self.level, self.aside = 0.5 * (u + self.aside + self.trend), None
                 self.surprise_run.clear()
                 self.lag_run = []
-                self.last_step_mm, self.vouched = self.level - before, True
+                self.last_step_mm = self.level - before
                 return self.forecast()
             self.aside = u
             self.level = before + self.trend  # as if this measurement had not come
@@ -367,7 +363,7 @@ class Predictor:
         if self.expected:
             if self.expected == "insert":
                 self.fresh_level = u
-            self.level, self.starting, self.expected, self.vouched = u, [], "", True
+            self.level, self.starting, self.expected = u, [], ""
             return self.forecast()
         seen = [*self.starting[-2:], u]
         if len(seen) >= 2 and abs(seen[-1] - seen[-2]) <= band:
