@@ -369,7 +369,8 @@ def _changes(old: CompensationSettings, new: CompensationSettings) -> str:
 def _gate(state: State, pending_seq: int | None) -> str:
     """Why nothing is judged in this state ("" when it is)."""
     return {State.STOPPED: "stopped: waiting for a reset",
-            State.ALARM: "out-of-tolerance alarm: waiting for acknowledgement",
+            State.ALARM: "plausibility alarm: waiting for a plausible measurement or an "
+                         "acknowledgement",
             State.PENDING: f"waiting for the CNC to acknowledge offset {pending_seq}",
             State.UNCERTAIN: f"offset {pending_seq} was not acknowledged: holding until the "
                              "CNC's registers settle it"}.get(state, "")
