@@ -49,13 +49,20 @@ def open_database(path: Path, create_if_missing: bool) -> sqlite3.Connection:
     Raises
     ------
     StoreError
-        Missing (when not allowed to create), not a database, or failing its integrity check.
+        Missing (when not allowed to create), empty, not a database, or failing its
+        integrity check.
     """
     if not path.exists():
         if not create_if_missing:
             raise StoreError(f"calibration store {path} is missing (store.create_if_missing is "
                              "off: restore the file from a backup, or allow a new store)")
         path.parent.mkdir(parents=True, exist_ok=True)
+    elif path.stat().st_size == 0:
+        # SQLite would take an empty file for a new database and write one into it: a store
+        # truncated to nothing would lose its whole history without a word.
+        raise StoreError(f"calibration store {path} is empty (0 bytes: a truncated file, not "
+                         "a store); it was left untouched: restore it from a backup "
+                         "('shaftgauge store restore'), or move it aside to start a new one")
     try:
         db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
         check = db.execute("PRAGMA integrity_check").fetchone()

@@ -59,6 +59,19 @@ def test_a_corrupt_store_is_reported_and_left_untouched(tmp_path, content) -> No
         CompensationLog(path)
 
 
+@pytest.mark.parametrize("create", [True, False])
+def test_an_empty_store_is_refused_and_left_untouched(tmp_path, create: bool) -> None:
+    """A store truncated to 0 bytes is refused like a damaged one, never replaced by a new,
+    empty store (SQLite takes an empty file for a new database)."""
+    path = tmp_path / "truncated.db"
+    path.write_bytes(b"")
+    for opener in (CalibrationStore, CompensationLog):
+        with pytest.raises(StoreError, match="empty") as err:
+            opener(path, create_if_missing=create)
+        assert str(path) in str(err.value) and "untouched" in str(err.value)
+    assert path.read_bytes() == b""
+
+
 def test_a_damaged_stored_document_is_reported(tmp_path) -> None:
     store = CalibrationStore(tmp_path / "s.db")
     cid = store.add(CAL_A, by="t", activate=True)
