@@ -20,6 +20,15 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+BOUNDS = {"nominal_mm": 2000.0, "tol_upper_mm": 10.0, "deadband_mm": 1.0,
+          "mean_value_band_mm": 5.0, "plausibility_mm": 10.0, "safe_area_mm": 10.0,
+          "max_step_mm": 1.0, "max_total_mm": 5.0, "window": 1000,
+          "dead_time_measurements": 100_000, "dead_time_s": 3600.0, "max_age_s": 3600.0}
+"""The largest value of each setting a machine could need (a shaft of 2 m, a wear offset of
+5 mm in all, a dead time of an hour): anything beyond is a typing error, refused with its
+name, and would switch a limit off (a cumulative limit of 1e308 is none)."""
+TOL_LOWER_MIN_MM = -10.0
+
 PLAUSIBILITY_TOLERANCES = 5.0
 """With no ``plausibility_mm`` set: this many times the wider side of the tolerance (within
 the safe area)."""
@@ -126,8 +135,10 @@ class CompensationSettings:
         return min(PLAUSIBILITY_TOLERANCES * wider, self.safe_area_mm)
 
     def problems(self) -> list[str]:
-        """What is inconsistent, each naming the setting (empty when fine)."""
-        p = []
+        """What is inconsistent or beyond what a machine could need, each naming the setting
+        (empty when fine)."""
+        p = [f"{name} must be at most {top:g}" for name, top in BOUNDS.items()
+             if getattr(self, name) is not None and getattr(self, name) > top]
         finite = all(math.isfinite(v) for v in (
             self.tol_upper_mm, self.tol_lower_mm, self.deadband_mm, self.gain,
             self.max_step_mm, self.max_total_mm, self.dead_time_s, self.safe_area_mm,
@@ -138,6 +149,8 @@ class CompensationSettings:
         if self.nominal_mm is not None and not (math.isfinite(self.nominal_mm)
                                                 and self.nominal_mm > 0):
             p.append("nominal_mm must be a positive diameter")
+        if self.tol_lower_mm < TOL_LOWER_MIN_MM:
+            p.append(f"tol_lower_mm must be at least {TOL_LOWER_MIN_MM:g}")
         if not self.tol_lower_mm <= 0 <= self.tol_upper_mm or \
                 self.tol_upper_mm == self.tol_lower_mm:
             p.append("tolerance must satisfy tol_lower_mm <= 0 <= tol_upper_mm, not both 0")

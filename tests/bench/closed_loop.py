@@ -64,7 +64,7 @@ MAX_STEP_MM = 0.010
 
 PREDICTIVE = replace(CompensationSettings(), nominal_mm=NOMINAL_MM, shadow=False,
                      max_total_mm=1.0, max_step_mm=MAX_STEP_MM, dead_time_s=0.0,
-                     max_age_s=1e9)
+                     max_age_s=3600.0)
 """The shipped defaults, with room in the cumulative limit for a whole shift."""
 LAWS: dict[str, CompensationSettings] = {
     "window": replace(PREDICTIVE, law="window", window=5, filter="median", gain=0.7,

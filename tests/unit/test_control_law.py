@@ -25,7 +25,7 @@ from service.compensation.laws import Predictor
 LAW = CompensationSettings(nominal_mm=30.0, tol_upper_mm=0.02, tol_lower_mm=-0.02,
                            shadow=False, law="predictive", gain=0.4, trend_gain=0.2,
                            deadband_mm=0.0, max_step_mm=0.05, max_total_mm=1.0,
-                           dead_time_s=0.0, max_age_s=1e9, offset_resolution_mm=1e-6)
+                           dead_time_s=0.0, max_age_s=3600.0, offset_resolution_mm=1e-6)
 
 
 def test_holt_follows_a_straight_line_exactly() -> None:
@@ -106,7 +106,7 @@ def test_the_window_law_is_still_there_for_comparison() -> None:
 # ---- the loop that comes back by itself ---------------------------------------------------
 
 DEFAULTS = replace(CompensationSettings(), nominal_mm=30.0, shadow=False, max_total_mm=1.0,
-                   dead_time_s=0.0, max_age_s=1e9)
+                   dead_time_s=0.0, max_age_s=3600.0)
 
 
 class Loop:

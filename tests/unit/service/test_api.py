@@ -127,6 +127,21 @@ def test_inconsistent_tuning_is_refused_naming_the_setting(client) -> None:
     assert r.status_code == 422 and "max_step_mm" in r.json()["detail"]
 
 
+@pytest.mark.parametrize(("field", "value"), [
+    ("max_total_mm", 1e308), ("safe_area_mm", 9.2e18), ("dead_time_s", 9.2e18),
+    ("max_age_s", 9.2e18), ("dead_time_measurements", int("9" * 400)),
+    ("plausibility_mm", 1e9)])
+def test_absurd_tuning_is_refused_naming_the_setting_and_nothing_changes(client, field,
+                                                                         value) -> None:
+    """Values no machine needs would switch a limit off (a cumulative limit of 1e308 is
+    none): refused with the setting's name, and the settings in force stay."""
+    before = client.get("/api/v1/compensation").json()
+    assert before["settings"]["max_total_mm"] < 1.0, before
+    r = client.put("/api/v1/compensation", headers={H: ADMIN}, json={field: value})
+    assert r.status_code == 422 and field in r.text, r.text
+    assert client.get("/api/v1/compensation").json() == before
+
+
 def test_compensation_log_and_shadow(client) -> None:
     r = client.put("/api/v1/compensation/shadow", headers={H: TECHNICIAN},
                    json={"shadow": False})
