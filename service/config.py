@@ -213,6 +213,11 @@ class ApiSettings(_Section):
     """Images one calibration session may hold."""
     session_expiry_h: float = Field(24.0, gt=0)
     """A calibration session untouched this long is deleted with its images."""
+    trusted_proxies: list[str] = []
+    """Addresses of reverse proxies whose ``X-Forwarded-For``/``-Proto`` the gauge believes
+    (uvicorn's ``forwarded_allow_ips``). Empty (the default): none, not even loopback; the
+    peer's own address is what the lock-out after wrong keys, the audit and the host check
+    see."""
     trusted_hosts: list[str] = []
     """Host names the API and dashboard answer to besides addresses, ``localhost`` and this
     machine's own name (others get 400: a page of another site cannot rebind its name to the

@@ -321,6 +321,9 @@ async def serve(settings: Settings) -> int:
     server = _Server(gauge.feed, uvicorn.Config(app, host=settings.api.host, port=settings.api.port,
                                            log_level=settings.log_level, access_log=False,
                                            limit_concurrency=settings.api.max_connections,
+                                           proxy_headers=bool(settings.api.trusted_proxies),
+                                           forwarded_allow_ips=settings.api.trusted_proxies
+                                           or None,
                                            timeout_graceful_shutdown=settings.api.shutdown_s,
                                            ssl_certfile=tls and str(tls.certfile),
                                            ssl_keyfile=tls and str(tls.keyfile)))

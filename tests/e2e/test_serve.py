@@ -15,6 +15,7 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.plc.registers import RegisterType, WordOrder, from_words, mm_to_units, units_to_mm
 from drivers.sim.control import control
+from service.api.attempts import MAX_FAILURES
 from tests.e2e.conftest import (
     TECH_KEY,
     measuring_workers,
@@ -205,3 +206,38 @@ def test_worker_processes_measure_and_one_killed_is_replaced(tmp_path) -> None:
     finally:
         stop_service(svc)
 
+
+
+def test_forwarded_addresses_are_not_believed_from_an_untrusted_peer(tmp_path) -> None:
+    """No proxy is trusted by default, not even on loopback: a rotating X-Forwarded-For does
+    not escape the lock-out after wrong keys, a change is audited with the real peer, and a
+    forged "testclient" does not pass the host check (issue 50, finding 2)."""
+    svc = start_service(tmp_path)
+    try:
+        assert wait_ready(svc)
+        codes = []
+        for i in range(MAX_FAILURES + 5):
+            r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": True},
+                          headers={"X-API-Key": f"wrong-{i}",
+                                   "X-Forwarded-For": f"10.77.{i // 250}.{i % 250 + 1}"},
+                          timeout=10)
+            codes.append(r.status_code)
+        assert codes[:MAX_FAILURES] == [401] * MAX_FAILURES and 429 in codes, codes
+        time.sleep(0.1)
+        host = httpx.get(svc.url + "/api/v1/status", timeout=10,
+                         headers={"Host": "evil.example", "X-Forwarded-For": "testclient"})
+        assert host.status_code == 400, host.text
+    finally:
+        stop_service(svc)
+    (tmp_path / "again").mkdir()
+    svc = start_service(tmp_path / "again")
+    try:
+        assert wait_ready(svc)
+        r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": True},
+                      headers={"X-API-Key": TECH_KEY, "X-Forwarded-For": "10.9.9.9"},
+                      timeout=10)
+        assert r.status_code == 200, r.text
+        who = r.json()["decision"]["who"]
+        assert "127.0.0.1" in who and "10.9.9.9" not in who, who
+    finally:
+        stop_service(svc)
