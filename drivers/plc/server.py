@@ -74,6 +74,10 @@ def _within(host: str, nets: tuple[Network, ...]) -> bool:
     return any(addr in n for n in nets)
 
 
+READER_CONNECTIONS_PER_ADDRESS = 4
+"""Connections one reading client may hold at once (a SCADA, a dashboard: one or two)."""
+
+
 @dataclass(frozen=True)
 class ModbusAccess:
     """Who may use the gauge's Modbus server.
@@ -86,7 +90,8 @@ class ModbusAccess:
         Clients that may write (nominal, tolerances, command); others read, and their writes
         are answered with exception 0x01 and change nothing.
     max_connections : int
-        Connections at once; one more is disconnected.
+        Connections at once; one more is disconnected. Clients that only read get
+        ``reader_slots()`` of them, four an address at most: the rest is the writers'.
     """
 
     allowed: tuple[Network, ...] = field(default_factory=lambda: networks(LOOPBACK))
@@ -99,6 +104,12 @@ class ModbusAccess:
            max_connections: int = 16) -> ModbusAccess:
         """From addresses and networks as written in the settings."""
         return cls(networks(allowed), networks(writers), max_connections)
+
+    def reader_slots(self) -> int:
+        """Connections the clients that only read may hold at once: a quarter of
+        ``max_connections`` (at least one) is kept for the writers, so that readers, however
+        many or idle, never lock the CNC out."""
+        return self.max_connections - max(1, self.max_connections // 4)
 
     def may_connect(self, host: str) -> bool:
         """Whether a client at ``host`` may connect."""
@@ -214,11 +225,22 @@ class _Handler(ServerRequestHandler):
         self.peer = str(peer[0]) if peer else ""
         self.name = peer_name(self.transport)  # its certificate's name over TLS
         gauge = owner.gauge
-        if not gauge.access.may_connect(self.peer):
+        access = gauge.access
+        if not access.may_connect(self.peer):
             gauge.refuse(self, f"{self.peer} may not connect (not in modbus.allowed_clients)")
-        elif len(owner.active_connections) > gauge.access.max_connections:  # this one in
-            gauge.refuse(self, f"{self.peer}: {gauge.access.max_connections} connections "
+        elif len(owner.active_connections) > access.max_connections:  # this one in
+            gauge.refuse(self, f"{self.peer}: {access.max_connections} connections "
                          "already (modbus.max_connections)")
+        elif not access.may_write(self.peer):
+            readers = [getattr(h, "peer", "") for h in owner.active_connections.values()
+                       if not access.may_write(getattr(h, "peer", ""))]
+            if len(readers) > access.reader_slots():
+                gauge.refuse(self, f"{self.peer}: {access.reader_slots()} reader connections "
+                             "already (the rest of modbus.max_connections is kept for the "
+                             "writers: the CNC)")
+            elif readers.count(self.peer) > READER_CONNECTIONS_PER_ADDRESS:
+                gauge.refuse(self, f"{self.peer}: {READER_CONNECTIONS_PER_ADDRESS} connections "
+                             "from this reader already")
 
     async def handle_request(self) -> None:
         peer, name = getattr(self, "peer", ""), getattr(self, "name", "")

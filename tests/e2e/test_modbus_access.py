@@ -5,6 +5,7 @@ addresses play the other machines on the plant network."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import time
@@ -147,3 +148,31 @@ def test_an_alarm_acknowledgement_from_the_register_is_refused_unless_allowed(ga
         assert time.monotonic() < deadline, gauge.stderr()[-2000:]
         time.sleep(0.1)
     assert "modbus.acknowledge_command" in gauge.stderr()
+
+
+def test_idle_readers_never_lock_the_cnc_out(gauge) -> None:
+    """Twenty idle connections from a client that may only read fill what readers may hold
+    (the rest of max_connections is kept for the writers), and the CNC still connects,
+    reads and writes (issue 50, finding 1)."""
+    refused = gauge.get("/api/v1/status").json()["modbus"]["refused_connections"]
+    held = []
+    for _ in range(20):
+        s = socket.socket()
+        s.bind((READER, 0))
+        with contextlib.suppress(OSError):
+            s.connect(("127.0.0.1", gauge.modbus_port))
+        held.append(s)
+    try:
+        time.sleep(0.5)
+        with client(gauge, CNC) as c:
+            r = c.read_holding_registers(BY_NAME["nominal"].address, count=2, device_id=1)
+            assert not r.isError(), r
+            w = c.write_registers(BY_NAME["nominal"].address,
+                                  feature_words(30.0, 0.02, -0.02), device_id=1)
+            assert not w.isError(), w
+        # At most three of the twenty held (a quarter of the four kept for the writers).
+        now = gauge.get("/api/v1/status").json()["modbus"]["refused_connections"]
+        assert now - refused >= 17, (refused, now)
+    finally:
+        for s in held:
+            s.close()
