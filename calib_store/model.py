@@ -31,6 +31,13 @@ UNIT_TOLERANCE = 1e-6
 MIN_PLANE_OFFSET_MM = 1e-3
 MIN_PLANE_AXIS_ANGLE_DEG = 5.0
 DIST_COEFF_COUNTS = (4, 5, 8, 12, 14)
+MIN_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX = 16, 65536
+MAX_WORKING_DISTANCE_MM = 10_000.0
+"""The plane and the axis are in front of the camera and nearer than this (a gauge at a
+lathe works within a metre or two)."""
+EDGE_DISTORTION = (0.25, 4.0)
+"""At the image's farthest corner the radial model may scale the radius within this (a
+lens's barrel or pincushion is tens of per cent; a factor of 0 or 1e300 is a typing error)."""
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
@@ -115,6 +122,39 @@ class Calibration(_Strict):
         return v
 
     @model_validator(mode="after")
+    def _plausible(self) -> Calibration:
+        """What a camera at a lathe can be: the principal point on the sensor, a focal
+        length of at most 100 image widths, the radial distortion at the farthest corner
+        within ``EDGE_DISTORTION``, the light plane and the axis in front of the camera and
+        within ``MAX_WORKING_DISTANCE_MM``."""
+        (fx, _, cx), (_, fy, cy), _ = self.camera_matrix
+        w, h = self.image_size
+        if not (min(w, h) >= MIN_IMAGE_SIDE_PX and max(w, h) <= MAX_IMAGE_SIDE_PX):
+            raise ValueError(f"image_size: {w} x {h} px is no camera's (each side "
+                             f"{MIN_IMAGE_SIDE_PX}-{MAX_IMAGE_SIDE_PX} px)")
+        if not (0 <= cx <= w and 0 <= cy <= h):
+            raise ValueError(f"camera_matrix: the principal point ({cx:g}, {cy:g}) px is off "
+                             f"the {w} x {h} image")
+        if max(fx, fy) > 100 * max(w, h):
+            raise ValueError(f"camera_matrix: focal lengths of {max(fx, fy):g} px are over "
+                             f"100 image widths")
+        factor = _edge_distortion(self.dist_coeffs, max(
+            math.hypot((x - cx) / fx, (y - cy) / fy) for x in (0, w) for y in (0, h)))
+        low, high = EDGE_DISTORTION
+        if not low <= factor <= high:
+            raise ValueError(f"dist_coeffs: at the image's farthest corner they scale the "
+                             f"radius by {factor:.3g} (a lens does {low:g} to {high:g})")
+        if abs(self.light_plane.d) > MAX_WORKING_DISTANCE_MM:
+            raise ValueError(f"light_plane: d = {self.light_plane.d:g} mm puts the plane "
+                             f"beyond {MAX_WORKING_DISTANCE_MM:g} mm of the camera")
+        point = self.axis.point
+        if point is not None and not (0 < point[2] <= MAX_WORKING_DISTANCE_MM and max(
+                abs(point[0]), abs(point[1])) <= MAX_WORKING_DISTANCE_MM):
+            raise ValueError(f"axis.point: {point} mm is not in front of the camera within "
+                             f"{MAX_WORKING_DISTANCE_MM:g} mm")
+        return self
+
+    @model_validator(mode="after")
     def _plane_crosses_axis(self) -> Calibration:
         cos = abs(float(np.dot(self.light_plane.normal, self.axis.direction)))
         angle = math.degrees(math.asin(min(1.0, cos)))  # angle between plane and axis
@@ -133,6 +173,18 @@ class Calibration(_Strict):
     def to_json(self, indent: int | None = 2) -> str:
         """The interchange document as JSON text."""
         return json.dumps(self.to_document(), indent=indent)
+
+
+def _edge_distortion(k: list[float], r: float) -> float:
+    """OpenCV's radial factor at normalised radius ``r`` (k1 k2 p1 p2 [k3 [k4 k5 k6]])."""
+    r2 = r * r
+    k1, k2 = k[0], k[1]
+    k3 = k[4] if len(k) > 4 else 0.0
+    num = 1.0 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+    den = 1.0 + (k[5] * r2 + k[6] * r2 ** 2 + k[7] * r2 ** 3 if len(k) >= 8 else 0.0)
+    with np.errstate(all="ignore"):
+        factor = float(np.float64(num) / np.float64(den)) if den else math.inf
+    return factor if math.isfinite(factor) else math.inf
 
 
 def format_validation_error(err: ValidationError,

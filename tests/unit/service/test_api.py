@@ -110,6 +110,27 @@ def test_bad_calibration_document_is_422_naming_the_field(client) -> None:
     assert client.get("/api/v1/calibrations/999").status_code == 404
 
 
+@pytest.mark.parametrize(("path", "value", "named"), [
+    (("light_plane", "d"), -1e308, "light_plane"),
+    (("dist_coeffs", 0), -1e308, "dist_coeffs"),
+    (("axis", "point", 2), -1e308, "axis.point"),
+    (("image_size",), [1, 1], "image_size")])
+def test_an_absurd_calibration_is_refused_and_not_activated(client, path, value,
+                                                            named) -> None:
+    """Finite but absurd (issue 50, finding 4): each was imported and activated with 201,
+    and the gauge then reported ok with it. Refused, naming what, and not activated."""
+    active = client.get("/api/v1/status").json()["calibration"]["id"]
+    doc = json.loads(json.dumps(DOC))
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    r = client.post("/api/v1/calibrations", headers={H: TECHNICIAN},
+                    json={"document": doc, "activate": True})
+    assert r.status_code == 422 and named in r.json()["detail"], r.text
+    assert client.get("/api/v1/status").json()["calibration"]["id"] == active
+
+
 def test_feature_reaches_the_controller_and_registers(client) -> None:
     r = client.put("/api/v1/feature", headers={H: TECHNICIAN},
                    json={"nominal_mm": 31.5, "tol_upper_mm": 0.03, "tol_lower_mm": -0.01})
