@@ -204,8 +204,10 @@ class CompensationController(OffsetBook):
         if gate:
             return self._decision(Kind.HELD, f"gate_{self.state.value}", gate, now, **kw)
         if s.law == "predictive":
+            # The interval between measurements from when they were taken: a queue judged in
+            # a burst (a busy host) must not read as measurements microseconds apart.
             got = self._predictor.observe(deviation, self._applied_mm, now,
-                                          float(m.uncertainty_mm))
+                                          float(m.uncertainty_mm), m.time_s)
             # Where the coming parts will stand with the offsets applied (in flight too).
             filtered = got if isinstance(got, tuple) else got + self._applied_mm
             gain = 1.0

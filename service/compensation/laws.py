@@ -242,13 +242,15 @@ class Predictor:
         return max(BAND_SCALES * max(scale, uncertainty_mm), self.floor_mm)
 
     def observe(self, deviation_mm: float, applied_mm: float, now_s: float,
-                uncertainty_mm: float = 0.0) -> float | tuple[str, str]:
+                uncertainty_mm: float = 0.0, taken_s: float | None = None
+                ) -> float | tuple[str, str]:
         """Take a measurement's deviation from nominal, with ``applied_mm`` the effect of all
-        offsets applied so far (``uncertainty_mm`` its standard uncertainty); return the
-        forecast of the uncompensated process ``horizon`` measurements ahead (mm), or
-        (code, why) nothing is forecast on this measurement's word."""
+        offsets applied so far (``uncertainty_mm`` its standard uncertainty, ``taken_s`` when
+        it was taken: the interval between measurements; ``now_s`` when it is judged);
+        return the forecast of the uncompensated process ``horizon`` measurements ahead
+        (mm), or (code, why) nothing is forecast on this measurement's word."""
         self.last_step_mm = None
-        self._clock(now_s)
+        self._clock(now_s if taken_s is None else taken_s)
         for f in [*self.in_flight, *([self.skip] if self.skip else [])]:
             f.seen += 1
         self.in_flight = [f for f in self.in_flight if not f.visible(now_s)]
