@@ -141,9 +141,9 @@ class HandCnc:
         self.loop.call_soon_threadsafe(self.loop.stop)
 
 
-# Alone: the lathe wears in wall-clock seconds, and a host the parallel phase starves (five
-# workers on two cores) delays what the camera shows beyond the law's 1.5 s dead time; the
-# predictive law needs its dead time as it is (docs/integrating.md).
+# Alone: the lathe wears and grows in wall-clock seconds; on a host the parallel phase
+# starves (five workers on two cores) what the camera shows lags the cut by more than the
+# law's 1.5 s dead time, which the predictive law needs as it is (docs/integrating.md).
 @pytest.mark.alone
 def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -> None:
     """The machine has grown 30 um and the tool worn 10 um when the operator changes the
