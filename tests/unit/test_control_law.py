@@ -1,4 +1,4 @@
-"""The predictive law (service/control_law.py) against analytic truth, and the controller
+"""The predictive law (service/compensation/laws.py) against analytic truth, and the controller
 closing the loop around the virtual lathe (drivers/sim/lathe.py): no oscillation at any gain
 up to three parts of dead time, wear followed without a steady lag."""
 
