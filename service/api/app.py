@@ -20,6 +20,7 @@ from service.api import (
     master,
     measurements,
     quality,
+    session_steps,
     sessions,
 )
 from service.api.auth import reader
@@ -73,8 +74,8 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
                                            g.context.store_error))
     api.include_router(master.router(g.context, g.compensation, g.feed,
                                      g.settings.measurement, keys))
-    api.include_router(sessions.router(g.sessions, g.context, g.compensation, g.pipeline,
-                                       keys))
+    api.include_router(sessions.router(g.sessions, g.context, g.compensation, keys))
+    api.include_router(session_steps.router(g.sessions, g.compensation, g.pipeline, keys))
     api.include_router(quality.router(g.spc, g.studies, g.compensation, keys))
     api.include_router(export.router(g.log, gauge_identity(g.settings.mqtt)[0],
                                      g.context.store_error, g.settings.spindle.max_tir_mm))

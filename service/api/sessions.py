@@ -1,58 +1,36 @@
 """Calibration sessions at the machine over HTTP: a thin layer over
-``service.calibrate.session`` (images uploaded or captured from the live camera, steps run in
-the background with their progress, the result activated)."""
+``service.calibrate.session``. This module opens, lists, ends and activates sessions;
+``session_steps`` feeds them images and runs their steps."""
 
 from __future__ import annotations
 
-import asyncio
 import time
 
-import numpy as np
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, Depends, HTTPException
 
 from service.api.auth import Caller, requires
-from service.api.limits import check_image_size, decode_gray, png_size
 from service.api.models import ActivateIn, SessionIn
 from service.calibrate import commands
-from service.calibrate.session import (
-    CalibrationSession,
-    CalibrationSessions,
-    ImageKind,
-    SessionLimitError,
-    Step,
-)
+from service.calibrate.session import CalibrationSession, CalibrationSessions, SessionLimitError
 from service.config import ApiSettings
 from service.runtime.calibration import CalibrationContext
 from service.runtime.compensating import CompensationService
-from service.runtime.pipeline import FramePipeline
 
-CAPTURE_TIMEOUT_S = 5.0
-CAPTURE_HOLD_S = 600.0   # offsets held this long after the last capture
-MAX_PIXELS = 8192 * 8192  # with no camera size known yet
+
+def find(sessions: CalibrationSessions, sid: str) -> CalibrationSession:
+    """The session ``sid``, or 404."""
+    try:
+        return sessions.get(sid)
+    except KeyError:
+        raise HTTPException(404, f"no calibration session {sid}") from None
 
 
 def router(sessions: CalibrationSessions, context: CalibrationContext,
-           comp: CompensationService, pipeline: FramePipeline, api: ApiSettings) -> APIRouter:
-    """Sessions live in ``sessions``; captures read the pipeline's latest frame and hold
-    offsets (compensation); activation goes through the calibration context."""
+           comp: CompensationService, api: ApiSettings) -> APIRouter:
+    """Sessions live in ``sessions``; activation goes through the calibration context and
+    ends the offset hold the session's captures set (compensation)."""
     r = APIRouter(tags=["calibration sessions"])
     technician = Depends(requires(api, "technician"))
-    tasks: set[asyncio.Task] = set()
-
-    def find(sid: str) -> CalibrationSession:
-        try:
-            return sessions.get(sid)
-        except KeyError:
-            raise HTTPException(404, f"no calibration session {sid}") from None
-
-    async def store(s: CalibrationSession, kind: ImageKind, image: np.ndarray) -> dict:
-        try:
-            added = await asyncio.to_thread(s.add_image, kind, image, sessions.max_images)
-        except SessionLimitError as err:
-            raise HTTPException(409, str(err)) from None
-        except OSError as err:
-            raise HTTPException(507, str(err)) from None
-        return {**added, **s.as_dict()}
 
     @r.post("/calibration-sessions", status_code=201, summary="Start a calibration session")
     def start(body: SessionIn, caller: Caller = technician) -> dict:
@@ -63,67 +41,30 @@ def router(sessions: CalibrationSessions, context: CalibrationContext,
         except SessionLimitError as err:
             raise HTTPException(409, str(err)) from None
 
+    @r.get("/calibration-sessions", summary="The kept sessions, newest first")
+    def listing() -> dict:
+        return {"items": [s.as_dict() for s in sessions.listing()],
+                "max_open": sessions.max_open}
+
     @r.get("/calibration-sessions/{sid}", summary="A session: images, progress, results")
     def get(sid: str) -> dict:
-        return find(sid).as_dict()
+        return find(sessions, sid).as_dict()
 
-    @r.post("/calibration-sessions/{sid}/images/{kind}", status_code=201,
-            summary="Upload one image (PNG body)")
-    async def upload(sid: str, kind: ImageKind, request: Request, _: str = technician) -> dict:
-        s = find(sid)
-        data = await request.body()  # bounded by api.max_image_bytes before it is read
-        if not data:
-            raise HTTPException(422, "send one PNG image as the request body")
-        # The header is checked before a pixel is decoded: a small file can declare a
-        # gigapixel image.
-        check_image_size(png_size(data), pipeline.image_size(), MAX_PIXELS)
-        image = await asyncio.to_thread(decode_gray, data)
-        if image is None:
-            raise HTTPException(422, "the PNG could not be decoded (damaged data)")
-        return await store(s, kind, image)
-
-    @r.post("/calibration-sessions/{sid}/capture/{kind}", status_code=201,
-            summary="Capture the next frame from the camera (offsets are held meanwhile)")
-    async def capture(sid: str, kind: ImageKind, _: str = technician) -> dict:
-        s = find(sid)
-        # The camera now looks at a board, not a part: no offset from what it measures.
-        comp.hold_offsets(CAPTURE_HOLD_S, f"calibration session {sid} is capturing", owner=sid)
-        pipeline.read_whole_sensor(CAPTURE_HOLD_S)  # a region of interest is no calibration image
-        asked = time.monotonic_ns()
-        deadline = time.monotonic() + CAPTURE_TIMEOUT_S
-        while True:  # a whole frame taken after the request, never one from before it
-            frame = pipeline.latest_frame
-            if frame is not None and frame.received_ns > asked and frame.origin is None:
-                return await store(s, kind, frame.image)
-            if time.monotonic() > deadline:
-                raise HTTPException(409, "no new frame from the camera within "
-                                    f"{CAPTURE_TIMEOUT_S:g} s: is it streaming?")
-            await asyncio.sleep(0.02)
-
-    async def background(s: CalibrationSession, step: Step) -> None:
+    @r.delete("/calibration-sessions/{sid}",
+              summary="End a session: its images are deleted and its hold on offsets ends")
+    def end(sid: str, _: Caller = technician) -> dict:
+        find(sessions, sid)
         try:
-            await asyncio.to_thread(s.run, step)
-        except commands.StepError:
-            pass  # recorded in the session's progress
-        except Exception as err:  # a bug must show in the session, not kill the service
-            s.progress = {"step": step, "state": "failed", "message": f"internal error: {err}"}
-
-    @r.post("/calibration-sessions/{sid}/run/{step}", status_code=202,
-            summary="Run one step in the background (poll the session for progress)")
-    async def run(sid: str, step: Step, _: str = technician) -> dict:
-        s = find(sid)
-        if s.progress["state"] == "running":
-            raise HTTPException(409, f"{s.progress['step']} is still running")
-        s.progress = {"step": step, "state": "running", "message": f"{step}: queued"}
-        task = asyncio.get_running_loop().create_task(background(s, step))
-        tasks.add(task)
-        task.add_done_callback(tasks.discard)
-        return s.as_dict()
+            sessions.end(sid)
+        except SessionLimitError as err:
+            raise HTTPException(409, str(err)) from None
+        comp.release_hold(sid)
+        return {"ended": sid}
 
     @r.post("/calibration-sessions/{sid}/activate",
             summary="Import and activate the result (ends the hold its captures set)")
     async def activate(sid: str, body: ActivateIn, caller: Caller = technician) -> dict:
-        s = find(sid)
+        s = find(sessions, sid)
         cal = s.calibration()
         if cal is None:
             raise HTTPException(409, "nothing to activate: " + (
@@ -135,7 +76,7 @@ def router(sessions: CalibrationSessions, context: CalibrationContext,
         cid = context.store.add(cal, by=str(caller), note=body.note or s.note, quality=s.report,
                                 activate=True)
         context.set_calibration(*context.store.get(cid))
-        s.activated_id = cid
+        s.activated_id, s.touched = cid, time.time()
         s.save()
         # The technician is done with the board: its captures no longer hold offsets back (the
         # compensation still needs good measurements of a part near nominal to write any).
@@ -143,4 +84,3 @@ def router(sessions: CalibrationSessions, context: CalibrationContext,
         return s.as_dict()
 
     return r
-

@@ -105,6 +105,12 @@ class CalibrationSession:
     activated_id: int | None = None
 
     @property
+    def counts(self) -> bool:
+        """Whether the session holds one of the open places: not once its result is in use
+        or its last step failed (the technician may still add images and run it again)."""
+        return self.activated_id is None and self.progress.get("state") != "failed"
+
+    @property
     def built(self) -> Path:
         """Where the built calibration is kept."""
         return self.dir / "calibration.json"
@@ -122,7 +128,8 @@ class CalibrationSession:
                 "created": self.created,
                 "images": {k: len(v) for k, v in self.images.items()},
                 "results": self.results, "progress": self.progress, "report": self.report,
-                "built": self.built.exists(), "activated_id": self.activated_id}
+                "built": self.built.exists(), "activated_id": self.activated_id,
+                "counts": self.counts, "touched": self.touched}
 
     def save(self) -> None:
         """Write the session's state next to its images (atomically)."""
@@ -168,8 +175,9 @@ class CalibrationSession:
     def run(self, step: Step) -> StepResult:
         """Run a step on the session's images, record its result (and the calibration, when
         built); ``commands.StepError`` for unusable inputs is recorded too, then raised."""
+        self.touched = time.time()
         self.progress = {"step": step, "state": "running", "message": f"{step}: working",
-                         "started": time.time()}
+                         "started": self.touched}
         self.save()
         try:
             result = run_step(step, self.inputs())
@@ -204,7 +212,11 @@ class CalibrationSessions:
     max_images : int
         Images per session.
     expiry_h : float
-        A session untouched this long is deleted with its images.
+        A session untouched this long is deleted with its images. Reads do not touch it;
+        images, steps and activation do.
+
+    Only sessions that ``count`` (neither activated nor failed) fill the ``max_open`` places;
+    at most ``max_open`` finished ones are kept besides, the oldest deleted first.
     """
 
     def __init__(self, root: Path, max_open: int, max_images: int, expiry_h: float) -> None:
@@ -225,19 +237,34 @@ class CalibrationSessions:
         now = time.time()
         for sid, s in list(self._open.items()):
             if now - s.touched > self.expiry_s and s.progress.get("state") != "running":
-                del self._open[sid]
-                shutil.rmtree(s.dir, ignore_errors=True)
+                self._delete(sid)
+
+    def _delete(self, sid: str) -> None:
+        s = self._open.pop(sid)
+        shutil.rmtree(s.dir, ignore_errors=True)
+
+    def listing(self) -> list[CalibrationSession]:
+        """The kept sessions, newest first."""
+        self.expire()
+        return sorted(self._open.values(), key=lambda s: s.created, reverse=True)
 
     def create(self, board: str, note: str, by: str) -> CalibrationSession:
         """A new session (``commands.StepError`` for a bad board, SessionLimitError past
         ``max_open``)."""
         commands.parse_board(board)
         self.expire()
-        if len(self._open) >= self.max_open:
+        counting = [s for s in self._open.values() if s.counts]
+        if len(counting) >= self.max_open:
             raise SessionLimitError(
-                f"{len(self._open)} calibration sessions are open, the most allowed "
-                "(api.max_calibration_sessions); finish one, or wait for it to expire after "
-                f"{self.expiry_s / 3600.0:g} h")
+                f"{len(counting)} calibration sessions are open "
+                f"({', '.join(sorted(s.id for s in counting))}), the most allowed "
+                "(api.max_calibration_sessions): end one (DELETE "
+                "/api/v1/calibration-sessions/{id}, or End on the calibration page), or wait "
+                f"for it to expire {self.expiry_s / 3600.0:g} h after its last change")
+        finished = sorted((s for s in self._open.values() if not s.counts),
+                          key=lambda s: s.touched)
+        for s in finished[:max(0, len(finished) - self.max_open + 1)]:
+            self._delete(s.id)
         sid = uuid.uuid4().hex[:12]
         folder = self.root / sid
         folder.mkdir(parents=True, exist_ok=True)
@@ -247,8 +274,16 @@ class CalibrationSessions:
         return s
 
     def get(self, sid: str) -> CalibrationSession:
-        """An open session (KeyError when there is none of that id)."""
+        """A kept session (KeyError when there is none of that id); reading it does not
+        renew it."""
         self.expire()
-        s = self._open[sid]
-        s.touched = time.time()
-        return s
+        return self._open[sid]
+
+    def end(self, sid: str) -> None:
+        """End a session and delete its images (KeyError when there is none of that id,
+        SessionLimitError while a step runs on it)."""
+        s = self.get(sid)
+        if s.progress.get("state") == "running":
+            raise SessionLimitError(f"session {sid}: {s.progress.get('step')} is still "
+                                    "running; end it once the step is done")
+        self._delete(sid)

@@ -13,6 +13,45 @@ function showSession(s) {
     box.querySelector(".count").textContent = s ? s.images[box.dataset.kind] : 0;
   }
   $("activate").disabled = !(s && s.built && s.activated_id == null);
+  $("end-session").disabled = !s;
+}
+
+function sessionState(s) {
+  if (s.activated_id != null) return `activated as calibration ${s.activated_id}`;
+  return s.progress.state === "idle" ? "collecting images"
+    : `${s.progress.step}: ${s.progress.state}`;
+}
+
+// The kept sessions, each to resume or end: a technician who closed the page can still end
+// the sessions that fill the open places.
+async function loadSessions() {
+  const items = (await api("/calibration-sessions")).items;
+  $("sessions").replaceChildren(...items.map((s) => {
+    const tr = document.createElement("tr");
+    const images = Object.values(s.images).reduce((a, b) => a + b, 0);
+    for (const t of [s.id, clock(s.created), s.by, images, sessionState(s)]) {
+      tr.append(Object.assign(document.createElement("td"), { textContent: t }));
+    }
+    const td = document.createElement("td");
+    const resume = Object.assign(document.createElement("button"), { textContent: "Resume" });
+    resume.addEventListener("click", guarded($("progress"), async () => {
+      showSession(await api(`/calibration-sessions/${s.id}`));
+      showReport(session.report);
+      say($("progress"), `session ${s.id} resumed`, "ok");
+    }));
+    const end = Object.assign(document.createElement("button"), { textContent: "End" });
+    end.addEventListener("click", guarded($("progress"), () => endSession(s.id)));
+    td.append(resume, " ", end);
+    tr.append(td);
+    return tr;
+  }));
+}
+
+async function endSession(id) {
+  await api(`/calibration-sessions/${id}`, { method: "DELETE" });
+  if (session && session.id === id) { showSession(null); showReport(null); }
+  say($("progress"), `session ${id} ended: its images are deleted`, "ok");
+  await loadSessions();
 }
 
 function showReport(report) {
@@ -122,7 +161,7 @@ async function loadMaster() {
 
 export async function loadTechnician() {
   $("key").value = key();
-  await Promise.all([loadHistory(), loadMaster()]);
+  await Promise.all([loadHistory(), loadMaster(), loadSessions()]);
 }
 
 function guarded(el, fn) {
@@ -138,6 +177,10 @@ export function wireTechnician() {
                                                      json: { board: $("board").value } }));
     showReport(null);
     say($("progress"), "session started: add images", "ok");
+    await loadSessions();
+  }));
+  $("end-session").addEventListener("click", guarded($("progress"), async () => {
+    if (session) await endSession(session.id);
   }));
   for (const box of document.querySelectorAll(".kinds > div")) {
     const kind = box.dataset.kind;
@@ -162,7 +205,7 @@ export function wireTechnician() {
                         { method: "POST", json: { note: "from the calibration page" } });
     showSession(s);
     say($("activate-msg"), `calibration ${s.activated_id} is in use`, "ok");
-    await loadHistory();
+    await Promise.all([loadHistory(), loadSessions()]);
   }));
   $("master-run").addEventListener("click", guarded($("master-msg"), async () => {
     say($("master-msg"), "measuring the master…");

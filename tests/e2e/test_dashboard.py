@@ -269,6 +269,14 @@ def test_calibration_wizard_from_rendered_images(service, browser, calibration_i
     expect(page.locator("#activate-msg")).to_contain_text("is in use")
     expect(page.locator("#history tr")).to_have_count(2)
     expect(page.locator("#history tr").first).to_contain_text("in use")
+    # The session is listed as activated, and the technician ends it from the page.
+    row = page.locator("#sessions tr").first
+    expect(row).to_contain_text("activated as calibration")
+    row.locator("button", has_text="End").click()
+    expect(page.locator("#progress")).to_contain_text("ended")
+    expect(page.locator("#sessions tr")).to_have_count(0)
+    expect(page.locator("#end-session")).to_be_disabled()
+    assert service.get("/api/v1/calibration-sessions").json()["items"] == []
     active = [c for c in service.get("/api/v1/calibrations").json()["items"] if c["active"]]
     assert active[0]["note"] == "from the calibration page"
     # Roll back to the first calibration from the history.

@@ -51,6 +51,7 @@ def test_session_from_upload_to_activation(client, calibration_images) -> None:
                     json={"note": "from the session"})
     assert r.status_code == 200
     cid = r.json()["activated_id"]
+    assert r.json()["counts"] is False  # an activated session holds no open place
     cal = client.get(f"/api/v1/calibrations/{cid}").json()
     assert cal["active"] and cal["quality"]["verdict"] == s["report"]["verdict"]
     assert client.get("/api/v1/status").json()["compensation"]["held"] is None
@@ -102,3 +103,28 @@ def test_every_session_endpoint_needs_a_technician_key_and_a_good_body(client) -
             assert call(path, headers=H, **bad).status_code == 422, path
     for wrong in (f"{start}/{sid}/images/colour", f"{start}/{sid}/run/cook"):
         assert client.post(wrong, headers=H).status_code == 422
+
+
+def test_a_fifth_session_opens_once_one_is_ended(client) -> None:
+    start = "/api/v1/calibration-sessions"
+    ids = [client.post(start, headers=H, json={}).json()["id"] for _ in range(4)]
+    r = client.post(start, headers=H, json={})
+    assert r.status_code == 409 and "DELETE" in r.json()["detail"]
+    listed = client.get(start).json()
+    assert {s["id"] for s in listed["items"]} >= set(ids) and listed["max_open"] == 4
+    assert client.delete(f"{start}/{ids[0]}").status_code == 401
+    assert client.delete(f"{start}/{ids[0]}",
+                         headers={"X-API-Key": OPERATOR}).status_code == 403
+    assert client.delete(f"{start}/{ids[0]}", headers=H).json() == {"ended": ids[0]}
+    assert client.get(f"{start}/{ids[0]}").status_code == 404
+    assert client.delete(f"{start}/{ids[0]}", headers=H).status_code == 404
+    assert client.post(start, headers=H, json={}).status_code == 201
+    # A failed step frees the place too (the technician may still add images and rerun it).
+    client.post(f"{start}/{ids[1]}/run/intrinsics", headers=H)
+    assert wait_done(client, ids[1], "intrinsics")["counts"] is False
+    assert client.post(start, headers=H, json={}).status_code == 201
+    # Ending a session that captured releases its hold on offsets.
+    assert client.post(f"{start}/{ids[2]}/capture/view", headers=H).status_code == 201
+    assert ids[2] in client.get("/api/v1/status").json()["compensation"]["held"]
+    client.delete(f"{start}/{ids[2]}", headers=H)
+    assert client.get("/api/v1/status").json()["compensation"]["held"] is None

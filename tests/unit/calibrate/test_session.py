@@ -44,3 +44,41 @@ def test_caps_and_a_damaged_session_file(tmp_path) -> None:
     (s.dir / "session.json").write_text("{not json")
     assert CalibrationSessions(tmp_path, 1, 1, 24)._open == {}  # not served, left on disk
     assert (s.dir / "session.json").exists()
+
+
+def test_ended_activated_and_failed_sessions_free_their_places(tmp_path) -> None:
+    sessions = CalibrationSessions(tmp_path, max_open=2, max_images=5, expiry_h=24)
+    a = sessions.create("9x6x6", "", "technician")
+    b = sessions.create("9x6x6", "", "technician")
+    with pytest.raises(SessionLimitError, match=f"{a.id}.*DELETE"):
+        sessions.create("9x6x6", "", "technician")
+    sessions.end(a.id)  # ended: its folder goes with it
+    assert not a.dir.exists()
+    with pytest.raises(KeyError):
+        sessions.get(a.id)
+    c = sessions.create("9x6x6", "", "technician")
+    b.activated_id = 7  # its result is in use
+    c.add_image("view", np.zeros((8, 8), np.uint8), sessions.max_images)
+    assert not c.run("intrinsics").ok  # its last step failed
+    assert not b.counts and not c.counts
+    d = sessions.create("9x6x6", "", "technician")
+    e = sessions.create("9x6x6", "", "technician")
+    # Finished sessions are kept for review, at most max_open of them, the oldest going first.
+    assert {s.id for s in sessions.listing()} <= {b.id, c.id, d.id, e.id}
+    assert len(sessions.listing()) <= 2 * sessions.max_open
+
+
+def test_a_read_does_not_renew_a_session_and_a_running_one_is_not_ended(tmp_path) -> None:
+    sessions = CalibrationSessions(tmp_path, max_open=2, max_images=5, expiry_h=1)
+    s = sessions.create("9x6x6", "", "technician")
+    s.touched -= 3000.0  # 50 minutes since its last change
+    before = s.touched
+    assert sessions.get(s.id).touched == before
+    s.touched -= 700.0  # past the hour: reads kept it from nothing
+    with pytest.raises(KeyError):
+        sessions.get(s.id)
+    r = sessions.create("9x6x6", "", "technician")
+    r.progress = {"step": "axis", "state": "running", "message": "axis: working"}
+    with pytest.raises(SessionLimitError, match="still running"):
+        sessions.end(r.id)
+    assert sessions.get(r.id) is r
