@@ -59,7 +59,7 @@ class LogRetention:
 class _Item:
     """One unit of work for the writer thread."""
 
-    kind: str  # "decision", "value", "measurement", "barrier"
+    kind: str  # "decision", "value", "value_once", "measurement", "barrier"
     payload: Any
     future: concurrent.futures.Future | None
 
@@ -118,10 +118,13 @@ class CompensationLog:
         assert fut is not None
         fut.result()
 
-    def submit_value(self, key: str, value: Any) -> concurrent.futures.Future:
-        """Store a JSON-ready value under ``key``; the future resolves once it is committed."""
+    def submit_value(self, key: str, value: Any, retry: bool = True
+                     ) -> concurrent.futures.Future:
+        """Store a JSON-ready value under ``key``; the future resolves once it is committed.
+        When it cannot be, the future fails and, with ``retry``, the value is written later
+        (a reservation); without, never (a change the caller then did not make)."""
         fut: concurrent.futures.Future = concurrent.futures.Future()
-        self._put(_Item("value", (key, json.dumps(value)), fut))
+        self._put(_Item("value" if retry else "value_once", (key, json.dumps(value)), fut))
         return fut
 
     def put_value(self, key: str, value: Any) -> None:
@@ -254,7 +257,7 @@ class CompensationLog:
                             f"INSERT OR REPLACE INTO measurements "
                             f"({', '.join(MEASUREMENT_COLUMNS)}) VALUES "
                             f"({','.join('?' * len(MEASUREMENT_COLUMNS))})", item.payload)
-                    elif item.kind == "value":
+                    elif item.kind in ("value", "value_once"):
                         self._db.execute("INSERT OR REPLACE INTO gauge_values (key, value) "
                                          "VALUES (?, ?)", item.payload)
                 if state is not None:
@@ -274,7 +277,7 @@ class CompensationLog:
             for item in batch:
                 if item.future is not None and not item.future.done():
                     item.future.set_exception(err)
-                if item.kind != "barrier":
+                if item.kind not in ("barrier", "value_once"):
                     keep.append(_Item(item.kind, item.payload, None))
             if len(keep) > MAX_BACKLOG:  # keep the significant ones, drop the oldest quiet
                 quiet = [i for i in keep if i.kind == "measurement"

@@ -14,6 +14,7 @@ whose rules it does not know (a gauge study's gate, say).
 from __future__ import annotations
 
 import os
+import re
 import sqlite3
 import time
 from collections.abc import Callable
@@ -175,6 +176,16 @@ def pending(db: sqlite3.Connection, path: Path | str) -> list[Migration]:
             f"store {path} has schema version {have}, written by a newer release; this "
             f"release knows versions up to {SCHEMA_VERSION}: run the release that wrote it, "
             "or restore a backup made before the upgrade")
+    if have == 0:
+        tables = {r[0] for r in db.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'table' AND name NOT LIKE 'sqlite_%'")}
+        ours = {re.search(r"EXISTS (\w+)", t).group(1) for t in _TABLES}  # type: ignore[union-attr]
+        if tables and not tables & ours:
+            raise SchemaError(
+                f"{path} is an SQLite database of something else (its tables: "
+                f"{', '.join(sorted(tables)[:5])}{', ...' if len(tables) > 5 else ''}), not a "
+                "shaftgauge store; it was left untouched: name the gauge's own store "
+                "(store.path)")
     return [m for m in MIGRATIONS if m.version > have]
 
 

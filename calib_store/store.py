@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -24,6 +25,11 @@ from calib_store.model import Calibration, CalibrationError, parse_calibration
 
 class StoreError(RuntimeError):
     """The store cannot be used; the message says which file and what is wrong."""
+
+
+class NotStoredError(RuntimeError):
+    """A change could not be written to the store, so it was not made (the API answers 503
+    with this message)."""
 
 
 @dataclass(frozen=True)
@@ -63,13 +69,21 @@ def open_database(path: Path, create_if_missing: bool) -> sqlite3.Connection:
         raise StoreError(f"calibration store {path} is empty (0 bytes: a truncated file, not "
                          "a store); it was left untouched: restore it from a backup "
                          "('shaftgauge store restore'), or move it aside to start a new one")
+    # SQLite says only "unable to open database file" when its journal cannot be created.
+    for where in ((path,) if path.exists() else ()) + (path.parent,):
+        if not os.access(where, os.W_OK):
+            raise StoreError(f"calibration store {path} cannot be written: {where} is "
+                             "read-only (a read-only mount, or its permissions); the gauge "
+                             "needs to write the store and its journal beside it")
     try:
         db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
         check = db.execute("PRAGMA integrity_check").fetchone()
         if not check or check[0] != "ok":
             db.close()
-            raise StoreError(f"calibration store {path} is damaged (integrity check: "
-                             f"{check[0] if check else 'no answer'}); it was left untouched")
+            raise StoreError(f"calibration store {path} is damaged ({_integrity(check)}); "
+                             "it was left untouched: restore it from a backup ('shaftgauge "
+                             "store restore')")
+        schema.pending(db, path)  # a newer or foreign file is refused before anything is written
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA foreign_keys=ON")
         schema.migrate(db, path)
@@ -80,6 +94,18 @@ def open_database(path: Path, create_if_missing: bool) -> sqlite3.Connection:
         raise StoreError(f"calibration store {path} cannot be used: {err}; it was left "
                          "untouched") from None
     return db
+
+
+def _integrity(check: tuple | None, lines: int = 3) -> str:
+    """The first of SQLite's integrity problems: its whole list can run to thousands of
+    lines, which belongs in ``sqlite3 FILE 'PRAGMA integrity_check'``, not in a status."""
+    if not check:
+        return "the integrity check gave no answer"
+    found = [ln for ln in str(check[0]).splitlines() if ln and not ln.startswith("***")]
+    more = len(found) - lines
+    return "integrity check: " + "; ".join(found[:lines]) + (
+        f"; {more} more (sqlite3 FILE 'PRAGMA integrity_check' lists them)" if more > 0
+        else "")
 
 
 @contextlib.contextmanager

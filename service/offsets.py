@@ -15,7 +15,7 @@ import concurrent.futures
 import logging
 import sqlite3
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import asdict
 from typing import Protocol
 
@@ -37,6 +37,10 @@ log = logging.getLogger("shaftgauge.compensation")
 CNC_REFRESH_S = 5.0
 """How often the CNC's registers are read when nothing is in flight (connection state,
 total wear offset)."""
+
+
+Persist = Callable[[], Awaitable[None]]
+"""Stores a change before it is applied (raises when it cannot)."""
 
 
 class LogUnavailableError(RuntimeError):
@@ -239,16 +243,24 @@ class OffsetChannel:
         async with self._lock:
             return self._note(self.controller.refuse_reset(self.clock(), who, why))
 
-    async def update_settings(self, settings: CompensationSettings, who: str) -> Decision:
-        """New settings (ValueError naming the bad one); committed to the log before the
-        call returns, so a restart keeps them."""
+    async def update_settings(self, settings: CompensationSettings, who: str,
+                              persist: Persist | None = None) -> Decision:
+        """New settings (ValueError naming the bad one), in force once ``persist`` has
+        stored them (what it raises leaves everything as it was)."""
         async with self._lock:
+            self.controller.check_settings(settings)
+            if persist is not None:
+                await persist()
             return await self._settings_logged(
                 self.controller.update_settings(settings, self.clock(), who))
 
-    async def note_settings(self, what: str, who: str) -> Decision:
-        """Log a change of a setting the controller does not own (the part temperature)."""
+    async def note_settings(self, what: str, who: str, persist: Persist,
+                            apply: Callable[[], None]) -> Decision:
+        """A setting the controller does not own (the part temperature): ``apply`` once
+        ``persist`` has stored it, and log it."""
         async with self._lock:
+            await persist()
+            apply()
             return await self._settings_logged(
                 self.controller.note_settings(what, self.clock(), who))
 

@@ -4,6 +4,7 @@ built on simulated parts)."""
 from __future__ import annotations
 
 import contextlib
+import sqlite3
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from calib_store.store import NotStoredError
 from service.api import (
     calibrations,
     compensation,
@@ -63,6 +65,15 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
         # FastAPI's default, but never echoing a request body back (it may hold a key).
         errors = [{k: v for k, v in e.items() if k != "input"} for e in exc.errors()]
         return JSONResponse(status_code=422, content={"detail": jsonable_encoder(errors)})
+
+    @app.exception_handler(sqlite3.Error)
+    @app.exception_handler(NotStoredError)
+    async def not_stored(_: Request, exc: Exception) -> JSONResponse:
+        # Every change is stored before it is in force (a transaction, or the runtime
+        # settings written first): one that could not be stored changed nothing.
+        text = str(exc) if isinstance(exc, NotStoredError) else \
+            f"not stored, nothing changed: the store cannot be written ({exc})"
+        return JSONResponse(status_code=503, content={"detail": text})
 
     api = APIRouter(prefix="/api/v1", dependencies=[Depends(reader(gauge.settings.api))],
                     responses=ERRORS)

@@ -115,19 +115,23 @@ class CompensationController(OffsetBook):
 
     # ---- inputs --------------------------------------------------------------------------
 
+    def check_settings(self, settings: CompensationSettings) -> None:
+        """ValueError naming what ``update_settings`` would refuse now."""
+        problems = settings.problems()
+        if problems:
+            raise ValueError("; ".join(problems))
+        if self.settings.shadow and not settings.shadow and self.state in (State.PENDING,
+                                                                           State.UNCERTAIN):
+            raise ValueError(f"offset {self.persisted.pending_seq} is unsettled: enable "
+                             "compensation once the CNC's registers settle it")
+
     def update_settings(self, settings: CompensationSettings, now: float,
                         who: str = "") -> Decision:
         """New settings (a new feature, tolerance or tuning); the window starts afresh.
         Switching shadow mode off enables compensation: the CNC's total at the next reading
         becomes the baseline of the cumulative limit."""
-        problems = settings.problems()
-        if problems:
-            raise ValueError("; ".join(problems))
+        self.check_settings(settings)
         old = self.settings
-        if old.shadow and not settings.shadow and self.state in (State.PENDING,
-                                                                 State.UNCERTAIN):
-            raise ValueError(f"offset {self.persisted.pending_seq} is unsettled: enable "
-                             "compensation once the CNC's registers settle it")
         self.settings = settings
         self._window = self._window.retuned(settings)
         keep = (old.law, old.nominal_mm, old.programming, old.offset_sign) == (

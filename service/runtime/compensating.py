@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from calib_store.compensation_log import CompensationLog
+from calib_store.store import NotStoredError
 from service.compensation import (
     CompensationController,
     CompensationSettings,
@@ -92,12 +93,16 @@ class CompensationService:
         Decisions, state and runtime settings.
     reset_command : bool
         Whether a reset from the CNC's command register is carried out.
+    store_error : str
+        Why there is no log (changes are then refused: they could not be kept).
     """
 
     def __init__(self, from_file: RuntimeSettings, writer: OffsetTransport | None,
-                 log_: CompensationLog | None, reset_command: bool = False) -> None:
+                 log_: CompensationLog | None, reset_command: bool = False,
+                 store_error: str = "") -> None:
         self.from_file = from_file
         self.log = log_
+        self.store_error = store_error
         self.reset_command = reset_command
         current = restored_settings(from_file, log_)
         self.part_temp_c, self.alpha_per_k = current.part_temp_c, current.alpha_per_k
@@ -231,12 +236,13 @@ class CompensationService:
         self.channel.set_writes_blocked(why)
 
     async def update_settings(self, settings: CompensationSettings, who: str) -> Decision:
-        """New compensation settings (ValueError naming the bad one), logged with who changed
-        what and kept across restarts."""
-        d = await self.channel.update_settings(settings, who)
+        """New compensation settings (ValueError naming the bad one), stored before they are
+        in force (NotStoredError, nothing changed, when they cannot be), and logged with who
+        changed what."""
+        d = await self.channel.update_settings(settings, who, lambda: self._save(RuntimeSettings(
+            settings, self.part_temp_c, self.alpha_per_k)))
         for listener in self._settings_listeners:
             listener(settings)
-        await self._save()
         return d
 
     async def update_feature(self, who: str, **changes: float | None) -> Decision:
@@ -245,14 +251,16 @@ class CompensationService:
 
     async def set_temperature(self, part_temp_c: float | None, alpha_per_k: float | None,
                               who: str) -> None:
-        """The part temperature (and expansion coefficient) for the diameter at 20 C; logged
-        and kept across restarts."""
-        self.part_temp_c = part_temp_c
-        if alpha_per_k is not None:
-            self.alpha_per_k = alpha_per_k
-        await self.channel.note_settings(f"temperature changed (part_temp_c={part_temp_c!r}, "
-                                         f"alpha_per_k={self.alpha_per_k!r})", who)
-        await self._save()
+        """The part temperature (and expansion coefficient) for the diameter at 20 C; stored
+        before it is in force (NotStoredError when it cannot be) and logged."""
+        alpha = self.alpha_per_k if alpha_per_k is None else alpha_per_k
+
+        def apply() -> None:
+            self.part_temp_c, self.alpha_per_k = part_temp_c, alpha
+
+        await self.channel.note_settings(
+            f"temperature changed (part_temp_c={part_temp_c!r}, alpha_per_k={alpha!r})", who,
+            lambda: self._save(RuntimeSettings(self.settings, part_temp_c, alpha)), apply)
 
     async def reset(self, source: str, who: str) -> Decision:
         """Reset compensation. From the CNC's command register (``source`` "modbus") it is
@@ -268,12 +276,17 @@ class CompensationService:
         """Acknowledge an out-of-tolerance alarm."""
         return await self.channel.command("acknowledge", who)
 
-    async def _save(self) -> None:
+    async def _save(self, settings: RuntimeSettings) -> None:
+        """Store ``settings`` as the runtime settings (NotStoredError when they cannot be)."""
         if self.log is None:
-            return
-        doc = RuntimeSettings(self.settings, self.part_temp_c, self.alpha_per_k).as_doc()
+            raise NotStoredError(f"not stored, nothing changed: the store cannot be used "
+                                 f"({self.store_error})")
+        doc = settings.as_doc()
         doc["config"] = self.from_file.as_doc()
         try:
-            await asyncio.wrap_future(self.log.submit_value(RUNTIME_SETTINGS_KEY, doc))
+            await asyncio.wrap_future(self.log.submit_value(RUNTIME_SETTINGS_KEY, doc,
+                                                              retry=False))
         except sqlite3.Error as err:
-            log.error("runtime settings not stored: %s", err)
+            log.error("runtime settings not stored, nothing changed: %s", err)
+            raise NotStoredError(f"not stored, nothing changed: the store cannot be written "
+                                 f"({err})") from err

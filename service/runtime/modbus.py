@@ -10,6 +10,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, replace
 
+from calib_store.store import NotStoredError
 from drivers.plc.registers import (
     Command,
     FaultBit,
@@ -228,6 +229,8 @@ class ModbusFacade:
         changes = self._feature_changes(entries)
         if not changes:
             return ""
+        if self.compensation.log is None:
+            return f"the store cannot be used ({self.compensation.store_error})"
         try:
             problems = replace(self.compensation.settings, **changes).problems()
         except (TypeError, ValueError) as err:
@@ -253,8 +256,9 @@ class ModbusFacade:
     async def _feature_from_cnc(self, changes: dict[str, float | None], who: str) -> None:
         try:
             await self.compensation.update_feature(who, **changes)
-        except ValueError as err:  # checked before the write was taken: changed meanwhile
+        except (ValueError, NotStoredError) as err:  # changed meanwhile, or not storable
             log.warning("feature from %s not taken: %s", who, err)
+            self.set_feature(self.compensation.settings)  # the registers show what is in force
 
     async def run_command(self, command: Command, source: str,
                           who: str | None = None) -> Decision | None:

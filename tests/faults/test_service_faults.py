@@ -247,6 +247,21 @@ def test_full_disk_under_the_store(tmp_path, sim_plc_factory, small_disk) -> Non
               "the full disk is reported")
         time.sleep(2.0)
         assert r.applied() == []  # nothing written that could not be logged
+        # A change that cannot be stored answers 503 with the reason and changes nothing.
+        before = r.svc.get("/api/v1/compensation").json()["settings"]
+        for path, body in (("/api/v1/compensation/shadow", {"shadow": True}),
+                           ("/api/v1/feature", {"nominal_mm": 30.5, "tol_upper_mm": 0.02,
+                                               "tol_lower_mm": -0.02}),
+                           ("/api/v1/temperature", {"part_temp_c": 25.0})):
+            put = httpx.put(r.svc.url + path, headers=H, json=body, timeout=10)
+            assert put.status_code == 503 and "not stored" in put.json()["detail"], put.text
+        assert r.svc.get("/api/v1/compensation").json()["settings"] == before
+        assert r.svc.get("/api/v1/temperature").json()["part_temp_c"] is None
+        doc = json.loads(r.camera.calibration.read_text())
+        post = httpx.post(r.svc.url + "/api/v1/calibrations", headers=H, timeout=10,
+                          json={"document": doc, "activate": True, "note": "on a full disk"})
+        assert post.status_code == 503 and "not stored" in post.json()["detail"], post.text
+        assert r.svc.get("/api/v1/status").json()["calibration"]["id"] == 1
         assert r.svc.get("/api/v1/measurements/latest").json()["status"] == "ok"
         small_disk.free()
         until(lambda: r.applied(), 40, "offsets are written again once there is room")
@@ -254,6 +269,8 @@ def test_full_disk_under_the_store(tmp_path, sim_plc_factory, small_disk) -> Non
               "the problem is cleared")
         cals = r.svc.get("/api/v1/calibrations").json()["items"]
         assert [c["note"] for c in cals] == ["fault suite"]  # nothing stored was lost
+        # ... and nothing refused was stored later, when there was room again.
+        assert r.svc.get("/api/v1/compensation").json()["settings"] == before
         assert_alive_and_nothing_written_from_bad(r)
     finally:
         stop_service(r.svc)

@@ -175,6 +175,9 @@ class SmallDisk:
     def free(self) -> None:
         (self.path / "filler").unlink(missing_ok=True)
 
+    def read_only(self) -> None:
+        subprocess.run(["mount", "-o", "remount,ro", str(self.path)], check=True)
+
 
 @pytest.fixture
 def small_disk(tmp_path) -> Iterator[SmallDisk]:

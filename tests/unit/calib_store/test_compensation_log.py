@@ -162,3 +162,22 @@ def test_a_full_disk_keeps_the_rows_and_writes_them_later(tmp_path, small_disk) 
     kinds = [(r["kind"], r["count"]) for r in reversed(log.decisions(limit=10))]
     assert kinds == [("write", 1), ("held", 50)], kinds
     log.close()
+
+
+def test_a_value_refused_on_a_full_disk_is_kept_only_when_it_is_a_reservation(
+        tmp_path, small_disk) -> None:  # noqa: F811
+    log = Log(small_disk.path / "g.db")
+    log.put_value("settings", "before")
+    small_disk.fill()
+    change = log.submit_value("settings", "refused", retry=False)
+    reservation = log.submit_value("reserved", 2000)
+    for fut in (change, reservation):
+        with pytest.raises(sqlite3.Error):
+            fut.result(10)
+    small_disk.free()
+    deadline = time.monotonic() + 10
+    while log.get_value("reserved") is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert log.get_value("reserved") == 2000  # written once there was room
+    assert log.get_value("settings") == "before"  # its caller was told: never written
+    log.close()

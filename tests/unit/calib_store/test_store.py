@@ -9,6 +9,7 @@ import pytest
 from calib_store.compensation_log import CompensationLog
 from calib_store.store import CalibrationStore, StoreError
 from drivers.sim.rig import RigConfig, rig_calibration
+from tests.integration.conftest import small_disk  # noqa: F401  (a real read-only mount)
 
 CAL_A = rig_calibration(RigConfig())
 CAL_B = rig_calibration(RigConfig(triangulation_deg=40.0))
@@ -81,3 +82,46 @@ def test_a_damaged_stored_document_is_reported(tmp_path) -> None:
     db.close()
     with pytest.raises(StoreError, match=f"stored calibration {cid} is damaged"):
         store.get(cid)
+
+
+def test_a_foreign_database_is_refused_and_left_untouched(tmp_path) -> None:
+    path = tmp_path / "places.sqlite"
+    db = sqlite3.connect(str(path))
+    db.execute("CREATE TABLE moz_places (id INTEGER PRIMARY KEY, url TEXT)")
+    db.execute("INSERT INTO moz_places (url) VALUES ('https://example.org')")
+    db.commit()
+    db.close()
+    content = path.read_bytes()
+    for opener in (CalibrationStore, CompensationLog):
+        with pytest.raises(StoreError, match=r"moz_places.*not a shaftgauge store"):
+            opener(path)
+    assert path.read_bytes() == content
+    assert [p.name for p in tmp_path.iterdir()] == ["places.sqlite"]  # no backup, no journal
+
+
+def test_a_damaged_store_is_reported_in_a_few_lines(tmp_path) -> None:
+    """SQLite's integrity check can list thousands of problems; the status names three."""
+    path = tmp_path / "s.db"
+    db = sqlite3.connect(str(path))
+    db.execute("CREATE TABLE calibrations (id INTEGER PRIMARY KEY, document TEXT)")
+    db.execute("CREATE INDEX by_document ON calibrations (document)")
+    db.executemany("INSERT INTO calibrations (document) VALUES (?)",
+                   [("x" * 200 + str(i),) for i in range(3000)])
+    db.commit()
+    db.close()
+    damaged = bytearray(path.read_bytes())
+    for at in range(8192, len(damaged) - 4096, 4096 * 7):
+        damaged[at + 100:at + 300] = bytes(200)
+    path.write_bytes(bytes(damaged))
+    with pytest.raises(StoreError, match="damaged") as err:
+        CalibrationStore(path)
+    text = str(err.value)
+    assert "\n" not in text and len(text) < 600 and "more" in text, text
+    assert path.read_bytes() == bytes(damaged)
+
+
+def test_a_read_only_store_says_so(tmp_path, small_disk) -> None:  # noqa: F811
+    CalibrationStore(small_disk.path / "s.db").close()
+    small_disk.read_only()
+    with pytest.raises(StoreError, match="read-only"):
+        CalibrationStore(small_disk.path / "s.db", create_if_missing=False)
