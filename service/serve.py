@@ -14,10 +14,14 @@ import dataclasses
 import gc
 import json
 import logging
+import multiprocessing
 import os
 import signal
 import subprocess
 import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -82,16 +86,19 @@ class Children:
                                f"{proc.poll()}); see its message above")
         return json.loads(line)
 
-    def stop(self) -> None:
-        """Stop every child (SIGTERM, then SIGKILL after 10 s)."""
+    def stop(self, grace_s: float = 2.0) -> None:
+        """Stop every child: SIGTERM, SIGKILL after ``grace_s``, and reaped either way (no
+        zombie left)."""
         for proc in self.procs:
             if proc.poll() is None:
                 proc.terminate()
+        deadline = time.monotonic() + grace_s
         for proc in self.procs:
             try:
-                proc.wait(10)
+                proc.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 proc.kill()
+                proc.wait()
         self.procs.clear()
 
 
@@ -292,20 +299,81 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                  sessions, metrics, spc, studies, writer, comp_log, plant, form)
 
 
+STOP_MARGIN_S = 1.5
+"""How long a stop may take before it is cut short: beyond ``api.shutdown_s`` once serving,
+from the signal while starting."""
+
+
 class _Server(uvicorn.Server):
     """uvicorn's server that, told to stop, ends the live streams first (they never end by
-    themselves, and uvicorn waits for open connections before it stops)."""
+    themselves, and uvicorn waits for open connections before it stops), and is sure to stop:
+    a stop that hangs (a start that never finished, a part that does not end) is cut short
+    after ``api.shutdown_s`` plus a margin, its children stopped first."""
 
-    def __init__(self, feed: MeasurementFeed, config: uvicorn.Config) -> None:
+    def __init__(self, feed: MeasurementFeed, config: uvicorn.Config, children: Children,
+                 last_words: Callable[[], None]) -> None:
         super().__init__(config)
         self._feed = feed
+        self._children = children
+        self._last_words = last_words
         self.stopped_by: int | None = None
 
     def handle_exit(self, sig: int, frame: object) -> None:
+        if self.stopped_by is None:
+            # Said, since "Shutting down" alone does not tell a signal from outside apart.
+            log.warning("stopping: %s received", signal.Signals(sig).name)
+            # A start still under way (compiling kernels, connecting) ends only when it is
+            # done; nothing serves yet, so there is nothing to drain either.
+            deadline = STOP_MARGIN_S + (self.config.timeout_graceful_shutdown or 0.0
+                                        if self.started else 0.0)
+            threading.Thread(target=self._cut_short, args=(deadline, sig),
+                             name="stop-deadline", daemon=True).start()
         self.stopped_by = sig
         with contextlib.suppress(RuntimeError):  # no loop running: nothing streams
             asyncio.get_running_loop().call_soon(self._feed.closing.set)
         super().handle_exit(sig, frame)
+
+    def _cut_short(self, deadline_s: float, sig: int) -> None:
+        time.sleep(deadline_s)
+        still = sorted(t.name for t in threading.enumerate()
+                       if t.is_alive() and t is not threading.current_thread())
+        log.error("the service did not stop within %.1f s of the signal (still running: %s): "
+                  "its children are stopped and it exits", deadline_s, ", ".join(still))
+        with contextlib.suppress(Exception):
+            self._last_words()
+        for proc in multiprocessing.active_children():  # measuring workers, compilers
+            proc.kill()
+        self._children.stop(grace_s=0.5)
+        logging.shutdown()
+        os._exit(128 + sig)
+
+    @contextlib.contextmanager
+    def capture_signals(self) -> Iterator[None]:
+        # uvicorn raises a caught signal again once it has stopped, which kills the process
+        # before ``serve`` stops the children and says how it ended: it is kept in stopped_by.
+        with super().capture_signals():
+            try:
+                yield
+            finally:
+                self._captured_signals.clear()
+
+
+@contextlib.contextmanager
+def _stop_raises() -> Iterator[None]:
+    """SIGTERM raises SystemExit (143) meanwhile, so that ``finally`` clauses run (uvicorn
+    puts its own handler in place while it serves, and this one back after)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(sig: int, _: object) -> None:
+        raise SystemExit(128 + sig)
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 async def serve(settings: Settings) -> int:
@@ -318,6 +386,11 @@ async def serve(settings: Settings) -> int:
         children.stop()
         raise
     app = create_app(gauge)
+
+    def last_words() -> None:  # what is decided is on disk, even when the stop is cut short
+        if gauge.log is not None:
+            gauge.log.flush(1.0)
+
     server = _Server(gauge.feed, uvicorn.Config(app, host=settings.api.host, port=settings.api.port,
                                            log_level=settings.log_level, access_log=False,
                                            limit_concurrency=settings.api.max_connections,
@@ -326,7 +399,8 @@ async def serve(settings: Settings) -> int:
                                            or None,
                                            timeout_graceful_shutdown=settings.api.shutdown_s,
                                            ssl_certfile=tls and str(tls.certfile),
-                                           ssl_keyfile=tls and str(tls.keyfile)))
+                                           ssl_keyfile=tls and str(tls.keyfile)),
+                     children, last_words)
 
     async def announce() -> None:
         while not server.started:
@@ -360,8 +434,6 @@ async def serve(settings: Settings) -> int:
         task.cancel()
     finally:
         children.stop()
-    # Ctrl-C ends with 130 however the interrupt uvicorn raises again meets the event loop:
-    # when asyncio's own handler cancels a task that has already returned, nothing is raised.
     return 130 if server.stopped_by == signal.SIGINT else 0
 
 
@@ -375,6 +447,9 @@ def main(settings: Settings) -> int:
         logging.getLogger("asyncua").setLevel(logging.WARNING)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     try:
-        return asyncio.run(serve(settings))
+        # Outside uvicorn's own handling (starting the simulators, before it serves and
+        # after), SIGTERM raises SystemExit so that the children are stopped on the way out.
+        with _stop_raises():
+            return asyncio.run(serve(settings))
     except KeyboardInterrupt:  # Ctrl-C: uvicorn stopped everything, then raised it again
         return 130

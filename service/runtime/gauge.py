@@ -49,23 +49,30 @@ class Gauge:
     _tasks: list[asyncio.Task] = field(default_factory=list)
 
     async def start(self) -> None:
-        """Start the camera, the Modbus server and the background tasks."""
+        """Start the camera, the Modbus server and the background tasks; a start that fails
+        stops what it had started before it raises (a camera left reconnecting would keep a
+        service that never ran alive)."""
         loop = asyncio.get_running_loop()
         comp = self.compensation
-        # The core's compiled kernels are loaded (or, on a fresh checkout, compiled) before
-        # the first frame, not by it.
-        await loop.run_in_executor(None, compile_kernels)
-        self._tasks = [
-            *self.pipeline.start(),
-            loop.create_task(comp.run(), name="compensation"),
-            loop.create_task(comp.channel.run_settler(), name="settler"),
-            loop.create_task(comp.follow_master_gate(
-                lambda: self.context.master_status()["blocking"] or self.studies.blocking()),
-                name="master-gate"),
-            *await self.modbus.start(self.health.snapshot, self.health.healthy),
-            *(loop.create_task(link.run(), name=link.name) for link in self.plant),
-            *([loop.create_task(self.form.run(), name="form")] if self.form else []),
-        ]
+        self._tasks = []
+        try:
+            # The core's compiled kernels are loaded (or, on a fresh checkout, compiled)
+            # before the first frame, not by it.
+            await loop.run_in_executor(None, compile_kernels)
+            self._tasks += self.pipeline.start()
+            self._tasks += [
+                loop.create_task(comp.run(), name="compensation"),
+                loop.create_task(comp.channel.run_settler(), name="settler"),
+                loop.create_task(comp.follow_master_gate(
+                    lambda: self.context.master_status()["blocking"]
+                    or self.studies.blocking()), name="master-gate")]
+            self._tasks += await self.modbus.start(self.health.snapshot, self.health.healthy)
+            self._tasks += [loop.create_task(link.run(), name=link.name) for link in self.plant]
+            if self.form:
+                self._tasks.append(loop.create_task(self.form.run(), name="form"))
+        except BaseException:
+            await self.stop()
+            raise
         self.health.running = True
 
     async def stop(self) -> None:

@@ -165,7 +165,12 @@ class ModbusFacade:
         """Serve (when enabled); returns the background tasks: the heartbeat (counting while
         ``healthy()``) and the status registers (from ``snapshot()`` every ``REFRESH_S``)."""
         if self.settings.enabled:
-            await self.server.start()
+            try:
+                await self.server.start()
+            except (OSError, RuntimeError) as err:  # pymodbus: "Could not start listen"
+                raise RuntimeError(f"the Modbus server cannot listen on "
+                                   f"{self.settings.host}:{self.settings.port} (modbus.port: "
+                                   f"is another program using it?): {err}") from err
         loop = asyncio.get_running_loop()
         return [loop.create_task(run_heartbeat(self.bank, healthy), name="heartbeat"),
                 loop.create_task(self._refresh(snapshot), name="registers")]

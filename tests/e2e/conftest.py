@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -64,14 +65,31 @@ shadow = false
 """
 
 
-def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
+def start_service(tmp_path: Path, **kw: Any) -> Service:
+    """``shaftgauge serve`` configured by ``spawn_service(tmp_path, **kw)``, once it has said
+    it is ready."""
+    proc, log, plc = spawn_service(tmp_path, **kw)
+    line = proc.stdout.readline()
+    if not line:
+        raise RuntimeError(f"serve did not start: {log.read_text(errors='replace')[-3000:]}")
+    ready = json.loads(line)
+    data = kw.get("data") or tmp_path / "data"
+    https = data / "https" / "certificate.pem"  # a self-signed certificate's place
+    return Service(proc, ready["url"], ready["modbus_port"], plc,
+                   ready.get("sim_camera_control_port", 0), data, log,
+                   ready.get("tls_sha256", ""),
+                   ssl.create_default_context(cafile=https) if https.exists() else True)
+
+
+def spawn_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   fps: float = 10.0, camera_device: str | None = None,
                   plc_port: int | None = None, data: Path | None = None,
                   env: dict[str, str] | None = None, nominal: float | None = 30.0,
                   opcua_port: int | None = None, embedded: bool = False,
                   processes: bool = False, camera_toml: str = "", modbus_toml: str = "",
                   compensation_toml: str | None = None, executable: str = SHAFTGAUGE,
-                  api_toml: str = "") -> Service:
+                  api_toml: str = "", modbus_port: int | None = None
+                  ) -> tuple[subprocess.Popen, Path, int]:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
     ``nominal`` None leaves the feature unset; the OPC UA server only on ``opcua_port`` or
@@ -82,8 +100,10 @@ def start_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     start, and the suites start the service dozens of times: threads unless asked);
     ``camera_toml``, ``modbus_toml`` and ``api_toml`` more lines of those tables,
     ``compensation_toml`` the whole ``[compensation]`` table in place of the tests' own;
-    ``executable`` another installed ``shaftgauge`` (an installed wheel's)."""
-    api, modbus = free_port(), free_port()
+    ``executable`` another installed ``shaftgauge`` (an installed wheel's); ``modbus_port``
+    the gauge's Modbus port (a free one by default). Not waited for: returns the process (in
+    a session of its own), its log and the PLC's port."""
+    api, modbus = free_port(), modbus_port or free_port()
     # The embedded default's OPC UA port (4840) is one a run's other services, or a gauge a
     # developer left running, could hold: a port of the test's own.
     opcua_port = opcua_port or (free_port() if embedded else None)
@@ -132,15 +152,7 @@ path = "{data / 'gauge.db'}"
                                 start_new_session=True,
                                 env={**os.environ, "SHAFTGAUGE_MEASUREMENT__PROCESSES":
                                      "true" if processes else "false", **(env or {})})
-    line = proc.stdout.readline()
-    if not line:
-        raise RuntimeError(f"serve did not start: {log.read_text(errors='replace')[-3000:]}")
-    ready = json.loads(line)
-    https = data / "https" / "certificate.pem"  # a self-signed certificate's place
-    return Service(proc, ready["url"], ready["modbus_port"], plc,
-                   ready.get("sim_camera_control_port", 0), data, log,
-                   ready.get("tls_sha256", ""),
-                   ssl.create_default_context(cafile=https) if https.exists() else True)
+    return proc, log, plc
 
 
 def stop_service(svc: Service) -> None:
