@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
+from pymodbus.pdu import ExceptionResponse
 from pymodbus.server import ModbusTcpServer, ModbusTlsServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
@@ -160,6 +161,7 @@ def quiet_logs() -> None:
 _READ_FCS = {3, 4}
 _WRITE_FCS = {6, 16}
 _BIT_FCS = {1, 2, 5, 15}
+_SERVED_FCS = _READ_FCS | _WRITE_FCS | _BIT_FCS  # bits: answered "illegal function" by _action
 
 
 class _OneUnit(SimCore):
@@ -245,6 +247,15 @@ class _Handler(ServerRequestHandler):
     async def handle_request(self) -> None:
         peer, name = getattr(self, "peer", ""), getattr(self, "name", "")
         _PEER.set(f"{peer} ({name})" if name else peer)
+        pdu = self.last_pdu
+        if pdu is not None and pdu.function_code not in _SERVED_FCS:
+            # pymodbus answers diagnostics (8), file records (20, 21) and its own identity
+            # (17: "Pymodbus") itself, for anyone: the register map is all that is served.
+            self.server.gauge.exceptions += 1
+            answer = ExceptionResponse(pdu.function_code, ExcCodes.ILLEGAL_FUNCTION,
+                                       device_id=pdu.dev_id, transaction=pdu.transaction_id)
+            self.server_send(answer, self.last_addr)
+            return
         await super().handle_request()
 
 
@@ -343,6 +354,7 @@ class GaugeModbusServer:
             reason = f"value: {problem}" if problem else ""
         if reason:
             self.exceptions += 1
+            self.last_refused = f"a write from {peer or 'an unknown peer'}: {reason}"
             refused_log.warning("modbus write from %s refused: %s", peer, reason)
             return ExcCodes.ILLEGAL_ADDRESS if reason.startswith("address") \
                 else ExcCodes.ILLEGAL_VALUE

@@ -147,7 +147,7 @@ class ModbusFacade:
         self.bank = bank if bank is not None else RegisterBank(settings.word_order)
         self.server = GaugeModbusServer(
             self.bank, settings.host, settings.port, settings.unit_id, on_write=self._on_write,
-            check=self._check_feature, access=ModbusAccess.of(
+            check=self._check_write, access=ModbusAccess.of(
                 settings.allowed_clients, settings.writers, settings.max_connections),
             tls=TlsFiles(settings.tls.certfile, settings.tls.keyfile, settings.tls.cafile)
             if settings.tls else None)
@@ -228,9 +228,19 @@ class ModbusFacade:
         return {_FEATURE[name]: units_to_mm(value) for name, value in entries
                 if name in _FEATURE}
 
-    def _check_feature(self, entries: list[tuple[str, int]]) -> str:
-        """Why the feature a write would make does not hold together ("" when it does): a
-        write is taken whole or not at all."""
+    def _check_write(self, entries: list[tuple[str, int]]) -> str:
+        """Why a write cannot be taken ("" when it can): a command the settings keep from the
+        CNC, or a feature that does not hold together. A write is taken whole or not at all,
+        so a refused one leaves ``command`` and ``last_command`` as they were."""
+        for name, value in entries:
+            if name != "command":
+                continue
+            if value == Command.RESET_COMPENSATION and not self.compensation.reset_command:
+                return ("command 2 (reset) from the CNC is off (modbus.reset_command): a "
+                        "technician resets over the API")
+            if value == Command.ACKNOWLEDGE_ALARM and not self.settings.acknowledge_command:
+                return ("command 3 (acknowledge) from the CNC is off "
+                        "(modbus.acknowledge_command): a technician acknowledges over the API")
         changes = self._feature_changes(entries)
         if not changes:
             return ""

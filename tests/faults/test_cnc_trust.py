@@ -269,21 +269,33 @@ def test_resets_from_the_cnc_register(tmp_path, sim_plc_factory, allowed: bool) 
         control(camera.control_port, {"set": {"diameter_mm": 30.0}})
         time.sleep(1.0)
         before = httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()
+        last = BY_NAME["last_command"].address
         with ModbusTcpClient("127.0.0.1", port=svc.modbus_port, timeout=2, retries=0) as c:
-            assert not c.write_register(BY_NAME["command"].address, 2, device_id=1).isError()
-        code = "reset" if allowed else "reset_refused"
-        until(lambda: [r for r in log_items(svc.url) if r["code"] == code], 10,
-              "the reset recorded")
-        row = next(r for r in log_items(svc.url) if r["code"] == code)
-        after = httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()
-        assert row["who"] == "modbus:127.0.0.1"  # the audit names the peer
+            before_last = c.read_holding_registers(last, count=1, device_id=1).registers
+            answer = c.write_register(BY_NAME["command"].address, 2, device_id=1)
+            if not allowed:  # refused whole: an exception, and nothing reads as carried out
+                assert answer.isError() and answer.exception_code == 3
+                time.sleep(0.5)
+                assert c.read_holding_registers(last, count=1,
+                                                device_id=1).registers == before_last
+        if not allowed:
+            after = httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()
+            st = httpx.get(svc.url + "/api/v1/status", timeout=5).json()["modbus"]
+            assert "modbus.reset_command" in st["last_refused"]
+            assert not [r for r in log_items(svc.url) if r["code"] == "reset"]
+        else:
+            assert not answer.isError()
+            until(lambda: [r for r in log_items(svc.url) if r["code"] == "reset"], 10,
+                  "the reset recorded")
+            row = next(r for r in log_items(svc.url) if r["code"] == "reset")
+            after = httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()
+            assert row["who"] == "modbus:127.0.0.1"  # the audit names the peer
         if allowed:
             assert after["cumulative_offset_mm"] == 0.0
             until(lambda: httpx.get(svc.url + "/api/v1/compensation", timeout=5).json()[
                 "baseline_mm"] == pytest.approx(plc_total_mm(tmp_path / "plc.state")), 5,
                 "the CNC's total is the new baseline")
         else:
-            assert "reset_command" in row["reason"]
             assert after["cumulative_offset_mm"] == before["cumulative_offset_mm"] != 0
             assert after["baseline_mm"] == before["baseline_mm"] == 0.0
         figures(f"reset_from_modbus_{'on' if allowed else 'off'}", runs=1,

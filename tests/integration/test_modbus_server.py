@@ -8,6 +8,7 @@ import subprocess
 
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.pdu.file_message import FileRecord
 
 from drivers.plc.registers import (
     MAP_VERSION,
@@ -129,3 +130,27 @@ async def test_heartbeat_stands_still_when_unhealthy() -> None:
     await asyncio.sleep(0.3)
     beat.cancel()
     assert bank.get("heartbeat") == 0
+
+
+@pytest.mark.parametrize("call", [
+    ("diag_query_data", {"msg": b"\x12\x34"}),           # FC8 echo
+    ("diag_restart_communication", {"toggle": False}),   # FC8 restart
+    ("report_device_id", {}),                            # FC17: named "Pymodbus"
+    ("write_file_record", {"records": [FileRecord(file_number=1, record_number=0,
+                                                  record_data=b"\x00\x01")]}),  # FC21
+    ("read_file_record", {"records": [FileRecord(file_number=1, record_number=0,
+                                                 record_length=4)]}),  # FC20
+    ("read_device_information", {}),                    # FC43
+])
+async def test_only_the_register_map_is_served(served, call) -> None:
+    """Diagnostics, file records and identification, which pymodbus answers by itself for
+    anyone, get "illegal function" and change nothing."""
+    bank, server, client, writes = served
+    name, kw = call
+    before, exceptions = bank.words(0, SIZE), server.exceptions
+    rr = await getattr(client, name)(device_id=1, **kw)
+    assert rr.isError() and rr.exception_code == 1, rr
+    assert b"Pymodbus" not in bytes(getattr(rr, "identifier", b"") or b"")
+    assert bank.words(0, SIZE) == before and writes == []
+    assert server.exceptions == exceptions + 1
+    assert not (await client.read_holding_registers(0, count=2, device_id=1)).isError()
