@@ -48,7 +48,10 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
             if manage_lifecycle:
                 await gauge.stop()
 
-    app = FastAPI(title="shaftgauge", version="0.1.0", lifespan=lifespan,
+    # Swagger UI and ReDoc load from a CDN that the gauge's own security policy blocks and an
+    # offline shop cannot reach: /docs is the gauge's own page over /openapi.json.
+    app = FastAPI(title="shaftgauge", version="0.1.0", lifespan=lifespan, docs_url=None,
+                  redoc_url=None,
                   description="Lathe-side shaft diameter measurement. Reading is open on the "
                   "plant network; changes need an X-API-Key with a role.")
 
@@ -61,7 +64,14 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     app.add_middleware(SecurityHeaders, trusted_hosts=gauge.settings.api.trusted_hosts)
 
     @app.exception_handler(RequestValidationError)
-    async def validation_error(_: Request, exc: RequestValidationError) -> JSONResponse:
+    async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        # FastAPI reads a body that is not declared JSON as text, and says only that it is no
+        # object: say what to send instead.
+        content_type = request.headers.get("content-type", "")
+        if "json" not in content_type and any(e["loc"][:1] == ("body",) for e in exc.errors()):
+            return JSONResponse(status_code=415, content={"detail": (
+                "the body must be JSON sent with Content-Type: application/json (it came "
+                f"with {content_type or 'no Content-Type'})")})
         # FastAPI's default, but never echoing a request body back (it may hold a key).
         errors = [{k: v for k, v in e.items() if k != "input"} for e in exc.errors()]
         return JSONResponse(status_code=422, content={"detail": jsonable_encoder(errors)})
@@ -118,6 +128,10 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     @app.get("/", include_in_schema=False)
     def root() -> RedirectResponse:
         return RedirectResponse("/ui/")
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> RedirectResponse:
+        return RedirectResponse("/ui/api-reference.html")
 
     app.mount("/ui", StaticFiles(directory=WEB, html=True), name="ui")
     return app

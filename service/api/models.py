@@ -21,7 +21,9 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorOut, "description": why} for code, why in (
         (401, "no or an unknown X-API-Key"), (403, "the key's role is too low"),
         (404, "no such thing"), (409, "not possible in the present state"),
-        (413, "too large"), (422, "a malformed request"),
+        (413, "too large"),
+        (415, "a body of the wrong type (JSON with Content-Type: application/json; PNG for "
+              "images)"), (422, "a malformed request"),
         (429, "too many wrong keys from this address: see Retry-After"),
         (503, "a part the request needs is not working"),
         (504, "the camera did not deliver in time"))}

@@ -307,3 +307,23 @@ def test_lost_connection_is_said_and_recovers(service, browser) -> None:
     seq = page.locator("#status").inner_text()
     time.sleep(1.0)
     expect(page.locator("#status")).not_to_have_text(seq, timeout=10000)
+
+
+def test_the_api_reference_page_works_offline_under_the_gauges_policy(service, browser) -> None:
+    """/docs is the gauge's own page over /openapi.json: nothing from a CDN, nothing the
+    Content-Security-Policy blocks (Swagger UI's CDN was, and the page stayed blank)."""
+    page = browser.new_page()
+    console: list[str] = []
+    page.on("console", lambda m: console.append(m.text) if m.type == "error" else None)
+    page.on("response", lambda r: console.append(f"{r.status} {r.url}")
+            if r.status >= 400 else None)
+    outside: list[str] = []
+    page.on("request", lambda r: outside.append(r.url)
+            if not r.url.startswith(service.url) else None)
+    page.goto(service.url + "/docs")
+    expect(page.locator("#endpoints h2").first).to_be_visible()
+    expect(page.locator("#endpoints")).to_contain_text("PUT /api/v1/compensation/shadow")
+    expect(page.locator("#endpoints")).to_contain_text("shadow")  # a body field, resolved
+    assert page.locator("#endpoints .op").count() >= 20
+    assert console == [] and outside == []
+    shot(page, "api-reference")

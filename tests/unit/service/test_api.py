@@ -171,10 +171,25 @@ def test_compensation_log_and_shadow(client) -> None:
     assert log and log[0]["kind"] in ("settings", "held", "refused", "proposed")
 
 
-def test_openapi_is_served(client) -> None:
+def test_openapi_is_served_with_a_reference_page_of_the_gauges_own(client) -> None:
     spec = client.get("/openapi.json").json()
     assert "/api/v1/measurements/latest" in spec["paths"]
-    assert client.get("/docs").status_code == 200
+    docs = client.get("/docs")  # no page from a CDN: the gauge's own, under its own policy
+    assert docs.status_code == 200 and "api-reference.js" in docs.text
+    assert "cdn" not in docs.text.lower()
+    assert client.get("/redoc").status_code == 404
+
+
+@pytest.mark.parametrize("content_type", [None, "text/plain"])
+def test_a_json_body_without_its_content_type_is_told_what_to_send(client, content_type) -> None:
+    head = {H: TECHNICIAN, **({"Content-Type": content_type} if content_type else {})}
+    r = client.put("/api/v1/compensation/shadow", headers=head, content=b'{"shadow": true}')
+    assert r.status_code == 415
+    assert "Content-Type: application/json" in r.json()["detail"]
+    assert (content_type or "no Content-Type") in r.json()["detail"]
+    r = client.put("/api/v1/compensation/shadow", headers={H: TECHNICIAN},
+                   json={"shadow": True})
+    assert r.status_code == 200
 
 
 def test_reading_needs_a_key_when_reading_is_not_open(tmp_path) -> None:
