@@ -29,6 +29,7 @@ import logging
 import math
 import os
 import socket
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +46,7 @@ from cryptography import x509
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from service.config import OpcUaSettings
+from service.failures import FailureWindow
 
 log = logging.getLogger("shaftgauge.opcua")
 
@@ -92,11 +94,24 @@ class TechnicianRoles(PermissionRuleset):
         return False
 
 
-class Technicians(UserManager):
-    """Users from ``opcua.technicians``; anyone else connects anonymously or not at all."""
+LOGIN_FAILURES = 10
+LOGIN_WINDOW_S = 60.0
+UNKNOWN_NAMES = "(names that are no technician's)"
 
-    def __init__(self, passwords: dict[str, str]) -> None:
+
+class Technicians(UserManager):
+    """Users from ``opcua.technicians``; anyone else connects anonymously or not at all.
+
+    A name with ``LOGIN_FAILURES`` wrong passwords within ``LOGIN_WINDOW_S`` is refused,
+    whatever the password, until the window has passed (asyncua does not tell a user manager
+    the client's address, so the count is per name; the names that are no technician's
+    share one count)."""
+
+    def __init__(self, passwords: dict[str, str],
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self._passwords = dict(passwords)
+        self._clock = clock
+        self._failures = FailureWindow(LOGIN_FAILURES, LOGIN_WINDOW_S)
         self.refused = 0
         self.last_refused = ""
 
@@ -105,12 +120,24 @@ class Technicians(UserManager):
         if username is None:  # anonymous (a channel certificate alone is no user)
             return User(role=UserRole.Anonymous)
         known = self._passwords.get(username)
+        who = username if known is not None else UNKNOWN_NAMES
+        now = self._clock()
+        wait_s = self._failures.retry_after(who, now)
+        if wait_s > 0:
+            self.refused += 1
+            self.last_refused = (f"login of {username!r} refused: {LOGIN_FAILURES} wrong "
+                                 f"passwords within {LOGIN_WINDOW_S:g} s; tried again too "
+                                 f"soon (wait {wait_s:.0f} s)")
+            return None  # said once, when the name was held
         if known is not None and hmac.compare_digest(known.encode(), (password or "").encode()):
             return User(role=UserRole.User, name=username)
         # a wrong password or an unknown user: refused, and said (never the password)
         self.refused += 1
+        held = self._failures.failed(who, now) >= LOGIN_FAILURES
         self.last_refused = f"login of {username!r} refused: " + (
-            "wrong password" if known is not None else "no such technician")
+            "wrong password" if known is not None else "no such technician") + (
+            f"; {who} held for {LOGIN_WINDOW_S:g} s after {LOGIN_FAILURES} failures"
+            if held else "")
         log.warning("OPC UA %s (%d refused so far)", self.last_refused, self.refused)
         return None
 

@@ -12,7 +12,7 @@ from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from service.config import OpcUaSettings
-from service.plant.opcua import GaugeView, OpcUaServer
+from service.plant.opcua import LOGIN_FAILURES, GaugeView, OpcUaServer
 from tests.integration.conftest import free_port
 
 
@@ -140,6 +140,27 @@ async def test_a_wrong_password_is_logged_naming_the_user_not_the_password(serve
     assert any("'anna'" in line and "wrong password" in line for line in said), said
     assert not any("guess-0123" in line for line in caplog.text.splitlines())
     assert server.status()["refused_logins"] == 1
+
+
+async def test_guessing_a_password_is_held_after_a_few_tries(served) -> None:
+    """About 300 guesses a second were possible; now a name is held after LOGIN_FAILURES
+    wrong passwords within a minute, and then even the right one is refused."""
+    server, _, url = served
+
+    async def login(password: str) -> bool:
+        client = Client(url)
+        client.set_user("anna")
+        client.set_password(password)
+        try:
+            async with client:
+                return True
+        except ua.UaStatusCodeError:
+            return False
+
+    results = [await login(f"guess-{i}") for i in range(LOGIN_FAILURES)]
+    assert results == [False] * LOGIN_FAILURES
+    assert not await login("s3cret")
+    assert "wait" in server.status()["last_refused_login"]
 
 
 def test_the_server_key_is_readable_by_the_service_alone(served) -> None:
