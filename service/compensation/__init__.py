@@ -9,7 +9,10 @@ would, without I/O (time is passed in).
   CNC's registers say of an offset in flight;
 - ``records``: measurements, decisions, the persisted state;
 - ``handshake``: an offset's life from the order to write it to its settlement;
-- ``controller``: ``CompensationController``, the state machine that ties them.
+- ``controller``: ``CompensationController``, the state machine that ties them;
+- ``job``: a part program's features and the tools that finish them;
+- ``combine``: how a tool's features make one correction, and when they disagree;
+- ``tools``: one controller per tool (``JobCompensation`` routes a feature's measurement).
 """
 
 from service.compensation.bands import PartBand, part_band

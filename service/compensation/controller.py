@@ -59,7 +59,7 @@ from service.compensation.bands import PartBand, part_band, tolerance_text
 from service.compensation.exchange import clip_step, effect_mm, same_total
 from service.compensation.handshake import OffsetBook
 from service.compensation.laws import Predictor, WindowLaw
-from service.compensation.records import Decision, Kind, MeasurementIn, State
+from service.compensation.records import Decision, FeatureTerms, Kind, MeasurementIn, State
 from service.compensation.settings import CompensationSettings
 
 REVERSAL_NULL_BANDS = 3.0
@@ -177,36 +177,45 @@ class CompensationController(OffsetBook):
             "estimated again from the parts cut with it, nothing is corrected before they are "
             "measured; the cumulative limit keeps its reference", now)
 
-    def on_measurement(self, m: MeasurementIn, now: float) -> Decision:
-        """Judge one measurement; see the module docstring for the order of the checks."""
+    def on_measurement(self, m: MeasurementIn, now: float,
+                       feature: FeatureTerms | None = None) -> Decision:
+        """Judge one measurement; see the module docstring for the order of the checks.
+        With ``feature`` (a tool finishing several), the part is judged against that
+        feature's nominal and bands, and its deviation less the feature's empirical value
+        goes into the tool's law."""
         s = self.settings
-        code, why = refusal(s, m, now, self.persisted.last_measurement_seq,
+        b = s if feature is None else feature.settings
+        code, why = refusal(b, m, now, self.persisted.last_measurement_seq,
                             self.calibration_id)
         if why:
             return self._decision(Kind.REFUSED, code, why, now, measurement_seq=m.seq)
         self.persisted.last_measurement_seq = m.seq
-        if s.nominal_mm is None:
+        if b.nominal_mm is None:
             return self._decision(Kind.HELD, "no_nominal", "no nominal diameter set", now,
                                   measurement_seq=m.seq)
-        deviation = float(m.diameter_mm) - s.nominal_mm
-        kw: dict[str, Any] = {"measurement_seq": m.seq, "deviation_mm": deviation}
-        band = part_band(s, deviation)
+        raw = float(m.diameter_mm) - b.nominal_mm
+        kw: dict[str, Any] = {"measurement_seq": m.seq, "deviation_mm": raw}
+        band = part_band(b, raw)
+        # What the tool's law sees: the deviation less what the feature always shows.
+        deviation = raw - (0.0 if feature is None else feature.empirical_mm)
         if band is PartBand.BEYOND_SAFE_AREA:
             return self._enter(
                 State.STOPPED, Kind.STOPPED, "safe_area",
-                f"deviation {deviation * 1000:+.1f} um is beyond the safe area of "
-                f"{s.safe_area_mm * 1000:.0f} um (broken tool, wrong part or wrong "
+                f"deviation {raw * 1000:+.1f} um is beyond the safe area of "
+                f"{b.safe_area_mm * 1000:.0f} um (broken tool, wrong part or wrong "
                 "nominal?): stopped; a person must check and reset", now, **kw)
         gate = _gate(self.state, self.persisted.pending_seq)
         if band is PartBand.IMPLAUSIBLE:
-            return self._implausible(deviation, gate, now, kw)
+            return self._implausible(raw, b.plausibility(), gate, now, kw)
         if self.state is State.ALARM:
             return self._enter(
                 State.ACTIVE, Kind.ACKNOWLEDGED, "plausible_again", f"deviation "
-                f"{deviation * 1000:+.1f} um is plausible again: the alarm is over and "
+                f"{raw * 1000:+.1f} um is plausible again: the alarm is over and "
                 "compensation resumes", now, who="gauge", **kw)
         if gate:
             return self._decision(Kind.HELD, f"gate_{self.state.value}", gate, now, **kw)
+        if feature is not None and feature.held:
+            return self._decision(Kind.HELD, "features_disagree", feature.held, now, **kw)
         if s.law == "predictive":
             # The interval between measurements from when they were taken: a queue judged in
             # a burst (a busy host) must not read as measurements microseconds apart.
@@ -219,15 +228,15 @@ class CompensationController(OffsetBook):
             filtered = self._window.observe(deviation, float(m.uncertainty_mm), now)
             gain = s.gain
         flag = "" if band is PartBand.IN_TOLERANCE else (
-            f"part out of tolerance ({deviation * 1000:+.1f} um, tolerance "
-            f"{tolerance_text(s)}): flagged; ")
+            f"part out of tolerance ({raw * 1000:+.1f} um, tolerance "
+            f"{tolerance_text(b)}): flagged; ")
         if isinstance(filtered, tuple):
             return self._decision(Kind.HELD, filtered[0], flag + filtered[1], now, **kw)
         kw["filtered_mm"] = filtered
         step = self._predictor.last_step_mm if s.law == "predictive" else None
         note = flag + ("" if step is None else f"a step of {step * 1000:+.1f} um in the "
                        "process, confirmed by two measurements: followed; ")
-        null = s.deadband_mm
+        null = b.deadband_mm
         if s.law == "predictive":
             null = self._predictor.null_band()
             if self._last_offset_mm * filtered > 0:  # it would reverse the last offset: surer
@@ -238,11 +247,11 @@ class CompensationController(OffsetBook):
                                   f"{null * 1000:.1f} um", now, **kw)
         return self._correct(-gain * filtered / effect_mm(s, 1.0), now, kw, note)
 
-    def _implausible(self, deviation: float, gate: str, now: float,
+    def _implausible(self, deviation: float, limit_mm: float, gate: str, now: float,
                      kw: dict[str, Any]) -> Decision:
         """A deviation beyond the plausibility limit: an alarm (once), nothing taken."""
         why = (f"deviation {deviation * 1000:+.1f} um is beyond the plausibility limit of "
-               f"{self.settings.plausibility() * 1000:.0f} um (a broken tool, a wrong part or "
+               f"{limit_mm * 1000:.0f} um (a broken tool, a wrong part or "
                "setpoint?): nothing written")
         if self.state is State.ACTIVE:
             return self._enter(State.ALARM, Kind.ALARM, "implausible", why + "; the alarm "

@@ -7,6 +7,8 @@ import enum
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from service.compensation.settings import CompensationSettings
+
 
 class Kind(enum.StrEnum):
     """What a decision did."""
@@ -54,6 +56,17 @@ class MeasurementIn:
     diameter_mm: float | None
     uncertainty_mm: float | None
     calibration_id: int | None = None  # the calibration it was measured with
+
+
+@dataclass(frozen=True)
+class FeatureTerms:
+    """How a tool's controller takes a measurement of one of its features: judged against
+    the feature's ``settings`` (nominal, tolerance, bands), its deviation less
+    ``empirical_mm`` into the tool's law, or ``held`` (why) when its features disagree."""
+
+    settings: CompensationSettings
+    empirical_mm: float = 0.0
+    held: str = ""
 
 
 @dataclass(frozen=True)

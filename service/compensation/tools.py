@@ -1,0 +1,83 @@
+"""One controller per tool, over the features each finishes (time passed in).
+
+``JobCompensation`` routes a measurement of a feature to the controller of the tool that
+finishes it: each tool has its own law, limits, offset handshake and persisted state, so an
+offset never reaches another tool. A tool finishing several features takes them into one
+law, each less its empirical value, and is held while they disagree (``combine``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from service.compensation.combine import FeatureAgreement
+from service.compensation.controller import CompensationController
+from service.compensation.job import Job, JobFeature
+from service.compensation.records import (
+    ControllerState,
+    Decision,
+    FeatureTerms,
+    Kind,
+    MeasurementIn,
+)
+from service.compensation.settings import CompensationSettings
+
+
+class ToolCompensation:
+    """One tool's compensation: a ``CompensationController`` with the tool's law and limits,
+    judging each measurement against its feature's nominal and bands."""
+
+    def __init__(self, job: Job, tool: int, base: CompensationSettings,
+                 state: ControllerState | None = None) -> None:
+        self.job, self.tool, self.base = job, tool, base
+        features = job.features_of(tool)
+        if not features:
+            raise KeyError(f"tool {tool} finishes no feature of job {job.part_number!r}")
+        # The tool's law and limits; its reference feature is the first it finishes.
+        self.controller = CompensationController(job.settings_for(features[0], base),
+                                                 state or ControllerState())
+        self.agreement = FeatureAgreement()
+
+    def terms(self, feature: JobFeature) -> FeatureTerms:
+        """How the tool takes a measurement of ``feature`` now."""
+        return FeatureTerms(self.job.settings_for(feature, self.base), feature.empirical_mm,
+                            self.agreement.disagreement(self.job.max_disagreement_mm(self.tool)))
+
+    def on_measurement(self, feature: JobFeature, m: MeasurementIn, now: float) -> Decision:
+        """Judge a measurement of one of this tool's features."""
+        if feature.tool != self.tool:
+            raise ValueError(f"feature {feature.number} is finished by tool {feature.tool}, "
+                             f"not {self.tool}")
+        if m.status == "ok" and m.diameter_mm is not None and m.uncertainty_mm is not None \
+                and math.isfinite(m.diameter_mm):
+            self.agreement.add(feature.number,
+                               m.diameter_mm - feature.nominal_mm - feature.empirical_mm,
+                               m.uncertainty_mm)
+        d = self.controller.on_measurement(m, now, self.terms(feature))
+        if d.kind is Kind.WRITE:
+            self.agreement.applied()  # the next parts are cut with it
+        return d
+
+
+class JobCompensation:
+    """The controllers of a job's tools, and the routing of a feature's measurement to its
+    tool's."""
+
+    def __init__(self, job: Job, base: CompensationSettings,
+                 states: dict[int, ControllerState] | None = None) -> None:
+        self.job = job
+        self.tools = {t: ToolCompensation(job, t, base, (states or {}).get(t))
+                      for t in job.tool_numbers()}
+
+    def on_measurement(self, feature_number: int, m: MeasurementIn, now: float
+                       ) -> tuple[int, Decision]:
+        """(tool, decision) for a measurement of ``feature_number`` (KeyError naming the job's
+        features when it has no such feature)."""
+        feature = self.job.feature(feature_number)
+        return feature.tool, self.tools[feature.tool].on_measurement(feature, m, now)
+
+    def shadow(self, on: bool, now: float) -> None:
+        """Shadow mode for every tool."""
+        for t in self.tools.values():
+            t.controller.update_settings(replace(t.controller.settings, shadow=on), now)
