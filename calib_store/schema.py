@@ -138,6 +138,44 @@ def _v2(db: sqlite3.Connection) -> None:
         db.execute(f"ALTER TABLE measurements ADD COLUMN {column} REAL")
 
 
+_JOB_TABLES = [
+    """CREATE TABLE jobs (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        part_number TEXT NOT NULL,
+        version INTEGER NOT NULL,
+        created REAL NOT NULL,
+        created_by TEXT NOT NULL,
+        note TEXT NOT NULL,
+        document TEXT NOT NULL,
+        UNIQUE (part_number, version))""",
+    """CREATE TABLE active_job (
+        id INTEGER PRIMARY KEY CHECK (id = 1),
+        job_id INTEGER NOT NULL REFERENCES jobs(id))""",
+    """CREATE TABLE job_audit (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        time REAL NOT NULL,
+        who TEXT NOT NULL,
+        action TEXT NOT NULL,
+        job_id INTEGER,
+        detail TEXT NOT NULL)""",
+    """CREATE TABLE parts (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        serial TEXT NOT NULL,
+        time REAL NOT NULL,
+        job_id INTEGER REFERENCES jobs(id),
+        verdict TEXT NOT NULL,
+        features TEXT NOT NULL)""",
+    "CREATE INDEX parts_time ON parts (time)",
+    "CREATE INDEX parts_serial ON parts (serial)",
+    "ALTER TABLE measurements ADD COLUMN feature INTEGER",
+]
+
+
+def _v3(db: sqlite3.Connection) -> None:
+    for statement in _JOB_TABLES:
+        db.execute(statement)
+
+
 @dataclass(frozen=True)
 class Migration:
     """One step of the schema: to ``version``, what it does, and how."""
@@ -153,6 +191,8 @@ MIGRATIONS = (
               _v1),
     Migration(2, "the measurement archive keeps the surface's run-out (TIR) and roundness "
                  "(RONt) where they were known, for the AQDEF export", _v2),
+    Migration(3, "jobs (part programs: features and tools, versioned and audited), one record "
+                 "per part, and the feature of each archived measurement", _v3),
 )
 SCHEMA_VERSION = MIGRATIONS[-1].version
 

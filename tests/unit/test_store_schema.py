@@ -35,8 +35,8 @@ def _open_all(path: Path) -> tuple[CalibrationStore, CompensationLog, GaugeStudy
     return CalibrationStore(path), CompensationLog(path), GaugeStudyStore(path)
 
 
-def test_stores_of_three_earlier_releases_are_here() -> None:
-    assert len(FIXTURES) >= 3, FIXTURES
+def test_stores_of_four_earlier_releases_are_here() -> None:
+    assert len(FIXTURES) >= 4, FIXTURES
 
 
 @pytest.mark.parametrize("fixture", FIXTURES, ids=lambda p: p.stem)
@@ -62,7 +62,7 @@ def test_a_store_of_an_earlier_release_opens_with_every_row_kept(fixture: Path, 
     db = sqlite3.connect(str(path))
     assert schema.version_of(db) == schema.SCHEMA_VERSION
     db.close()
-    kept = list(tmp_path.glob("shaftgauge.db.v0-*.bak"))
+    kept = list(tmp_path.glob("shaftgauge.db.v*-*.bak"))  # v0: before versions
     assert len(kept) == 1 and _counts(kept[0]) == before
 
 
@@ -116,15 +116,19 @@ def _cli(*args: str, capsys) -> tuple[int, dict | str]:
 
 def test_version_migrate_backup_and_restore_from_the_command_line(tmp_path, capsys) -> None:
     path = tmp_path / "shaftgauge.db"
-    shutil.copy(FIXTURES[-1], path)
+    shutil.copy(FIXTURES[-1], path)  # the release before the latest schema
     before = _counts(path)
+    db = sqlite3.connect(str(path))
+    was = schema.version_of(db)
+    db.close()
     code, out = _cli("store", "version", "--store", str(path), capsys=capsys)
-    assert code == 0 and out["schema_version"] == 0 and out["pending"]
+    assert code == 0 and out["schema_version"] == was < schema.SCHEMA_VERSION and out["pending"]
     code, out = _cli("store", "migrate", "--dry-run", "--store", str(path), capsys=capsys)
     assert code == 0 and out["pending"] and "applied" not in out
     assert _counts(path) == before
     code, out = _cli("store", "migrate", "--store", str(path), capsys=capsys)
-    assert code == 0 and out["applied"] == [m.version for m in schema.MIGRATIONS]
+    assert code == 0 and out["applied"] == [m.version for m in schema.MIGRATIONS
+                                            if m.version > was]
     assert out["schema_version"] == schema.SCHEMA_VERSION
     code, out = _cli("store", "backup", "--store", str(path), str(tmp_path / "b.db"),
                      capsys=capsys)
