@@ -1,0 +1,115 @@
+"""One record per part: the measurements of a part's features gathered into its fused
+diameters and verdicts, and the part's own verdict.
+
+A part ends when the CNC's part counter moves on, or, with no counter, when a feature is
+measured that the part already has (the gauge counts the parts itself then). Several
+measurements of one feature within a part (frames along a segment, turning continuously)
+are fused: their mean weighted by 1 / uncertainty^2.
+
+Pure: measurements in, ``PartRecord`` out. Lengths in mm of diameter.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from service.compensation.job import Job, JobFeature
+
+
+@dataclass(frozen=True)
+class FeatureResult:
+    """A feature of one part: its fused diameter, their uncertainty, how many measurements,
+    and the verdict against its tolerance (``ok``, ``above``, ``below``; ``missing`` when
+    the part went by without it)."""
+
+    feature: int
+    name: str
+    nominal_mm: float
+    diameter_mm: float | None
+    uncertainty_mm: float | None
+    n: int
+    verdict: str
+
+
+@dataclass(frozen=True)
+class PartRecord:
+    """One finished part (``verdict``: ``ok``, ``out`` when a feature is out of tolerance,
+    ``incomplete`` when one was not measured)."""
+
+    serial: str
+    time_s: float
+    part_number: str
+    features: tuple[FeatureResult, ...]
+    verdict: str
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return asdict(self)
+
+
+def judge(feature: JobFeature, diameter_mm: float) -> str:
+    """``ok``, ``above`` or ``below`` its tolerance."""
+    deviation = diameter_mm - feature.nominal_mm
+    if deviation > feature.tol_upper_mm:
+        return "above"
+    if deviation < feature.tol_lower_mm:
+        return "below"
+    return "ok"
+
+
+@dataclass
+class PartAssembler:
+    """Gathers measurements into parts (see the module's docstring)."""
+
+    job: Job
+    next_own: int = 1
+    """The gauge's own count, for parts the CNC does not number."""
+    _counter: int | None = None
+    _started: float = 0.0
+    _values: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+
+    def add(self, feature: int, diameter_mm: float, uncertainty_mm: float, time_s: float,
+            part_counter: int | None = None) -> PartRecord | None:
+        """A measurement of ``feature`` (KeyError when the job has none); the part it
+        finished, if it finished one."""
+        self.job.feature(feature)
+        done = None
+        new_part = (part_counter is not None and part_counter != self._counter) or (
+            part_counter is None and feature in self._values)
+        if self._values and new_part:
+            done = self.finish()
+        if not self._values:
+            self._started, self._counter = time_s, part_counter
+        self._values.setdefault(feature, []).append((diameter_mm, max(uncertainty_mm, 1e-6)))
+        return done
+
+    def finish(self) -> PartRecord | None:
+        """End the part under way now (the job changes, the service stops); None when no
+        feature of it was measured."""
+        if not self._values:
+            return None
+        results = []
+        for f in self.job.features:
+            got = self._values.get(f.number, [])
+            if not got:
+                results.append(FeatureResult(f.number, f.name, f.nominal_mm, None, None, 0,
+                                             "missing"))
+                continue
+            w = [1.0 / u ** 2 for _, u in got]
+            d = sum(wi * di for wi, (di, _) in zip(w, got, strict=True)) / sum(w)
+            results.append(FeatureResult(f.number, f.name, f.nominal_mm, d,
+                                         1.0 / math.sqrt(sum(w)), len(got), judge(f, d)))
+        verdicts = {r.verdict for r in results}
+        verdict = "out" if verdicts & {"above", "below"} else \
+            "incomplete" if "missing" in verdicts else "ok"
+        if self._counter is not None:
+            serial = f"{self.job.part_number}-{self._counter}"
+        else:
+            serial = f"{self.job.part_number}-g{self.next_own}"
+            self.next_own += 1
+        record = PartRecord(serial, self._started, self.job.part_number, tuple(results),
+                            verdict)
+        self._values, self._counter = {}, None
+        return record
