@@ -35,7 +35,8 @@ log = logging.getLogger("shaftgauge.compensation_log")
 
 MEASUREMENT_COLUMNS = ("seq", "wall_time", "status", "diameter_mm", "uncertainty_mm",
                        "fused_diameter_mm", "deviation_mm", "in_tolerance", "calibration_id",
-                       "nominal_mm", "tol_lower_mm", "tol_upper_mm", "tir_mm", "ront_mm")
+                       "nominal_mm", "tol_lower_mm", "tol_upper_mm", "tir_mm", "ront_mm",
+                       "feature")
 _COLUMNS = ("id", "wall_time", "last_time", "count", "kind", "code", "reason", "who",
             "measurement_seq", "last_measurement_seq", "deviation_mm", "filtered_mm",
             "offset_mm", "offset_seq", "before_mm", "after_mm", "shadow")

@@ -97,6 +97,13 @@ class JobStore:
                 raise KeyError(f"no job {job_id}")
             self._activate(job_id, by)
 
+    def deactivate(self, by: str) -> None:
+        """No stored job is in force any more."""
+        with self._lock, transaction(self._db):
+            previous = self._active_id()
+            self._db.execute("DELETE FROM active_job")
+            self._audit(by, "deactivate", previous, "")
+
     def _activate(self, job_id: int, by: str) -> None:
         previous = self._active_id()
         self._db.execute("INSERT OR REPLACE INTO active_job (id, job_id) VALUES (1, ?)",

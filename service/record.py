@@ -38,6 +38,7 @@ class MeasurementRecord(NamedTuple):
     calibration_id: int | None = None  # the calibration it was measured with
     spindle_deg: float | None = None    # the frame's spindle angle, when known
     about_runout: bool = False          # measured about the surface's own centre there
+    feature: int | None = None          # the job's feature it was taken as (None: none fits)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: a non-finite number (a fit's NaN residual, say) becomes None."""
@@ -62,10 +63,12 @@ class Feature:
 def make_record(*, seq: int, wall_time: float, frame_id: int, raw: Measurement,
                 m: Measurement, fused: Measurement | None, feature: Feature,
                 part_temp_c: float | None, alpha_per_k: float, latency_ms: float,
-                calibration_id: int | None) -> MeasurementRecord:
+                calibration_id: int | None, feature_number: int | None = None,
+                refused: str = "") -> MeasurementRecord:
     """The record of one frame: ``raw`` as measured, ``m`` corrected, ``fused`` the fusion
-    window's value; deviation and tolerance against ``feature`` at 20 C when the part's
-    temperature is known."""
+    window's value; deviation and tolerance against ``feature`` (the job's feature
+    ``feature_number``) at 20 C when the part's temperature is known. ``refused`` says why the
+    diameter was taken as no feature of the job (then nothing is judged)."""
     d20 = (diameter_at_reference(m.diameter_mm, part_temp_c, alpha_per_k)
            if m and part_temp_c is not None else None)
     judged = d20 if d20 is not None else m.diameter_mm
@@ -82,8 +85,8 @@ def make_record(*, seq: int, wall_time: float, frame_id: int, raw: Measurement,
         bool(feature.tol_lower_mm <= dev <= feature.tol_upper_mm),
         arc_deg=float(m.arc_deg or 0.0), n_points=m.n_points,
         rms_residual_mm=m.rms_residual_mm, latency_ms=latency_ms,
-        reason=m.reason, note=m.note, calibration_id=calibration_id,
-        spindle_deg=m.spindle_deg, about_runout=m.about_runout)
+        reason=m.reason or refused, note=m.note, calibration_id=calibration_id,
+        spindle_deg=m.spindle_deg, about_runout=m.about_runout, feature=feature_number)
 
 
 def finite_or_none(x: float | None) -> float | None:

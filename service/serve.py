@@ -29,6 +29,7 @@ import uvicorn
 
 from calib_store.compensation_log import CompensationLog, LogRetention
 from calib_store.gauge_studies import GaugeStudyStore
+from calib_store.jobs import JobStore
 from calib_store.model import load_calibration
 from calib_store.store import CalibrationStore, StoreError
 from drivers.camera.base import Camera, CameraConfig
@@ -52,6 +53,7 @@ from service.runtime.feed import MeasurementFeed, SequenceCounter
 from service.runtime.form import FormWatch
 from service.runtime.gauge import Gauge
 from service.runtime.health import HealthReport
+from service.runtime.jobs import JobService
 from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
@@ -160,9 +162,10 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     settings = embedded_feature(settings)
     data_dir = settings.store.path.parent
     data_dir.mkdir(parents=True, exist_ok=True)
-    store, comp_log, store_error = None, None, ""
+    store, comp_log, jobs, store_error = None, None, None, ""
     try:
         store = CalibrationStore(settings.store.path, settings.store.create_if_missing)
+        jobs = JobStore(settings.store.path, settings.store.create_if_missing)
         comp_log = CompensationLog(settings.store.path, retention=LogRetention(
             settings.store.log_max_age_days, settings.store.log_max_rows,
             max_measurements=settings.store.archive_max_rows))
@@ -227,12 +230,12 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
         store.add(sim_cal, by="shaftgauge", note="simulated rig (embedded default)",
                   activate=True)
     extras["camera"] = device_id if cam_cfg.source != "rig" else "rig"
-    return wire(settings, camera, store, comp_log, writer, store_error), extras
+    return wire(settings, camera, store, comp_log, writer, store_error, jobs), extras
 
 
 def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
          comp_log: CompensationLog | None, writer: OffsetWriter | PullCnc | None,
-         store_error: str = "") -> Gauge:
+         store_error: str = "", job_store: JobStore | None = None) -> Gauge:
     """The one place where the gauge's parts are made and connected."""
     ms, ts = settings.measurement, settings.temperature
     bank = RegisterBank(settings.modbus.word_order)
@@ -262,7 +265,9 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                           bank=bank)
     sequence = SequenceCounter(comp_log, compensation.controller.persisted
                                .last_measurement_seq + 1)
-    publisher = Publisher(sequence, feed, modbus, compensation, sp.max_tir_mm)
+    jobs = JobService(job_store, compensation, store_error)
+    compensation.on_settings(lambda _: jobs.settings_changed())
+    publisher = Publisher(sequence, feed, modbus, compensation, jobs, sp.max_tir_mm)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
                              settings.camera.roi_margin_px if settings.camera.roi_enabled
                              else None, ms.max_rate_hz, ms.reflection_check_hz,
@@ -276,7 +281,9 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                                    api.session_expiry_h)
     if comp_log is not None and settings.store.archive_hz > 0:  # for the AQDEF export
         feed.on_publish(MeasurementArchive(comp_log, settings.store.archive_hz,
-                                           compensation.feature, health.form_position))
+                                           jobs.feature_for, health.form_position))
+    feed.on_publish(jobs.published)
+    health.jobs = jobs
     spc = SpcService(settings.spc, ms.fuse_frames, compensation.feature)
     feed.on_publish(spc)
     q = settings.quality
@@ -296,7 +303,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     compensation.channel.write_listeners.append(
         lambda r: metrics.write_time(r.outcome.value, r.elapsed_s))
     return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
-                 sessions, metrics, spc, studies, writer, comp_log, plant, form)
+                 sessions, metrics, spc, studies, jobs, writer, comp_log, plant, form)
 
 
 STOP_MARGIN_S = 1.5

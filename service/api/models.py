@@ -98,3 +98,18 @@ class ActivateIn(_Strict):
     """Import the built calibration and measure with it."""
 
     note: str = Field("", max_length=2000)
+
+
+class JobIn(_Strict):
+    """A job document (``service.compensation.job``: part number, name, features, tools),
+    why it is added, and whether it is put in force at once."""
+
+    document: dict[str, Any]
+    note: str = Field("", max_length=2000)
+    activate: bool = False
+
+
+class FeatureSelectIn(_Strict):
+    """The feature under the laser, by its number; null: recognised from the diameter."""
+
+    feature: int | None = Field(ge=1, le=99)

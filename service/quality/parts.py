@@ -1,10 +1,11 @@
 """One record per part: the measurements of a part's features gathered into its fused
 diameters and verdicts, and the part's own verdict.
 
-A part ends when the CNC's part counter moves on, or, with no counter, when a feature is
-measured that the part already has (the gauge counts the parts itself then). Several
-measurements of one feature within a part (frames along a segment, turning continuously)
-are fused: their mean weighted by 1 / uncertainty^2.
+A part ends when the CNC's part counter moves on. With no counter the gauge counts the
+parts itself: a part ends when the laser comes back to a feature the part already has after
+another one, or when nothing was measured for ``gap_s`` (the part left the gauge). Several
+measurements of one feature in a row (frames along a segment, turning continuously) are
+fused: their mean weighted by 1 / uncertainty^2.
 
 Pure: measurements in, ``PartRecord`` out. Lengths in mm of diameter.
 """
@@ -64,10 +65,13 @@ class PartAssembler:
     """Gathers measurements into parts (see the module's docstring)."""
 
     job: Job
+    gap_s: float = 10.0
+    """With no counter, a pause this long ends the part."""
     next_own: int = 1
     """The gauge's own count, for parts the CNC does not number."""
     _counter: int | None = None
     _started: float = 0.0
+    _last: tuple[int, float] | None = None  # the feature and time last measured
     _values: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
 
     def add(self, feature: int, diameter_mm: float, uncertainty_mm: float, time_s: float,
@@ -76,13 +80,19 @@ class PartAssembler:
         finished, if it finished one."""
         self.job.feature(feature)
         done = None
-        new_part = (part_counter is not None and part_counter != self._counter) or (
-            part_counter is None and feature in self._values)
+        if part_counter is not None:
+            new_part = part_counter != self._counter
+        else:
+            back = feature in self._values and self._last is not None \
+                and self._last[0] != feature
+            new_part = back or (self._last is not None
+                                and time_s - self._last[1] > self.gap_s)
         if self._values and new_part:
             done = self.finish()
         if not self._values:
             self._started, self._counter = time_s, part_counter
         self._values.setdefault(feature, []).append((diameter_mm, max(uncertainty_mm, 1e-6)))
+        self._last = (feature, time_s)
         return done
 
     def finish(self) -> PartRecord | None:
@@ -111,5 +121,5 @@ class PartAssembler:
             self.next_own += 1
         record = PartRecord(serial, self._started, self.job.part_number, tuple(results),
                             verdict)
-        self._values, self._counter = {}, None
+        self._values, self._counter, self._last = {}, None, None
         return record

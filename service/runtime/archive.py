@@ -21,13 +21,15 @@ class MeasurementArchive:
     hz : float
         Records kept a second, at most (by the records' wall-clock times).
     feature : callable
-        The feature in force (nominal and tolerance, kept with each row).
+        What a record was compared with (``feature(record)``: nominal and tolerance, kept
+        with each row).
     form : callable, optional
         The surface's form and position now (``HealthReport.form_position``: ``tir_mm`` and
         ``ront_mm``, None where not known); without it, none is kept.
     """
 
-    def __init__(self, log: CompensationLog, hz: float, feature: Callable[[], Feature],
+    def __init__(self, log: CompensationLog, hz: float,
+                 feature: Callable[[MeasurementRecord], Feature],
                  form: Callable[[], dict[str, Any]] | None = None) -> None:
         self.log, self.period_s, self.feature = log, 1.0 / hz, feature
         self.form = form
@@ -38,7 +40,7 @@ class MeasurementArchive:
         if record.time - self._last_time < self.period_s:
             return
         self._last_time = record.time
-        f = self.feature()
+        f = self.feature(record)
         form = self.form() if self.form is not None else {}
         self.log.submit_measurement({
             "seq": record.seq, "wall_time": record.time, "status": record.status,
@@ -47,5 +49,6 @@ class MeasurementArchive:
             "in_tolerance": None if record.in_tolerance is None else int(record.in_tolerance),
             "calibration_id": record.calibration_id, "nominal_mm": f.nominal_mm,
             "tol_lower_mm": f.tol_lower_mm, "tol_upper_mm": f.tol_upper_mm,
-            "tir_mm": form.get("tir_mm"), "ront_mm": form.get("ront_mm")})
+            "tir_mm": form.get("tir_mm"), "ront_mm": form.get("ront_mm"),
+            "feature": record.feature})
         self.kept += 1

@@ -18,6 +18,7 @@ from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.form import FormWatch
 from service.runtime.health import HealthReport
+from service.runtime.jobs import JobService
 from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
@@ -42,6 +43,7 @@ class Gauge:
     metrics: GaugeMetrics
     spc: SpcService
     studies: GaugeStudies
+    jobs: JobService
     writer: OffsetWriter | PullCnc | None = None
     log: CompensationLog | None = None
     plant: list[PlantLink] = field(default_factory=list)

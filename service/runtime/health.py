@@ -46,6 +46,7 @@ class HealthReport:
         self.plant: list[Any] = []  # service.runtime.plant.PlantLink, set by the gauge
         self.quality: tuple[Any, Any] | None = None  # (SpcService, GaugeStudies), set too
         self.form: Any = None  # service.runtime.form.FormWatch, with the spindle's angle
+        self.jobs: Any = None  # service.runtime.jobs.JobService, set too
 
     def _fresh(self) -> bool:
         age = self.feed.measurement_age_s()
@@ -232,6 +233,7 @@ class HealthReport:
                        "refused_handshakes": self.modbus.server.tls_refusals.count,
                        "last_refused_handshake": self.modbus.server.tls_refusals.last},
             "compensation": comp.status(),
+            "job": self.jobs.status() if self.jobs is not None else None,
             "master": ctx.master_status(),
             "temperature": {"part_temp_c": comp.part_temp_c, "alpha_per_k": comp.alpha_per_k},
             "plant": {link.name: link.status() for link in self.plant},

@@ -17,6 +17,7 @@ from service.record import make_record
 from service.runtime.calibration import CalibrationInUse
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed, SequenceCounter
+from service.runtime.jobs import JobService
 from service.runtime.modbus import ModbusFacade
 
 
@@ -29,15 +30,17 @@ class Publisher:
         The measurements' sequence numbers.
     feed, modbus, compensation : MeasurementFeed, ModbusFacade, CompensationService
         Where the record goes.
+    jobs : JobService
+        Which feature of the job a diameter is.
     max_tir_mm : float
         Run-out beyond which measurements reach compensation held (``held_for_runout``).
     """
 
     def __init__(self, sequence: SequenceCounter, feed: MeasurementFeed,
-                 modbus: ModbusFacade, compensation: CompensationService,
+                 modbus: ModbusFacade, compensation: CompensationService, jobs: JobService,
                  max_tir_mm: float = 0.02) -> None:
         self.sequence, self.feed = sequence, feed
-        self.modbus, self.compensation = modbus, compensation
+        self.modbus, self.compensation, self.jobs = modbus, compensation, jobs
         self.max_tir_mm = max_tir_mm
         modbus.set_sequence(sequence.current)
 
@@ -45,17 +48,22 @@ class Publisher:
         m = judged(corrected(raw, in_use.correction), frame.frame_id, in_use,
                    frame.received_ns / 1e9)
         comp = self.compensation
+        feature, refused = self.jobs.assign(m.diameter_mm if m else None)
         record = make_record(
             seq=self.sequence.next(), wall_time=time.time(), frame_id=frame.frame_id,
-            raw=raw, m=m, fused=self.feed.fused(m), feature=comp.feature(),
+            raw=raw, m=m, fused=self.feed.fused(m),
+            feature=self.jobs.feature_of(feature) if feature or refused else comp.feature(),
             part_temp_c=comp.part_temp_c, alpha_per_k=comp.alpha_per_k,
             latency_ms=(time.monotonic_ns() - frame.received_ns) / 1e6,
-            calibration_id=in_use.info.id)
+            calibration_id=in_use.info.id,
+            feature_number=None if feature is None else feature.number, refused=refused)
         self.modbus.publish(record)  # first: the latency is frame -> registers
         self.feed.publish(record, m, frame, in_use.geometry)
         runout = in_use.runout.runout if in_use.runout is not None else None
-        comp.submit(record, frame.received_ns / 1e9, held="runout" if runout is not None and
-                    runout.tir_mm > self.max_tir_mm else None)
+        held = "runout" if runout is not None and runout.tir_mm > self.max_tir_mm else None
+        if self.jobs.several():
+            held = "several_features"  # until the CNC link names the tool (map v4)
+        comp.submit(record, frame.received_ns / 1e9, held=held)
 
 
 def judged(m: Measurement, frame_id: int, in_use: CalibrationInUse, t_s: float

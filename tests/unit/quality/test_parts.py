@@ -30,9 +30,10 @@ def test_the_cnc_counter_ends_a_part_and_names_it() -> None:
     assert (f1.verdict, f2.verdict, done.verdict) == ("ok", "above", "out")
 
 
-def test_without_a_counter_a_repeated_feature_starts_the_next_part() -> None:
+def test_without_a_counter_coming_back_to_a_feature_starts_the_next_part() -> None:
     parts = PartAssembler(JOB)
     parts.add(1, 30.0, 0.001, 1.0)
+    assert parts.add(1, 30.0, 0.001, 1.1) is None  # frames along the journal: one part
     parts.add(2, 25.0, 0.001, 2.0)
     first = parts.add(1, 30.001, 0.001, 3.0)
     assert first.serial == "SH-4711-g1" and first.verdict == "ok"
@@ -40,6 +41,17 @@ def test_without_a_counter_a_repeated_feature_starts_the_next_part() -> None:
     assert second.serial == "SH-4711-g2" and second.verdict == "incomplete"
     assert second.features[1].verdict == "missing" and second.features[1].diameter_mm is None
     assert parts.finish() is None
+
+
+def test_without_a_counter_a_pause_ends_a_part_of_one_feature() -> None:
+    one = job_from_doc({"part_number": "PIN", "name": "pin", "features": [
+        {"number": 1, "name": "d", "nominal_mm": 8.0, "tol_upper_mm": 0.01,
+         "tol_lower_mm": -0.01, "tool": 1}]})
+    parts = PartAssembler(one, gap_s=5.0)
+    for k in range(20):  # 2 s of frames on one part
+        assert parts.add(1, 8.001, 0.001, 100.0 + k * 0.1) is None
+    done = parts.add(1, 8.002, 0.001, 110.0)  # the next part, after a pause
+    assert done.serial == "PIN-g1" and done.features[0].n == 20
 
 
 def test_a_feature_the_job_does_not_have_is_refused() -> None:

@@ -1,0 +1,223 @@
+"""The job in force: the part program's features and tools, which feature is under the
+laser, and the records of the parts as they are finished. One owner of all three.
+
+With no stored job active, the job is today's one feature: the compensation settings'
+nominal and tolerance, finished by tool 1 (``Job.single``). A stored job of one feature sets
+the compensation's feature when activated. A job of several features is measured feature by
+feature and recorded part by part; its offsets are held: per-tool offsets need a CNC link
+that names the tool (register map version 4), which this release does not have yet.
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+from collections import deque
+from typing import Any
+
+from calib_store.jobs import JobInfo, JobStore
+from calib_store.store import NotStoredError
+from service.compensation.job import Job, JobError, JobFeature, job_from_doc
+from service.quality.parts import PartAssembler, PartRecord
+from service.record import Feature, MeasurementRecord
+from service.runtime.compensating import CompensationService
+
+log = logging.getLogger("shaftgauge.jobs")
+
+RECENT_PARTS = 50
+SEVERAL_FEATURES = (
+    "the active job has several features: per-tool offsets need the CNC link of register map "
+    "version 4 (not in this release), so offsets are held; every feature is measured and "
+    "each part recorded")
+
+
+class JobService:
+    """Owns the active job, the feature under the laser and the part records.
+
+    Parameters
+    ----------
+    store : JobStore or None
+        Where jobs and parts are kept (None: ``store_error`` says why not).
+    compensation : CompensationService
+        Its settings are the single feature's when no stored job is active.
+    store_error : str
+        Why there is no store.
+    """
+
+    def __init__(self, store: JobStore | None, compensation: CompensationService,
+                 store_error: str = "") -> None:
+        self.store, self.compensation, self.store_error = store, compensation, store_error
+        self.stored: JobInfo | None = None
+        self.selected: int | None = None
+        self._feature_set = compensation.feature()  # as the stored job left it
+        self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
+        self.refused = 0
+        self.last_refused = ""
+        if store is not None:
+            try:
+                self.stored = store.active()
+            except (sqlite3.Error, ValueError) as err:
+                self.store_error = f"the active job cannot be read: {err}"
+        self._job: Job | None = None
+        self.parts: PartAssembler | None = None
+        self._rebuild()
+
+    # ---- the job ------------------------------------------------------------------------
+
+    @property
+    def job(self) -> Job | None:
+        """The job in force (None: no stored job and no nominal set)."""
+        return self._job
+
+    def _rebuild(self) -> None:
+        """The job from the store, or the single feature from the settings; the part under
+        way ends with the job it belonged to."""
+        if self.parts is not None:
+            self._record(self.parts.finish())
+        job = None
+        if self.stored is not None:
+            try:
+                job = job_from_doc(self.stored.document, self.compensation.settings)
+            except JobError as err:
+                self.store_error = f"stored job {self.stored.id} is damaged: {err}"
+        if job is None and self.compensation.settings.nominal_mm is not None:
+            job = Job.single(self.compensation.settings)
+        self._job = job
+        self.selected = None
+        self.parts = PartAssembler(job) if job is not None else None
+
+    def settings_changed(self) -> None:
+        """The compensation settings changed (a listener): the single feature follows; a
+        feature set directly (the API's feature, the CNC's nominal) ends a stored job."""
+        if self.stored is not None and self.compensation.feature() != self._feature_set:
+            log.warning("job %s no longer in force: a feature was set directly",
+                        self.stored.part_number)
+            self.deactivate("a feature set directly")
+        elif self.stored is None:
+            self._rebuild()
+
+    def several(self) -> bool:
+        """Whether the job has several features (its offsets are held)."""
+        return self._job is not None and len(self._job.features) > 1
+
+    def _store(self) -> JobStore:
+        if self.store is None:
+            raise NotStoredError(f"not stored, nothing changed: the store cannot be used "
+                                 f"({self.store_error})")
+        return self.store
+
+    async def add(self, document: Any, by: str, note: str = "", activate: bool = False
+                  ) -> JobInfo:
+        """Store a job document as its part number's next version (JobError naming the field
+        of a bad one; NotStoredError when it cannot be stored)."""
+        job = job_from_doc(document, self.compensation.settings)
+        jid = self._store().add(job.to_doc(), by, note, activate=False)
+        if activate:
+            await self.activate(jid, by)
+        return self._store().get(jid)
+
+    async def activate(self, job_id: int, by: str) -> JobInfo:
+        """Make a stored job the one in force (KeyError when there is none of that id)."""
+        info = self._store().get(job_id)
+        job = job_from_doc(info.document, self.compensation.settings)
+        if len(job.features) == 1:  # the compensation judges its feature
+            f = job.features[0]
+            await self.compensation.update_feature(
+                by, nominal_mm=f.nominal_mm, tol_upper_mm=f.tol_upper_mm,
+                tol_lower_mm=f.tol_lower_mm)
+        self._store().activate(job_id, by)
+        self.stored = self._store().get(job_id)
+        self._feature_set = self.compensation.feature()
+        self._rebuild()
+        log.info("job %s version %d in force (%s)", info.part_number, info.version, by)
+        return self.stored
+
+    def deactivate(self, by: str) -> None:
+        """Back to the single feature of the compensation settings."""
+        if self.stored is not None:
+            log.info("job %s no longer in force (%s)", self.stored.part_number, by)
+            if self.store is not None:
+                try:
+                    self.store.deactivate(by)
+                except sqlite3.Error as err:  # in force now; a restart brings it back
+                    log.error("the job's end not stored: %s", err)
+        self.stored = None
+        self._rebuild()
+
+    def select(self, feature: int | None) -> None:
+        """The feature under the laser, as the CNC or a person names it (None: recognised
+        from the diameter). KeyError naming the job's features when it has no such one."""
+        if feature is not None:
+            if self._job is None:
+                raise KeyError("no job is in force (set a nominal, or activate a job)")
+            self._job.feature(feature)
+        self.selected = feature
+
+    # ---- the measurements ----------------------------------------------------------------
+
+    def assign(self, diameter_mm: float | None) -> tuple[JobFeature | None, str]:
+        """Which feature a diameter is: the one named, or the one recognised; (None, why)
+        when none fits (never a guess)."""
+        job = self._job
+        if job is None or diameter_mm is None:
+            return None, ""
+        if self.selected is not None:
+            return job.feature(self.selected), ""
+        if len(job.features) == 1:
+            return job.features[0], ""
+        found = job.recognise(diameter_mm)
+        if found.feature is None:
+            self.refused += 1
+            self.last_refused = found.reason
+        return found.feature, found.reason
+
+    @staticmethod
+    def feature_of(feature: JobFeature | None) -> Feature:
+        """What a measurement of ``feature`` is compared with."""
+        if feature is None:
+            return Feature(None, 0.0, 0.0)
+        return Feature(feature.nominal_mm, feature.tol_lower_mm, feature.tol_upper_mm)
+
+    def feature_for(self, record: MeasurementRecord) -> Feature:
+        """What ``record`` was compared with (its feature's nominal and tolerance)."""
+        if self._job is None or record.feature is None:
+            return Feature(None, 0.0, 0.0)
+        try:
+            return self.feature_of(self._job.feature(record.feature))
+        except KeyError:  # measured under the job before this one
+            return Feature(None, 0.0, 0.0)
+
+    def published(self, record: MeasurementRecord) -> None:
+        """A published measurement (a feed listener): into the part under way."""
+        if self.parts is None or record.feature is None or record.status != "ok" \
+                or record.diameter_mm is None or record.uncertainty_mm is None:
+            return
+        self._record(self.parts.add(record.feature, record.compensation_diameter_mm,
+                                    record.uncertainty_mm, record.time))
+
+    def _record(self, part: PartRecord | None) -> None:
+        if part is None:
+            return
+        doc = part.as_dict()
+        self.recent.appendleft(doc)
+        if self.store is None:
+            return
+        try:
+            self.store.add_part(part.serial, part.time_s, None if self.stored is None
+                                else self.stored.id, part.verdict,
+                                [dict(f) for f in doc["features"]])
+        except sqlite3.Error as err:  # a full disk: the part is still shown, and said
+            log.error("part %s not stored: %s", part.serial, err)
+
+    def status(self) -> dict[str, Any]:
+        """The job's part of the service status."""
+        job = self._job
+        return {"job": None if job is None else {
+                    "id": None if self.stored is None else self.stored.id,
+                    "part_number": job.part_number,
+                    "version": None if self.stored is None else self.stored.version,
+                    "features": len(job.features), "tools": len(job.tool_numbers())},
+                "feature_selected": self.selected,
+                "offsets_held": SEVERAL_FEATURES if self.several() else None,
+                "refused_diameters": self.refused, "last_refused": self.last_refused or None,
+                "store_error": self.store_error or None}

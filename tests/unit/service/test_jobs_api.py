@@ -1,0 +1,111 @@
+"""Jobs over the API on the simulated rig: a two-feature part measured feature by feature,
+recorded part by part, diameters that fit no feature refused with a reason, offsets held
+while the CNC link cannot name the tool."""
+
+from __future__ import annotations
+
+import time
+
+from tests.unit.service.conftest import OPERATOR, TECHNICIAN
+
+H = {"X-API-Key": TECHNICIAN}
+TWO = {"part_number": "SH-4711", "name": "two steps", "features": [
+    {"number": 1, "name": "journal", "nominal_mm": 30.0, "tol_upper_mm": 0.05,
+     "tol_lower_mm": -0.05, "tool": 1},
+    {"number": 2, "name": "seat", "nominal_mm": 25.0, "tol_upper_mm": 0.05,
+     "tol_lower_mm": -0.05, "tool": 2}]}
+
+
+def latest_with(client, predicate, timeout_s: float = 20.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        m = client.get("/api/v1/measurements/latest").json()
+        if predicate(m):
+            return m
+        time.sleep(0.05)
+    raise AssertionError(f"no such measurement: last {m}")
+
+
+def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) -> None:
+    r = client.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True,
+                                                     "note": "from the drawing"})
+    assert r.status_code == 201, r.text
+    job = r.json()
+    assert job["version"] == 1 and job["active"] and job["created_by"].startswith("technician")
+    st = client.get("/api/v1/status").json()["job"]
+    assert st["job"]["features"] == 2 and "map version 4" in st["offsets_held"]
+    m = latest_with(client, lambda m: m["feature"] == 1 and m["status"] == "ok")
+    assert abs(m["deviation_mm"]) < 0.01
+    client.gauge.camera.diameter_mm = 25.0  # the laser on the seat
+    m = latest_with(client, lambda m: m["feature"] == 2 and m["status"] == "ok")
+    assert abs(m["deviation_mm"]) < 0.01 and m["in_tolerance"]
+    client.gauge.camera.diameter_mm = 30.0  # the next part's journal
+    latest_with(client, lambda m: m["feature"] == 1)
+    deadline = time.monotonic() + 10
+    while not (parts := [p for p in client.get("/api/v1/parts").json()["items"]
+                         if p["serial"].startswith("SH-4711")]):
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    part = parts[-1]
+    assert part["serial"] == "SH-4711-g1" and part["verdict"] == "ok"
+    assert [(f["feature"], f["verdict"]) for f in part["features"]] == [(1, "ok"), (2, "ok")]
+    assert abs(part["features"][1]["diameter_mm"] - 25.0) < 0.01
+    # The offsets are held, and the decision log says why.
+    log = client.get("/api/v1/compensation/log", params={"limit": 50}).json()["items"]
+    assert any("several_features" in (row["code"] + row["reason"]) for row in log), log[:3]
+
+
+def test_a_diameter_that_fits_no_feature_is_refused_with_a_reason(client) -> None:
+    client.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True})
+    client.gauge.camera.diameter_mm = 35.0
+    m = latest_with(client, lambda m: m["diameter_mm"] and m["diameter_mm"] > 34.0)
+    assert m["feature"] is None and m["deviation_mm"] is None and m["in_tolerance"] is None
+    assert "fits no feature" in m["reason"] and "30 mm" in m["reason"]
+    assert "fits no feature" in client.get("/api/v1/status").json()["job"]["last_refused"]
+
+
+def test_the_feature_under_the_laser_named_and_a_feature_the_job_lacks_refused(client) -> None:
+    client.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True})
+    r = client.put("/api/v1/jobs/feature", headers=H, json={"feature": 7})
+    assert r.status_code == 422 and "feature 7 is not in job 'SH-4711'" in r.json()["detail"]
+    assert client.put("/api/v1/jobs/feature", headers={"X-API-Key": OPERATOR},
+                      json={"feature": 2}).status_code == 403
+    assert client.put("/api/v1/jobs/feature", headers=H,
+                      json={"feature": 2}).json()["feature_selected"] == 2
+    m = latest_with(client, lambda m: m["feature"] == 2)  # the journal, taken as the seat
+    assert m["in_tolerance"] is False and abs(m["deviation_mm"] - 5.0) < 0.01
+    client.put("/api/v1/jobs/feature", headers=H, json={"feature": None})
+    latest_with(client, lambda m: m["feature"] == 1)
+
+
+def test_a_bad_job_is_refused_naming_the_field_and_versions_are_kept(client) -> None:
+    bad = {**TWO, "features": [dict(TWO["features"][0], tool=0)]}
+    r = client.post("/api/v1/jobs", headers=H, json={"document": bad})
+    assert r.status_code == 422 and "features[0].tool" in r.json()["detail"]
+    assert client.post("/api/v1/jobs", headers={"X-API-Key": OPERATOR},
+                       json={"document": TWO}).status_code == 403
+    first = client.post("/api/v1/jobs", headers=H, json={"document": TWO}).json()
+    second = client.post("/api/v1/jobs", headers=H, json={"document": TWO}).json()
+    assert (first["version"], second["version"]) == (1, 2) and not second["active"]
+    assert client.get(f"/api/v1/jobs/{second['id']}").json()["document"]["part_number"] == \
+        "SH-4711"
+    assert client.get("/api/v1/jobs/999").status_code == 404
+    assert client.post("/api/v1/jobs/999/activate", headers=H).status_code == 404
+    actions = [a["action"] for a in client.get("/api/v1/jobs/audit").json()["items"]]
+    assert actions == ["add", "add"]
+
+
+def test_a_one_feature_job_sets_the_compensation_feature_and_a_direct_one_ends_it(
+        client) -> None:
+    one = {**TWO, "part_number": "PIN-1", "features": [dict(TWO["features"][0],
+                                                           nominal_mm=30.002)]}
+    jid = client.post("/api/v1/jobs", headers=H, json={"document": one}).json()["id"]
+    assert client.post(f"/api/v1/jobs/{jid}/activate", headers=H).status_code == 200
+    assert client.get("/api/v1/feature").json()["nominal_mm"] == 30.002
+    assert client.get("/api/v1/status").json()["job"]["offsets_held"] is None
+    # A feature set directly (as a map-v3 CNC does) ends the stored job.
+    client.put("/api/v1/feature", headers=H, json={"nominal_mm": 30.0, "tol_upper_mm": 0.02,
+                                                   "tol_lower_mm": -0.02})
+    st = client.get("/api/v1/status").json()["job"]
+    assert st["job"]["id"] is None and st["job"]["part_number"] == "single feature"
+    assert client.get("/api/v1/jobs").json()["items"][0]["active"] is False
