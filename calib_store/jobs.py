@@ -160,9 +160,13 @@ class JobStore:
             return int(cur.lastrowid)
 
     def parts(self, limit: int = 100, before_id: int | None = None,
-              serial: str | None = None) -> list[dict[str, Any]]:
-        """Part records, newest first (those before ``before_id``; of one ``serial``)."""
+              serial: str | None = None, job_id: int | None = None) -> list[dict[str, Any]]:
+        """Part records, newest first (those before ``before_id``; of one ``serial``; of one
+        job)."""
         where, args = [], []
+        if job_id is not None:
+            where.append("job_id = ?")
+            args.append(job_id)
         if before_id is not None:
             where.append("id < ?")
             args.append(before_id)

@@ -101,7 +101,8 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     api.include_router(quality.router(g.spc, g.studies, g.compensation, keys))
     api.include_router(jobs.router(g.jobs, keys))
     api.include_router(export.router(g.log, gauge_identity(g.settings.mqtt)[0],
-                                     g.context.store_error, g.settings.spindle.max_tir_mm))
+                                     g.context.store_error, g.settings.spindle.max_tir_mm,
+                                     g.jobs))
 
     @api.get("/status", tags=["system"], summary="Camera, PLC, pipeline, calibration, "
              "compensation")

@@ -160,3 +160,28 @@ def from_archive(rows: list[dict], gauge_id: str, part_number: str = "shaft",
         tuple(r.get(k) for k in keys))
         for r in good]
     return aqdef_text(part, values)
+
+
+def from_parts(parts: list[dict], job: dict, gauge_id: str) -> str:
+    """A transfer file of part records (``JobStore.parts`` rows, oldest first) of one job
+    (its stored document): characteristic *i* is the job's *i*-th feature (K2001 its
+    number, K2002 its name, its nominal and limits), K1001 the part number, and each part's
+    values carry its serial as K0014. A feature a part has no value of has no value line."""
+    features = job["features"]
+
+    def char(f: dict) -> AqdefCharacteristic:
+        return AqdefCharacteristic(str(f["number"]), f["name"], f["nominal_mm"],
+                                   f["nominal_mm"] + f["tol_lower_mm"],
+                                   f["nominal_mm"] + f["tol_upper_mm"])
+
+    first, *more = [char(f) for f in features]
+    header = AqdefPart(job["part_number"], job.get("name", ""), first.number,
+                       first.description, first.nominal_mm, first.lower_limit_mm,
+                       first.upper_limit_mm, gauge_id, more=tuple(more))
+    values = []
+    for p in parts:
+        by_number = {r["feature"]: r["diameter_mm"] for r in p["features"]}
+        got = [by_number.get(f["number"]) for f in features]
+        values.append(AqdefValue(math.nan if got[0] is None else got[0], p["time"],
+                                 p["serial"], more=tuple(got[1:])))
+    return aqdef_text(header, values)

@@ -8,10 +8,11 @@ import math
 import re
 import time
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from service.plant.aqdef import AqdefPart, AqdefValue, aqdef_text, from_archive
+from service.plant.aqdef import AqdefPart, AqdefValue, aqdef_text, from_archive, from_parts
 
 K_LINE = re.compile(r"^K(\d{4})(?:/(\d+))? (.*)$")
 
@@ -122,3 +123,41 @@ def test_without_run_out_the_file_has_the_diameter_alone() -> None:
     header, values = read_aqdef(from_archive([row(1, ront=0.002)], "g"))
     assert header["0100"] == "2" and header["2002/2"] == "roundness RONt"
     assert values[0]["0001/2"] == "0.0020"
+
+
+def test_ten_parts_of_four_features_parse_back_per_characteristic_and_part() -> None:
+    job = {"part_number": "SH-4711", "name": "stepped shaft", "features": [
+        {"number": n, "name": name, "nominal_mm": nom, "tol_upper_mm": 0.02,
+         "tol_lower_mm": -0.01, "tool": 1 + (n > 2)}
+        for n, name, nom in ((1, "journal", 30.0), (2, "seat", 25.0), (3, "collar", 40.0),
+                             (4, "slender end", 18.0))]}
+    parts = [{"serial": f"SH-4711-{100 + k}", "time": 1.8e9 + 60 * k, "verdict": "ok",
+              "features": [{"feature": f["number"], "diameter_mm": f["nominal_mm"] + k / 1e4}
+                           for f in job["features"] if not (k == 7 and f["number"] == 3)]}
+             for k in range(10)]
+    text = from_parts(parts, job, "lathe-7")
+    header, _ = read_aqdef(text)
+    assert header["0100"] == "4" and header["1001"] == "SH-4711"
+    for i, f in enumerate(job["features"], 1):
+        key = "" if i == 1 else f"/{i}"
+        assert header[f"2001{key}"] == str(f["number"]) and header[f"2002{key}"] == f["name"]
+        assert float(header[f"2101{key}"]) == f["nominal_mm"]
+        assert float(header[f"2110{key}"]) == pytest.approx(f["nominal_mm"] - 0.01)
+        assert float(header[f"2111{key}"]) == pytest.approx(f["nominal_mm"] + 0.02)
+    # Every value line by characteristic and part (K0014), as a reader who trusts no order.
+    values: dict[tuple[str, str], float] = {}
+    lines = text.split("\r\n")
+    for j, line in enumerate(lines):
+        m = K_LINE.match(line)
+        if m and m.group(1) == "0001":
+            i = m.group(2)
+            ident = next(x for x in lines[j:] if x.startswith(f"K0014/{i} "))
+            values[(i, ident.split(" ", 1)[1])] = float(m.group(3))
+    assert len(values) == 10 * 4 - 1  # part 107 went by without its collar
+    for k in range(10):
+        for i, f in enumerate(job["features"], 1):
+            got = values.get((str(i), f"SH-4711-{100 + k}"))
+            if k == 7 and i == 3:
+                assert got is None
+            else:
+                assert got == pytest.approx(f["nominal_mm"] + k / 1e4, abs=1e-9)

@@ -50,6 +50,9 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     assert part["serial"] == "SH-4711-g1" and part["verdict"] == "ok"
     assert [(f["feature"], f["verdict"]) for f in part["features"]] == [(1, "ok"), (2, "ok")]
     assert abs(part["features"][1]["diameter_mm"] - 25.0) < 0.01
+    dfq = client.get("/api/v1/export/aqdef/parts")
+    assert dfq.status_code == 200 and "K1001 SH-4711" in dfq.text
+    assert "K2002/2 seat" in dfq.text and "K0014/2 SH-4711-g1" in dfq.text
     # The offsets are held, and the decision log says why.
     log = client.get("/api/v1/compensation/log", params={"limit": 50}).json()["items"]
     assert any("several_features" in (row["code"] + row["reason"]) for row in log), log[:3]
@@ -90,6 +93,8 @@ def test_a_bad_job_is_refused_naming_the_field_and_versions_are_kept(client) -> 
     assert client.get(f"/api/v1/jobs/{second['id']}").json()["document"]["part_number"] == \
         "SH-4711"
     assert client.get("/api/v1/jobs/999").status_code == 404
+    assert client.get("/api/v1/export/aqdef/parts").status_code == 409  # none in force
+    assert client.get("/api/v1/export/aqdef/parts?job=999").status_code == 404
     assert client.post("/api/v1/jobs/999/activate", headers=H).status_code == 404
     actions = [a["action"] for a in client.get("/api/v1/jobs/audit").json()["items"]]
     assert actions == ["add", "add"]
