@@ -295,7 +295,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     health.quality = (spc, studies)
     form = FormWatch(context) if context.spindle is not None else None
     health.form = form
-    plant = make_plant_links(settings, feed, compensation, camera, writer, health)
+    plant = make_plant_links(settings, feed, compensation, camera, writer, health, jobs)
     health.plant = plant
     metrics = GaugeMetrics(health)
     feed.on_publish(metrics.record)

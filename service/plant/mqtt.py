@@ -56,7 +56,8 @@ def gauge_identity(settings: MqttSettings) -> tuple[str, str, str]:
 
 MEASUREMENT_FIELDS = ("seq", "time", "status", "diameter_mm", "uncertainty_mm",
                       "fused_diameter_mm", "fused_uncertainty_mm", "deviation_mm",
-                      "in_tolerance", "calibration_id", "reason", "spindle_deg", "about_runout")
+                      "in_tolerance", "calibration_id", "reason", "spindle_deg", "about_runout",
+                      "feature")
 
 
 def measurement_payload(record: MeasurementRecord, gauge_id: str) -> dict[str, Any]:
@@ -169,16 +170,26 @@ class MqttPublisher:
         self._pending.add(fut)
         fut.add_done_callback(self._stored)
 
+    def part(self, record: dict[str, Any]) -> None:
+        """A finished part (``PartRecord.as_dict``): through the outbox like the decisions,
+        so that none is lost while the broker is away, one message a part."""
+        body = json.dumps({"gauge_id": self.gauge_id, **record}).encode()
+        fut = asyncio.wrap_future(self._disk.submit(
+            self.outbox.put, self.topic("part"), body, self.settings.qos_decision,
+            time.time()))
+        self._pending.add(fut)
+        fut.add_done_callback(self._stored)
+
     def _stored(self, fut: asyncio.Future) -> None:
         self._pending.discard(fut)
         if fut.cancelled():
             return
         err = fut.exception()
         if err is not None:
-            log.error("a decision could not be kept for the broker: %s", err)
+            log.error("a decision or part could not be kept for the broker: %s", err)
             self.problem = f"MQTT outbox cannot be written ({err})"
         elif fut.result():
-            log.warning("MQTT outbox full: %d oldest decisions dropped", fut.result())
+            log.warning("MQTT outbox full: %d oldest messages dropped", fut.result())
         self._decision_wake.set()
 
     async def _outbox(self, fn: Callable[..., Any], *args: Any) -> Any:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import sqlite3
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 from calib_store.jobs import JobInfo, JobStore
@@ -51,6 +52,7 @@ class JobService:
         self.selected: int | None = None
         self._feature_set = compensation.feature()  # as the stored job left it
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
+        self._part_listeners: list[Callable[[dict[str, Any]], None]] = []
         self.refused = 0
         self.last_refused = ""
         if store is not None:
@@ -61,6 +63,10 @@ class JobService:
         self._job: Job | None = None
         self.parts: PartAssembler | None = None
         self._rebuild()
+
+    def on_part(self, listener: Callable[[dict[str, Any]], None]) -> None:
+        """Call ``listener(part)`` (``PartRecord.as_dict``) for every finished part."""
+        self._part_listeners.append(listener)
 
     # ---- the job ------------------------------------------------------------------------
 
@@ -200,6 +206,8 @@ class JobService:
             return
         doc = part.as_dict()
         self.recent.appendleft(doc)
+        for listener in self._part_listeners:
+            listener(doc)
         if self.store is None:
             return
         try:

@@ -20,6 +20,7 @@ from service.config import Settings
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
+from service.runtime.jobs import JobService
 from service.version import package_version
 
 MEASURE_NOW_TIMEOUT_S = 2.0
@@ -109,8 +110,8 @@ class OpcUaValues:
 
 def make_plant_links(settings: Settings, feed: MeasurementFeed,
                      compensation: CompensationService, camera: Camera,
-                     writer: OffsetWriter | PullCnc | None, health: HealthReport
-                     ) -> list[PlantLink]:
+                     writer: OffsetWriter | PullCnc | None, health: HealthReport,
+                     jobs: JobService | None = None) -> list[PlantLink]:
     """The links the settings ask for, connected to the gauge's parts."""
     links: list[PlantLink] = []
     data_dir = settings.store.path.parent
@@ -125,6 +126,8 @@ def make_plant_links(settings: Settings, feed: MeasurementFeed,
         mqtt = MqttPublisher(settings.mqtt, outbox, health.summary, outbox_problem=problem)
         feed.on_publish(mqtt.measurement)
         compensation.on_decision(mqtt.decision)
+        if jobs is not None:
+            jobs.on_part(mqtt.part)
         links.append(mqtt)
     ua = settings.opcua
     embedded = settings.camera.source == "sim"

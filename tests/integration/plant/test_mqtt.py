@@ -104,13 +104,20 @@ async def test_measurements_decisions_state_and_health_reach_a_subscriber(
     for _ in range(5):  # identical quiet decisions: the first is sent, the rest counted
         pub.decision(Decision(Kind.HELD, "held: deadband", 0.0, code="deadband"))
     pub.decision(write(2))
+    for k in (41, 42):  # one message a part
+        pub.part({"serial": f"SH-4711-{k}", "time": 1.8e9 + k, "part_number": "SH-4711",
+                  "verdict": "ok", "features": [{"feature": 1, "diameter_mm": 30.001}]})
     assert await wait_until(lambda: len(sub.on("decision")) >= 3 and sub.on("health")
+                            and len(sub.on("part")) == 2
                             and 30 in [json.loads(p)["seq"] for p in sub.on("measurement")])
     ms = [json.loads(p) for p in sub.on("measurement")]
     assert 4 <= len(ms) <= 12, len(ms)  # at most 5 a second
     assert ms[-1]["diameter_mm"] == pytest.approx(30.003)
     assert {"seq", "time", "status", "diameter_mm", "uncertainty_mm", "fused_diameter_mm",
             "deviation_mm", "in_tolerance", "calibration_id"} <= set(ms[-1])
+    parts = [json.loads(p) for p in sub.on("part")]
+    assert [p["serial"] for p in parts] == ["SH-4711-41", "SH-4711-42"]
+    assert parts[0]["gauge_id"] == "lathe-7" and parts[0]["features"][0]["feature"] == 1
     ds = [json.loads(p) for p in sub.on("decision")]
     assert [(d["kind"], d["decision_seq"]) for d in ds] == [
         ("write", 1), ("held", 2), ("write", 3)]
