@@ -53,6 +53,8 @@ class JobService:
         self._feature_set = compensation.feature()  # as the stored job left it
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
         self._part_listeners: list[Callable[[dict[str, Any]], None]] = []
+        self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
+        self.part_counts: dict[str, int] = {"ok": 0, "out": 0, "incomplete": 0}
         self.refused = 0
         self.last_refused = ""
         if store is not None:
@@ -90,6 +92,7 @@ class JobService:
             job = Job.single(self.compensation.settings)
         self._job = job
         self.selected = None
+        self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
 
     def settings_changed(self) -> None:
@@ -195,6 +198,8 @@ class JobService:
 
     def published(self, record: MeasurementRecord) -> None:
         """A published measurement (a feed listener): into the part under way."""
+        if record.feature is not None:
+            self.latest[record.feature] = record
         if self.parts is None or record.feature is None or record.status != "ok" \
                 or record.diameter_mm is None or record.uncertainty_mm is None:
             return
@@ -206,6 +211,7 @@ class JobService:
             return
         doc = part.as_dict()
         self.recent.appendleft(doc)
+        self.part_counts[part.verdict] += 1
         for listener in self._part_listeners:
             listener(doc)
         if self.store is None:

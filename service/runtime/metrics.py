@@ -39,6 +39,30 @@ class StatusCollector(Collector):
     def __init__(self, health: HealthReport) -> None:
         self.health = health
 
+    def _features(self) -> Iterator[Metric]:
+        """Per feature of the job in force (at most ``MAX_FEATURES`` label sets: only the
+        job in force's), and the parts by verdict."""
+        jobs = self.health.jobs
+        if jobs is None or jobs.job is None:
+            return
+        diameter = GaugeMetricFamily("shaftgauge_feature_diameter_mm", "Latest diameter of "
+                                     "each feature of the job in force", labels=["feature",
+                                                                                  "name"])
+        deviation = GaugeMetricFamily("shaftgauge_feature_deviation_mm", "Latest deviation "
+                                      "of each feature from its nominal",
+                                      labels=["feature", "name"])
+        for f in jobs.job.features:
+            r = jobs.latest.get(f.number)
+            if r is not None and r.diameter_mm is not None:
+                diameter.add_metric([str(f.number), f.name], r.diameter_mm)
+                if r.deviation_mm is not None:
+                    deviation.add_metric([str(f.number), f.name], r.deviation_mm)
+        parts = CounterMetricFamily("shaftgauge_parts", "Parts recorded since the start, by "
+                                    "verdict", labels=["verdict"])
+        for verdict, n in jobs.part_counts.items():
+            parts.add_metric([verdict], n)
+        yield from (diameter, deviation, parts)
+
     def collect(self) -> Iterator[Metric]:
         st = self.health.status()
         p, cam = st["pipeline"], st["camera"]["counters"]
@@ -63,6 +87,7 @@ class StatusCollector(Collector):
                          latest.deviation_mm if latest else None)
         yield from gauge("measurement_rate_hz", "Measurements per second (10 s)",
                          p["rate_hz"])
+        yield from self._features()
         yield from gauge("cumulative_offset_mm", "Acknowledged tool-wear offset since reset",
                          st["compensation"]["cumulative_offset_mm"])
         yield from gauge("problems", "Problems reported now", len(st["problems"]))

@@ -50,6 +50,11 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     assert part["serial"] == "SH-4711-g1" and part["verdict"] == "ok"
     assert [(f["feature"], f["verdict"]) for f in part["features"]] == [(1, "ok"), (2, "ok")]
     assert abs(part["features"][1]["diameter_mm"] - 25.0) < 0.01
+    metrics = client.get("/metrics").text
+    assert 'shaftgauge_feature_diameter_mm{feature="2",name="seat"} 25.0' in metrics
+    assert 'shaftgauge_parts_total{verdict="ok"}' in metrics
+    labelled = [ln for ln in metrics.splitlines() if ln.startswith("shaftgauge_feature_")]
+    assert len(labelled) <= 2 * 2  # two features of the job in force, two figures each
     dfq = client.get("/api/v1/export/aqdef/parts")
     assert dfq.status_code == 200 and "K1001 SH-4711" in dfq.text
     assert "K2002/2 seat" in dfq.text and "K0014/2 SH-4711-g1" in dfq.text
