@@ -106,6 +106,8 @@ bench: setup
 		--json bench-results/service_throughput_200fps.json
 	$(PY) -m tests.bench.plant_publish
 	$(PY) -m tests.bench.closed_loop
+	$(PY) -m tests.bench.whole_part
+	$(PY) -m tests.bench.whole_part --tight-bound
 	$(PY) -m tests.bench.guard --runs 3 --write
 	$(PY) -m tests.bench.figures
 	@git status --short bench-results docs

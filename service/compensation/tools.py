@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from service.compensation.combine import FeatureAgreement
+from service.compensation.combine import FeatureAgreement, aim
 from service.compensation.controller import CompensationController
 from service.compensation.job import Job, JobFeature
 from service.compensation.records import (
@@ -40,8 +40,16 @@ class ToolCompensation:
         self.agreement = FeatureAgreement()
 
     def terms(self, feature: JobFeature) -> FeatureTerms:
-        """How the tool takes a measurement of ``feature`` now."""
-        return FeatureTerms(self.job.settings_for(feature, self.base), feature.empirical_mm,
+        """How the tool takes a measurement of ``feature`` now: less its empirical value and
+        its learnt difference from where the tool is aimed (``combine.aim``)."""
+        levels = self.agreement.relative_levels()
+        shift = 0.0
+        if feature.number in levels:
+            tolerances = {f: (self.job.feature(f).tol_lower_mm, self.job.feature(f).tol_upper_mm)
+                          for f in levels}
+            shift = levels[feature.number] - aim(levels, tolerances)
+        return FeatureTerms(self.job.settings_for(feature, self.base),
+                            feature.empirical_mm + shift,
                             self.agreement.disagreement(self.job.max_disagreement_mm(self.tool)))
 
     def on_measurement(self, feature: JobFeature, m: MeasurementIn, now: float) -> Decision:
@@ -53,7 +61,7 @@ class ToolCompensation:
                 and math.isfinite(m.diameter_mm):
             self.agreement.add(feature.number,
                                m.diameter_mm - feature.nominal_mm - feature.empirical_mm,
-                               m.uncertainty_mm)
+                               m.uncertainty_mm, m.time_s)
         d = self.controller.on_measurement(m, now, self.terms(feature))
         if d.kind is Kind.WRITE:
             self.agreement.applied()  # the next parts are cut with it
