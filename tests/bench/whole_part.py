@@ -1,7 +1,8 @@
 """The whole part: a stepped shaft of four features finished by two tools, each tool on a
 virtual lathe of its own (``drivers.sim.lathe``: its own wear, break-in, acceleration,
-warm-up and insert changes, the operator zeroing the tool's offset), corrected by one controller per tool (``service.compensation.tools``, the real
-state machines) over 500 parts.
+warm-up and insert changes, the operator zeroing the tool's offset), corrected by one
+controller per tool (``service.compensation.tools``, the real state machines) over 500
+parts.
 
 Each part: both tools cut their features with their CNC totals in force; a feature's
 diameter is its tool's deviation, plus the feature's own (the slender end deflects and cuts
