@@ -405,6 +405,28 @@ def principal_point() -> str:
         f"rendered views), {d['trials']} draws each:", "", *rows, "", _measured(d["run"])])
 
 
+def whole_part() -> str:
+    """Four features on two tools under one controller per tool, tuning and held-out physics,
+    and with a bound the deflection breaks."""
+    runs = _present(("whole_part", "tuning physics"),
+                    ("whole_part_held_out", "held-out physics, scored once"),
+                    ("whole_part_tight_bound", "tuning physics, tool 2's features allowed "
+                     "3 um apart (the deflection is 6): held"))
+    rows = ["| physics | feature | tolerance | parts out (worst seed) | mean | sd | Cpk "
+            "(worst seed) |", "|---|---|---:|---:|---:|---:|---:|"]
+    for what, d in runs:
+        for i, f in enumerate(d["job"]["features"]):
+            r = d["features"][str(f["number"])]
+            rows.append(f"| {what if i == 0 else ''} | {f['number']} {f['name']} (T{f['tool']}) "
+                        f"| +-{f['tol_upper_mm'] * 1000:g} um | {r['out']:g} ({r['out_max']}) "
+                        f"| {r['mean_um']:.1f} um | {r['sd_um']:.1f} um | {r['cpk']:.2f} "
+                        f"({r['cpk_min']:.2f}) |")
+    first = runs[0][1]
+    return "\n".join([f"{first['parts']} parts, medians over seeds "
+                      f"{', '.join(map(str, first['seeds']))} (held out: 900-904):", "",
+                      *rows, "", _measured(first["run"])])
+
+
 RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
                                         "core_stages": core_stages,
                                         "core_extractors": core_extractors,
@@ -418,7 +440,8 @@ RENDER: dict[str, Callable[[], str]] = {"core_throughput": core_throughput,
                                         "closed_loop": closed_loop,
                                         "camera_throughput": camera_throughput,
                                         "plant_publish": plant_publish,
-                                        "principal_point": principal_point}
+                                        "principal_point": principal_point,
+                                        "whole_part": whole_part}
 
 
 def render_page(text: str) -> str:
