@@ -2,12 +2,13 @@
 import { $, api } from "./api.js";
 import * as comp from "./compensation.js";
 import * as op from "./operator.js";
+import * as parts from "./parts.js";
 import * as spc from "./spc.js";
 import * as study from "./study.js";
 import * as tech from "./technician.js";
 
 const VIEWS = { operator: op.loadOperator, compensation: comp.loadCompensation,
-                spc: spc.loadSpc,
+                parts: parts.loadParts, spc: spc.loadSpc,
                 technician: async () => { await tech.loadTechnician(); await study.refreshStudy(); } };
 let source = null, live = false, retry = null, ticks = 0;
 
@@ -37,7 +38,10 @@ function connect() {
   if (source) source.close();
   source = new EventSource("/api/v1/stream");
   source.onopen = backOnline;
-  source.addEventListener("measurement", (e) => op.onMeasurement(JSON.parse(e.data)));
+  source.addEventListener("measurement", (e) => {
+    const m = JSON.parse(e.data);
+    op.onMeasurement(m); parts.onMeasurement(m);
+  });
   source.addEventListener("decision", (e) => {
     const d = JSON.parse(e.data);
     op.onDecision(d); comp.onDecision(d);
@@ -63,6 +67,7 @@ async function poll() {
   }
   if (!$("view-operator").hidden && live) op.refreshFrame();
   if (!$("view-spc").hidden && live && ++ticks % 3 === 0) spc.loadSpc().catch(() => {});
+  if (!$("view-parts").hidden && live) parts.loadParts().catch(() => {});
   if (!$("view-technician").hidden && live) study.refreshStudy().catch(() => {});
 }
 

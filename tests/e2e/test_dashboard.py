@@ -18,6 +18,7 @@ import httpx
 import pytest
 from playwright.sync_api import Page, expect, sync_playwright
 
+from drivers.sim.control import control
 from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_for_js, wait_ready
 
 CHROMIUM = "/usr/bin/chromium"
@@ -172,7 +173,6 @@ class TestWatching:
 def test_the_operator_sees_the_run_out_and_the_form(tmp_path, browser) -> None:
     """With the spindle's angle, a part clamped 50 um off: the operator view shows its TIR
     (beyond the limit: offsets held), the form and a polar plot of the revolution."""
-    from drivers.sim.control import control
     from tests.faults.test_runout import ENCODER, TURNING_36
 
     svc = start_service(tmp_path, extra_toml=ENCODER, camera_toml="sim_replay_frames = 36\n")
@@ -327,3 +327,32 @@ def test_the_api_reference_page_works_offline_under_the_gauges_policy(service, b
     assert page.locator("#endpoints .op").count() >= 20
     assert console == [] and outside == []
     shot(page, "api-reference")
+
+
+def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_laser(
+        service, browser) -> None:
+    job = {"part_number": "SH-4711", "name": "two steps", "features": [
+        {"number": 1, "name": "journal", "nominal_mm": 30.0, "tol_upper_mm": 0.05,
+         "tol_lower_mm": -0.05, "tool": 1},
+        {"number": 2, "name": "seat", "nominal_mm": 25.0, "tol_upper_mm": 0.004,
+         "tol_lower_mm": -0.004, "tool": 2, "deadband_mm": 0.001}]}
+    r = httpx.post(service.url + "/api/v1/jobs", headers={"X-API-Key": TECH_KEY},
+                   json={"document": job, "activate": True}, timeout=10)
+    assert r.status_code == 201, r.text
+    page = open_page(browser, service.url + "/ui/#parts")
+    expect(page.locator("#job-name")).to_contain_text("SH-4711 v1: 2 features, 2 tools")
+    expect(page.locator("#feature-now")).to_have_text("feature 1", timeout=15000)
+    # The seat, cut 10 um large for its +-4 um, then the next part's journal.
+    for diameter, feature in ((25.010, "feature 2"), (30.0, "feature 1")):
+        assert control(service.control_port, {"set": {"diameter_mm": diameter}})["ok"]
+        expect(page.locator("#feature-now")).to_have_text(feature, timeout=15000)
+    row = page.locator("#parts-body tr").first  # the newest
+    expect(row).to_contain_text("SH-4711-g", timeout=15000)
+    expect(page.locator("#parts-head")).to_contain_text("2 seat")
+    expect(row.locator("td.out").first).to_be_visible()  # the seat's cell, and the verdict
+    expect(row).to_contain_text("out")
+    assert control(service.control_port, {"set": {"diameter_mm": 35.0}})["ok"]
+    expect(page.locator("#feature-now")).to_have_text("no feature fits", timeout=15000)
+    expect(page.locator("#job-refused")).to_contain_text("fits no feature")
+    shot(page, "parts")
+    assert not page.errors  # type: ignore[attr-defined]
