@@ -267,6 +267,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                                .last_measurement_seq + 1)
     jobs = JobService(job_store, compensation, store_error)
     compensation.on_settings(lambda _: jobs.settings_changed())
+    modbus.follow_jobs(jobs)
     publisher = Publisher(sequence, feed, modbus, compensation, jobs, sp.max_tir_mm)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
                              settings.camera.roi_margin_px if settings.camera.roi_enabled

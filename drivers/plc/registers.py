@@ -11,6 +11,10 @@ offset request the gauge posts and the report the CNC writes back, every entry o
 
 Version 3 adds form and position: the run-out (TIR and its phase) and roundness (RONt, the
 dominant lobing) of the surface under the laser, with the spindle's angle known.
+
+Version 4 adds the whole part: the job in force, the feature under the laser and the CNC's
+part counter, each written by the CNC. A CNC written for version 3 reads and writes what it
+did, and the gauge behaves as it did.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from dataclasses import dataclass
 
 NO_VALUE = -0x80000000  # 0x80000000 as a signed 32-bit integer
 TEST_PATTERN = 0x12345678
-MAP_VERSION = 3
+MAP_VERSION = 4
 UM_PER_UNIT = 0.1  # 0.1 um per count
 
 
@@ -68,7 +72,7 @@ U16, I32, U32 = RegisterType.U16, RegisterType.I32, RegisterType.U32
 REGISTERS: tuple[Register, ...] = (
     _r("test_pattern", 0, U32, "-", "always 0x12345678: reads 0x1234, 0x5678 with "
        "big-endian words; check your word order with it"),
-    _r("map_version", 2, U16, "-", "version of this map (3)"),
+    _r("map_version", 2, U16, "-", "version of this map (4)"),
     _r("heartbeat", 3, U16, "count", "counts up once a second while the service is "
        "healthy (wraps at 65535); stands still when it is not"),
     _r("status", 4, U16, "bits", "status bits, see below"),
@@ -122,6 +126,13 @@ REGISTERS: tuple[Register, ...] = (
        "undulations per revolution); no value while not known"),
     _r("lobes", 45, U16, "count", "the form's dominant lobing (3: three lobes); 0 none above "
        "its noise, or not known"),
+    # The whole part (version 4): written by the CNC.
+    _r("job", 46, U16, "id", "the stored job to put in force (its id); reads the job in "
+       "force, 0 none (the single feature of the settings)", writable=True),
+    _r("feature", 47, U16, "number", "the feature under the laser, as the job numbers it "
+       "(1-99); 0: recognised from the diameter", writable=True),
+    _r("part_counter", 48, U16, "count", "the CNC's part counter: a new value starts the next "
+       "part record (wraps); 0: the gauge counts parts itself", writable=True),
 )
 
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}

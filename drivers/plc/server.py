@@ -211,6 +211,8 @@ def _value_problem(name: str, value: int) -> str:
         return f"{value} must be within 0 .. 100 mm"
     if name == "tol_lower" and not -1_000_000 <= value <= 0:
         return f"{value} must be within -100 mm .. 0"
+    if name == "feature" and not 0 <= value <= 99:
+        return f"{value} is not a feature number (1-99, or 0 to recognise)"
     if name == "command" and value not in {c.value for c in Command}:
         return f"{value} is not a command code (0-3)"
     return ""

@@ -54,6 +54,8 @@ class JobService:
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
         self._part_listeners: list[Callable[[dict[str, Any]], None]] = []
         self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
+        self.part_counter: int | None = None  # the CNC's, when it counts (map v4)
+        self._change_listeners: list[Callable[[], None]] = []
         self.part_counts: dict[str, int] = {"ok": 0, "out": 0, "incomplete": 0}
         self.refused = 0
         self.last_refused = ""
@@ -65,6 +67,14 @@ class JobService:
         self._job: Job | None = None
         self.parts: PartAssembler | None = None
         self._rebuild()
+
+    def on_change(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` whenever the job in force or the feature named changes."""
+        self._change_listeners.append(listener)
+
+    def _changed(self) -> None:
+        for listener in self._change_listeners:
+            listener()
 
     def on_part(self, listener: Callable[[dict[str, Any]], None]) -> None:
         """Call ``listener(part)`` (``PartRecord.as_dict``) for every finished part."""
@@ -94,6 +104,7 @@ class JobService:
         self.selected = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
+        self._changed()
 
     def settings_changed(self) -> None:
         """The compensation settings changed (a listener): the single feature follows; a
@@ -161,6 +172,7 @@ class JobService:
                 raise KeyError("no job is in force (set a nominal, or activate a job)")
             self._job.feature(feature)
         self.selected = feature
+        self._changed()
 
     # ---- the measurements ----------------------------------------------------------------
 
@@ -204,7 +216,7 @@ class JobService:
                 or record.diameter_mm is None or record.uncertainty_mm is None:
             return
         self._record(self.parts.add(record.feature, record.compensation_diameter_mm,
-                                    record.uncertainty_mm, record.time))
+                                    record.uncertainty_mm, record.time, self.part_counter))
 
     def _record(self, part: PartRecord | None) -> None:
         if part is None:

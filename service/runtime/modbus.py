@@ -22,9 +22,11 @@ from drivers.plc.registers import (
 from drivers.plc.server import GaugeModbusServer, ModbusAccess, run_heartbeat
 from drivers.plc.tls import TlsFiles
 from service.compensation import CompensationSettings, Decision, State
+from service.compensation.job import JobError, job_from_doc
 from service.config import ModbusSettings
 from service.record import MeasurementRecord
 from service.runtime.compensating import CompensationService
+from service.runtime.jobs import JobService
 
 log = logging.getLogger("shaftgauge.modbus")
 
@@ -152,6 +154,7 @@ class ModbusFacade:
             tls=TlsFiles(settings.tls.certfile, settings.tls.keyfile, settings.tls.cafile)
             if settings.tls else None)
         self._tasks: set[asyncio.Task] = set()
+        self.jobs: JobService | None = None
         compensation.on_decision(self.decided)
         compensation.on_settings(self.set_feature)
 
@@ -228,9 +231,46 @@ class ModbusFacade:
         return {_FEATURE[name]: units_to_mm(value) for name, value in entries
                 if name in _FEATURE}
 
+    def follow_jobs(self, jobs: JobService) -> None:
+        """Serve the job registers (map v4) from ``jobs``, and take the CNC's writes there."""
+        self.jobs = jobs
+        jobs.on_change(self._job_changed)
+        self._job_changed()
+
+    def _job_changed(self) -> None:
+        jobs = self.jobs
+        if jobs is not None:
+            self.bank.set_many({"job": 0 if jobs.stored is None else jobs.stored.id & 0xFFFF,
+                                "feature": jobs.selected or 0})
+
+    def _check_jobs(self, entries: list[tuple[str, int]]) -> str:
+        """Why the job, feature or part counter written cannot be taken ("" when it can)."""
+        values = dict(entries)
+        if self.jobs is None or not {"job", "feature"} & values.keys():
+            return ""
+        job = self.jobs.job
+        if values.get("job"):
+            if self.jobs.store is None:
+                return f"job: the store cannot be used ({self.jobs.store_error})"
+            try:
+                job = job_from_doc(self.jobs.store.get(values["job"]).document)
+            except KeyError:
+                return f"job: no stored job {values['job']}"
+            except JobError as err:
+                return f"job {values['job']}: {err}"
+        if values.get("feature"):
+            if job is None:
+                return "feature: no job is in force"
+            try:
+                job.feature(values["feature"])
+            except KeyError as err:
+                return f"feature: {err.args[0]}"
+        return ""
+
     def _check_write(self, entries: list[tuple[str, int]]) -> str:
         """Why a write cannot be taken ("" when it can): a command the settings keep from the
-        CNC, or a feature that does not hold together. A write is taken whole or not at all,
+        CNC, a job or feature the gauge does not have, or a feature that does not hold
+        together. A write is taken whole or not at all,
         so a refused one leaves ``command`` and ``last_command`` as they were."""
         for name, value in entries:
             if name != "command":
@@ -241,6 +281,9 @@ class ModbusFacade:
             if value == Command.ACKNOWLEDGE_ALARM and not self.settings.acknowledge_command:
                 return ("command 3 (acknowledge) from the CNC is off "
                         "(modbus.acknowledge_command): a technician acknowledges over the API")
+        problem = self._check_jobs(entries)
+        if problem:
+            return problem
         changes = self._feature_changes(entries)
         if not changes:
             return ""
@@ -259,6 +302,11 @@ class ModbusFacade:
         changes = self._feature_changes(entries)
         if changes:
             self._spawn(self._feature_from_cnc(changes, who))
+        values = dict(entries)
+        if "part_counter" in values and self.jobs is not None:
+            self.jobs.part_counter = values["part_counter"] or None
+        if "job" in values or "feature" in values:
+            self._spawn(self._job_from_cnc(values.get("job"), values.get("feature"), who))
         for name, value in entries:
             if name == "command":
                 self._spawn(self.run_command(Command(value), source="modbus", who=who))
@@ -274,6 +322,21 @@ class ModbusFacade:
         except (ValueError, NotStoredError) as err:  # changed meanwhile, or not storable
             log.warning("feature from %s not taken: %s", who, err)
             self.set_feature(self.compensation.settings)  # the registers show what is in force
+
+    async def _job_from_cnc(self, job_id: int | None, feature: int | None, who: str) -> None:
+        """The job, then the feature, the CNC wrote (checked before the write was taken)."""
+        jobs = self.jobs
+        assert jobs is not None
+        try:
+            if job_id == 0:
+                jobs.deactivate(who)
+            elif job_id is not None:
+                await jobs.activate(job_id, who)
+            if feature is not None:
+                jobs.select(feature or None)
+        except (KeyError, ValueError, NotStoredError) as err:  # changed meanwhile
+            log.warning("job or feature from %s not taken: %s", who, err)
+            self._job_changed()  # the registers show what is in force
 
     async def run_command(self, command: Command, source: str,
                           who: str | None = None) -> Decision | None:

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import time
 
+from pymodbus.client import ModbusTcpClient
+
+from drivers.plc.registers import BY_NAME
 from tests.unit.service.conftest import OPERATOR, TECHNICIAN
 
 H = {"X-API-Key": TECHNICIAN}
@@ -51,7 +54,9 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     assert [(f["feature"], f["verdict"]) for f in part["features"]] == [(1, "ok"), (2, "ok")]
     assert abs(part["features"][1]["diameter_mm"] - 25.0) < 0.01
     metrics = client.get("/metrics").text
-    assert 'shaftgauge_feature_diameter_mm{feature="2",name="seat"} 25.0' in metrics
+    seat = [ln for ln in metrics.splitlines()
+            if ln.startswith('shaftgauge_feature_diameter_mm{feature="2",name="seat"} ')]
+    assert seat and abs(float(seat[0].rsplit(" ", 1)[1]) - 25.0) < 0.01
     assert 'shaftgauge_parts_total{verdict="ok"}' in metrics
     labelled = [ln for ln in metrics.splitlines() if ln.startswith("shaftgauge_feature_")]
     assert len(labelled) <= 2 * 2  # two features of the job in force, two figures each
@@ -119,3 +124,40 @@ def test_a_one_feature_job_sets_the_compensation_feature_and_a_direct_one_ends_i
     st = client.get("/api/v1/status").json()["job"]
     assert st["job"]["id"] is None and st["job"]["part_number"] == "single feature"
     assert client.get("/api/v1/jobs").json()["items"][0]["active"] is False
+
+
+def test_the_cnc_puts_a_job_in_force_names_the_feature_and_counts_parts(client) -> None:
+    """Register map version 4 over real Modbus: what the job does not have is refused whole
+    (exception 0x03, nothing changed)."""
+    jid = client.post("/api/v1/jobs", headers=H, json={"document": TWO}).json()["id"]
+    job, feature, counter = (BY_NAME[n].address for n in ("job", "feature", "part_counter"))
+    with ModbusTcpClient("127.0.0.1", port=client.gauge.modbus.port, retries=0) as c:
+        refused = c.write_registers(job, [999, 1], device_id=1)
+        assert refused.isError() and refused.exception_code == 3
+        assert c.read_holding_registers(job, count=2, device_id=1).registers == [0, 0]
+        assert not c.write_registers(job, [jid, 2], device_id=1).isError()
+        deadline = time.monotonic() + 5
+        while c.read_holding_registers(job, count=2, device_id=1).registers != [jid, 2]:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        st = client.get("/api/v1/status").json()["job"]
+        assert st["job"]["id"] == jid and st["feature_selected"] == 2
+        bad = c.write_register(feature, 7, device_id=1)
+        assert bad.isError() and bad.exception_code == 3
+        assert c.read_holding_registers(feature, count=1, device_id=1).registers == [2]
+        assert not c.write_register(feature, 0, device_id=1).isError()  # recognise again
+        assert not c.write_register(counter, 41, device_id=1).isError()
+        latest_with(client, lambda m: m["feature"] == 1)
+        time.sleep(0.3)
+        assert not c.write_register(counter, 42, device_id=1).isError()  # the next part
+        latest_with(client, lambda m: m["feature"] == 1 and m["seq"] > 0)
+        deadline = time.monotonic() + 10
+        while not [p for p in client.get("/api/v1/parts").json()["items"]
+                   if p["serial"] == "SH-4711-41"]:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert not c.write_register(job, 0, device_id=1).isError()  # back to one feature
+    deadline = time.monotonic() + 5
+    while client.get("/api/v1/status").json()["job"]["job"]["id"] is not None:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
