@@ -285,7 +285,8 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                                            jobs.feature_for, health.form_position))
     feed.on_publish(jobs.published)
     health.jobs = jobs
-    spc = SpcService(settings.spc, ms.fuse_frames, compensation.feature)
+    spc = SpcService(settings.spc, ms.fuse_frames, jobs.feature_for)
+    jobs.on_new_job(spc.forget)
     feed.on_publish(spc)
     q = settings.quality
     studies = GaugeStudies(

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, HTTPException
+from fastapi import APIRouter, Depends, HTTPException, Query
 from pydantic import Field
 
 from service.api.auth import Caller, requires
@@ -29,9 +29,13 @@ def router(spc: SpcService, studies: GaugeStudies, compensation: CompensationSer
     r = APIRouter(tags=["quality"])
     technician = Depends(requires(api, "technician"))
 
-    @r.get("/spc", summary="Control limits, capability, run-rule violations of the feature")
-    def figures() -> dict:
-        return spc.figures()
+    @r.get("/spc", summary="Control limits, capability, run-rule violations of a feature "
+           "(default: the one measured last)")
+    def figures(feature: int | None = Query(None, ge=1, le=99)) -> dict:
+        try:
+            return spc.figures(feature)
+        except KeyError as err:
+            raise HTTPException(404, err.args[0]) from None
 
     @r.post("/spc/reset", summary="Start a new baseline for the control limits",
             dependencies=[technician])

@@ -56,6 +56,7 @@ class JobService:
         self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
         self.part_counter: int | None = None  # the CNC's, when it counts (map v4)
         self._change_listeners: list[Callable[[], None]] = []
+        self._job_listeners: list[Callable[[], None]] = []
         self.part_counts: dict[str, int] = {"ok": 0, "out": 0, "incomplete": 0}
         self.refused = 0
         self.last_refused = ""
@@ -71,6 +72,10 @@ class JobService:
     def on_change(self, listener: Callable[[], None]) -> None:
         """Call ``listener()`` whenever the job in force or the feature named changes."""
         self._change_listeners.append(listener)
+
+    def on_new_job(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` whenever another job (or the single feature anew) is in force."""
+        self._job_listeners.append(listener)
 
     def _changed(self) -> None:
         for listener in self._change_listeners:
@@ -104,6 +109,8 @@ class JobService:
         self.selected = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
+        for listener in self._job_listeners:
+            listener()
         self._changed()
 
     def settings_changed(self) -> None:

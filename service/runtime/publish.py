@@ -42,6 +42,7 @@ class Publisher:
         self.sequence, self.feed = sequence, feed
         self.modbus, self.compensation, self.jobs = modbus, compensation, jobs
         self.max_tir_mm = max_tir_mm
+        self._feature: int | None = None
         modbus.set_sequence(sequence.current)
 
     def __call__(self, frame: Frame, raw: Measurement, in_use: CalibrationInUse) -> None:
@@ -49,6 +50,10 @@ class Publisher:
                    frame.received_ns / 1e9)
         comp = self.compensation
         feature, refused = self.jobs.assign(m.diameter_mm if m else None)
+        number = None if feature is None else feature.number
+        if number != self._feature:  # a shoulder passed: no fused value across it
+            self.feed.restart_fusion()
+            self._feature = number
         record = make_record(
             seq=self.sequence.next(), wall_time=time.time(), frame_id=frame.frame_id,
             raw=raw, m=m, fused=self.feed.fused(m),
@@ -56,7 +61,7 @@ class Publisher:
             part_temp_c=comp.part_temp_c, alpha_per_k=comp.alpha_per_k,
             latency_ms=(time.monotonic_ns() - frame.received_ns) / 1e6,
             calibration_id=in_use.info.id,
-            feature_number=None if feature is None else feature.number, refused=refused)
+            feature_number=number, refused=refused)
         self.modbus.publish(record)  # first: the latency is frame -> registers
         self.feed.publish(record, m, frame, in_use.geometry)
         runout = in_use.runout.runout if in_use.runout is not None else None

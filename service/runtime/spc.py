@@ -1,6 +1,6 @@
-"""The live SPC of the gauge's feature: a feed listener that feeds the pure ``SpcMonitor``
-with each good fused diameter, follows the feature, and tells live subscribers when a run rule
-fires."""
+"""The live SPC of each feature: a feed listener that feeds a pure ``SpcMonitor`` a feature
+with each good fused diameter of it, follows the features' nominals and tolerances, and
+tells live subscribers when a run rule fires."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from service.runtime.feed import Subscribers
 
 
 class SpcService:
-    """Owns the ``SpcMonitor``; changed on the event loop only.
+    """Owns a ``SpcMonitor`` a feature; changed on the event loop only.
 
     Parameters
     ----------
@@ -23,51 +23,73 @@ class SpcService:
     fuse_frames : int
         The spacing of a subgroup's values when the config leaves it open.
     feature : callable
-        The feature in force (nominal and tolerance, mm).
+        What a record was compared with (``feature(record)``: its feature's nominal and
+        tolerance, mm).
     """
 
     def __init__(self, config: SpcConfig, fuse_frames: int,
-                 feature: Callable[[], Feature]) -> None:
-        self.monitor = SpcMonitor(SpcSettings(
+                 feature: Callable[[MeasurementRecord], Feature]) -> None:
+        self.settings = SpcSettings(
             subgroup_size=config.subgroup_size,
             member_spacing=config.member_spacing or fuse_frames, every_s=config.every_s,
             baseline_subgroups=config.baseline_subgroups,
-            window_subgroups=config.window_subgroups, rules=tuple(config.rules)))
+            window_subgroups=config.window_subgroups, rules=tuple(config.rules))
         self.feature = feature
         self.events = Subscribers()
-        self._feature_seen: Feature | None = None
+        self.monitors: dict[int, SpcMonitor] = {}
+        self._seen: dict[int, Feature] = {}
+        self.latest_feature: int | None = None
 
-    def _follow_feature(self) -> None:
-        f = self.feature()
-        if f == self._feature_seen:
-            return
-        self._feature_seen = f
-        n = f.nominal_mm
-        self.monitor.set_feature(n, None if n is None else n + f.tol_lower_mm,
-                                 None if n is None else n + f.tol_upper_mm)
+    def _monitor(self, number: int, f: Feature) -> SpcMonitor:
+        monitor = self.monitors.get(number)
+        if monitor is None:
+            monitor = self.monitors[number] = SpcMonitor(self.settings)
+        if self._seen.get(number) != f:  # a new nominal starts a new baseline
+            self._seen[number] = f
+            n = f.nominal_mm
+            monitor.set_feature(n, None if n is None else n + f.tol_lower_mm,
+                                None if n is None else n + f.tol_upper_mm)
+        return monitor
 
     def __call__(self, record: MeasurementRecord) -> None:
         """A published record (a feed listener)."""
-        self._follow_feature()
+        if record.feature is None:
+            return
+        monitor = self._monitor(record.feature, self.feature(record))
+        self.latest_feature = record.feature
         if record.status != "ok":
             return
-        sg = self.monitor.add(record.fused_diameter_mm, record.time)
+        sg = monitor.add(record.fused_diameter_mm, record.time)
         if sg is not None and sg.rules:
-            self.events.publish(event(sg))
+            self.events.publish({**event(sg), "feature": record.feature})
 
     def reset(self) -> None:
-        """A new baseline from now."""
-        self.monitor.reset()
+        """A new baseline from now, for every feature."""
+        for monitor in self.monitors.values():
+            monitor.reset()
+
+    def forget(self) -> None:
+        """Another job: its features are others."""
+        self.monitors.clear()
+        self._seen.clear()
+        self.latest_feature = None
 
     @property
     def rule_violation(self) -> bool:
-        """A rule fired at the latest subgroup."""
-        return self.monitor.violation is not None
+        """A rule fired at a feature's latest subgroup."""
+        return any(m.violation is not None for m in self.monitors.values())
 
-    def figures(self) -> dict[str, Any]:
-        """``GET /api/v1/spc``."""
-        self._follow_feature()
-        return self.monitor.figures()
+    def figures(self, feature: int | None = None) -> dict[str, Any]:
+        """``GET /api/v1/spc``: a feature's figures (by default the one measured last;
+        KeyError for a feature with none yet), and the features that have some."""
+        number = self.latest_feature if feature is None else feature
+        if number is None or number not in self.monitors:
+            if feature is not None:
+                raise KeyError(f"no SPC of feature {feature} yet (features with SPC: "
+                               f"{sorted(self.monitors) or 'none'})")
+            return {**SpcMonitor(self.settings).figures(), "feature": None, "features": []}
+        return {**self.monitors[number].figures(), "feature": number,
+                "features": sorted(self.monitors)}
 
 
 def event(sg: Subgroup) -> dict[str, Any]:

@@ -74,6 +74,7 @@ async function poll() {
 window.addEventListener("hashchange", () => show(location.hash.slice(1)));
 window.addEventListener("resize", () => { op.redraw(); spc.redrawSpc(); });
 comp.wireCompensation();
+spc.wireSpc();
 tech.wireTechnician();
 study.wireStudy();
 show(location.hash.slice(1));

@@ -8,8 +8,25 @@ const fmt = (v, d = 2) => v == null ? "–" : v.toFixed(d);
 const ci = (c) => c == null ? "" : ` (95 %: ${c[0].toFixed(2)}–${c[1].toFixed(2)})`;
 
 export async function loadSpc() {
-  figures = await api("/spc");
+  const chosen = $("spc-feature").value;
+  figures = await api("/spc" + (chosen ? `?feature=${chosen}` : ""));
+  features(figures.features || [], chosen);
   render();
+}
+
+// The features that have a chart: a choice kept while it has one.
+function features(numbers, chosen) {
+  const select = $("spc-feature");
+  const have = [...select.options].slice(1).map((o) => o.value);
+  if (have.join() !== numbers.join()) {
+    select.replaceChildren(new Option("measured last", ""),
+                           ...numbers.map((n) => new Option(`feature ${n}`, String(n))));
+    select.value = numbers.map(String).includes(chosen) ? chosen : "";
+  }
+}
+
+export function wireSpc() {
+  $("spc-feature").addEventListener("change", () => loadSpc().catch(() => {}));
 }
 
 export function onSpcEvent() { if (!$("view-spc").hidden) loadSpc().catch(() => {}); }

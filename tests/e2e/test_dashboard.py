@@ -355,4 +355,10 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
     expect(page.locator("#feature-now")).to_have_text("no feature fits", timeout=15000)
     expect(page.locator("#job-refused")).to_contain_text("fits no feature")
     shot(page, "parts")
+    # SPC a feature: both have a chart, and one is chosen.
+    page.goto(service.url + "/ui/#spc")
+    expect(page.locator("#spc-feature option")).to_have_count(3, timeout=15000)
+    page.select_option("#spc-feature", "2")
+    expect(page.locator("#spc-n")).to_contain_text("values", timeout=10000)
+    assert httpx.get(service.url + "/api/v1/spc?feature=2", timeout=10).json()["feature"] == 2
     assert not page.errors  # type: ignore[attr-defined]

@@ -18,21 +18,44 @@ from tests.integration.plant.test_mqtt import record
 async def test_a_rule_that_fires_is_an_event_for_live_subscribers() -> None:
     feature = Feature(30.0, -0.02, 0.02)
     spc = SpcService(SpcConfig(subgroup_size=4, member_spacing=2, every_s=0,
-                               baseline_subgroups=5), 10, lambda: feature)
+                               baseline_subgroups=5), 10, lambda _: feature)
     q = spc.events.add()
     rng = np.random.default_rng(2)
     values = list(30.0 + rng.normal(0, 0.001, 60)) + [30.01] * 20  # then a 10 um shift
     for i, v in enumerate(values):
-        r = record(i, v)
-        spc(r)
-    assert spc.monitor.limits is not None and spc.rule_violation
+        spc(record(i, v)._replace(feature=1))
+    assert spc.monitors[1].limits is not None and spc.rule_violation
     ev = await asyncio.wait_for(q.get(), 1)
     assert ev["rules"] and ev["rules"][0]["rule"] == 1 and ev["mean_mm"] > 30.003  # shifted
+    assert ev["feature"] == 1
     figures = spc.figures()
     assert figures["nominal_mm"] == 30.0 and figures["usl_mm"] == 30.02
     feature = Feature(31.0, -0.02, 0.02)  # a new nominal: a new baseline
-    spc(record(999, 31.0))
-    assert spc.monitor.limits is None and not spc.rule_violation
+    spc(record(999, 31.0)._replace(feature=1))
+    assert spc.monitors[1].limits is None and not spc.rule_violation
+
+
+def test_each_feature_has_its_own_chart() -> None:
+    features = {1: Feature(30.0, -0.02, 0.02), 2: Feature(25.0, -0.01, 0.01)}
+    spc = SpcService(SpcConfig(subgroup_size=4, member_spacing=1, every_s=0,
+                               baseline_subgroups=5), 10, lambda r: features[r.feature])
+    rng = np.random.default_rng(3)
+    for i in range(80):  # the laser goes from feature to feature
+        n = 1 + (i // 4) % 2
+        spc(record(i, features[n].nominal_mm + rng.normal(0, 0.001))._replace(feature=n))
+    spc(record(80, 30.0)._replace(feature=None))  # fits no feature: no chart's
+    one, two = spc.figures(1), spc.figures(2)
+    assert abs(one["mean_mm"] - 30.0) < 0.002 and abs(two["mean_mm"] - 25.0) < 0.002
+    assert two["usl_mm"] == 25.01 and one["features"] == [1, 2]
+    assert spc.figures()["feature"] == 2  # the one measured last
+    try:
+        spc.figures(3)
+    except KeyError as err:
+        assert "features with SPC: [1, 2]" in err.args[0]
+    else:
+        raise AssertionError("feature 3 has no SPC")
+    spc.forget()  # another job
+    assert spc.figures()["features"] == []
 
 
 def study(capable: bool, finished: float) -> dict:
