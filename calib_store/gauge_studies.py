@@ -11,7 +11,7 @@ from typing import Any
 from calib_store.store import open_database, transaction
 
 _COLUMNS = ("id", "started", "finished", "by", "calibration_id", "certified_mm",
-            "tolerance_mm", "n", "state", "reason", "values", "result")
+            "tolerance_mm", "n", "state", "reason", "values", "result", "feature")
 
 
 class GaugeStudyStore:
@@ -31,13 +31,13 @@ class GaugeStudyStore:
                              "'the service stopped during the study' WHERE state = 'running'")
 
     def start(self, started: float, by: str, calibration_id: int | None, certified_mm: float,
-              tolerance_mm: float, n: int) -> int:
-        """A new running study; its id."""
+              tolerance_mm: float, n: int, feature: int | None = None) -> int:
+        """A new running study (of a master of ``feature``, when named); its id."""
         with self._lock, transaction(self._db):
             cur = self._db.execute(
                 "INSERT INTO gauge_studies (started, by, calibration_id, certified_mm, "
-                "tolerance_mm, n, state) VALUES (?, ?, ?, ?, ?, ?, 'running')",
-                (started, by, calibration_id, certified_mm, tolerance_mm, n))
+                "tolerance_mm, n, state, feature) VALUES (?, ?, ?, ?, ?, ?, 'running', ?)",
+                (started, by, calibration_id, certified_mm, tolerance_mm, n, feature))
             return int(cur.lastrowid)
 
     def finish(self, study_id: int, finished: float, state: str, values: list[float],

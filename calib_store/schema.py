@@ -168,6 +168,7 @@ _JOB_TABLES = [
     "CREATE INDEX parts_time ON parts (time)",
     "CREATE INDEX parts_serial ON parts (serial)",
     "ALTER TABLE measurements ADD COLUMN feature INTEGER",
+    "ALTER TABLE gauge_studies ADD COLUMN feature INTEGER",
 ]
 
 
@@ -192,7 +193,8 @@ MIGRATIONS = (
     Migration(2, "the measurement archive keeps the surface's run-out (TIR) and roundness "
                  "(RONt) where they were known, for the AQDEF export", _v2),
     Migration(3, "jobs (part programs: features and tools, versioned and audited), one record "
-                 "per part, and the feature of each archived measurement", _v3),
+                 "per part, and the feature of each archived measurement and gauge study",
+              _v3),
 )
 SCHEMA_VERSION = MIGRATIONS[-1].version
 

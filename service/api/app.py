@@ -98,7 +98,7 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
                                      g.settings.measurement, keys))
     api.include_router(sessions.router(g.sessions, g.context, g.compensation, keys))
     api.include_router(session_steps.router(g.sessions, g.compensation, g.pipeline, keys))
-    api.include_router(quality.router(g.spc, g.studies, g.compensation, keys))
+    api.include_router(quality.router(g.spc, g.studies, g.compensation, keys, g.jobs))
     api.include_router(jobs.router(g.jobs, keys))
     api.include_router(export.router(g.log, gauge_identity(g.settings.mqtt)[0],
                                      g.context.store_error, g.settings.spindle.max_tir_mm,

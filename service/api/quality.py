@@ -9,6 +9,7 @@ from service.api.auth import Caller, requires
 from service.api.models import _Strict
 from service.config import ApiSettings
 from service.runtime.compensating import CompensationService
+from service.runtime.jobs import JobService
 from service.runtime.spc import SpcService
 from service.runtime.studies import GaugeStudies, StudyError
 
@@ -21,10 +22,13 @@ class GaugeStudyIn(_Strict):
                    "frames)")
     tolerance_mm: float | None = Field(None, gt=0, le=100, description="the feature's "
                                        "tolerance T (USL - LSL); default: the feature's")
+    feature: int | None = Field(None, ge=1, le=99, description="the job's feature the master "
+                                "stands for (its tolerance is T); default: the single "
+                                "feature's")
 
 
 def router(spc: SpcService, studies: GaugeStudies, compensation: CompensationService,
-           api: ApiSettings) -> APIRouter:
+           api: ApiSettings, jobs: JobService | None = None) -> APIRouter:
     """SPC reads; studies start with a technician key."""
     r = APIRouter(tags=["quality"])
     technician = Depends(requires(api, "technician"))
@@ -52,12 +56,20 @@ def router(spc: SpcService, studies: GaugeStudies, compensation: CompensationSer
             summary="Measure the master n times (offsets held meanwhile) and compute Cg, Cgk")
     async def start(body: GaugeStudyIn, caller: Caller = technician) -> dict:
         f = compensation.feature()
+        if body.feature is not None:
+            try:
+                if jobs is None or jobs.job is None:
+                    raise KeyError("no job is in force")
+                f = jobs.feature_of(jobs.job.feature(body.feature))
+            except KeyError as err:
+                raise HTTPException(422, f"feature: {err.args[0]}") from None
         tol = body.tolerance_mm or (f.tol_upper_mm - f.tol_lower_mm)
         try:
-            sid = studies.start(body.certified_mm, body.n, tol, by=f"api:{caller}")
+            sid = studies.start(body.certified_mm, body.n, tol, by=f"api:{caller}",
+                                feature=body.feature)
         except StudyError as err:
             raise HTTPException(409, str(err)) from None
         return {"id": sid, "n": body.n, "certified_mm": body.certified_mm,
-                "tolerance_mm": tol}
+                "tolerance_mm": tol, "feature": body.feature}
 
     return r

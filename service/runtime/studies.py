@@ -69,17 +69,20 @@ class GaugeStudies:
         self._task: asyncio.Task | None = None
         self._latest = store.latest_done() if store is not None else None
 
-    def start(self, certified_mm: float, n: int, tolerance_mm: float, by: str) -> int:
-        """Start a study; its id. Raises ``StudyError`` when one cannot start now."""
+    def start(self, certified_mm: float, n: int, tolerance_mm: float, by: str,
+              feature: int | None = None) -> int:
+        """Start a study (of a master of the job's ``feature``, when named); its id. Raises
+        ``StudyError`` when one cannot start now."""
         if self.store is None:
             raise StudyError("the store cannot be used: studies are not kept")
         if self.running is not None:
             raise StudyError(f"study {self.running['id']} is running "
                              f"({len(self.running['values'])} of {self.running['n']} values)")
         sid = self.store.start(time.time(), by, self.calibration_id(), certified_mm,
-                               tolerance_mm, n)
+                               tolerance_mm, n, feature)
         self.running = {"id": sid, "n": n, "values": [], "certified_mm": certified_mm,
-                        "tolerance_mm": tolerance_mm, "by": by, "started": time.time()}
+                        "tolerance_mm": tolerance_mm, "by": by, "started": time.time(),
+                        "feature": feature}
         self._task = asyncio.get_running_loop().create_task(self._run(sid), name="study")
         return sid
 

@@ -161,3 +161,15 @@ def test_the_cnc_puts_a_job_in_force_names_the_feature_and_counts_parts(client) 
     while client.get("/api/v1/status").json()["job"]["job"]["id"] is not None:
         assert time.monotonic() < deadline
         time.sleep(0.05)
+
+
+def test_a_gauge_study_of_a_features_master_takes_its_tolerance(client) -> None:
+    client.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True})
+    r = client.post("/api/v1/gauge-studies", headers=H,
+                    json={"certified_mm": 30.0, "n": 25, "feature": 7})
+    assert r.status_code == 422 and "feature 7 is not in job" in r.json()["detail"]
+    r = client.post("/api/v1/gauge-studies", headers=H,
+                    json={"certified_mm": 30.0, "n": 25, "feature": 1})
+    assert r.status_code == 202, r.text
+    assert r.json()["tolerance_mm"] == 0.1 and r.json()["feature"] == 1
+    assert client.get("/api/v1/gauge-studies").json()["items"][0]["feature"] == 1
