@@ -64,6 +64,12 @@ MONITORING = {"Diameter": _DOUBLE, "Uncertainty": _DOUBLE, "FusedDiameter": _DOU
               "RunoutPhase": _DOUBLE, "Ront": _DOUBLE, "Lobes": _INT}
 COMPENSATION = {"State": _STRING, "CumulativeOffset": _DOUBLE, "LastOffset": _DOUBLE,
                 "Shadow": _BOOL}
+CHARACTERISTIC = {"CharacteristicIdentifier": _INT, "Name": _STRING, "Nominal": _DOUBLE,
+                  "LowerTolerance": _DOUBLE, "UpperTolerance": _DOUBLE,
+                  "ResultValue": _DOUBLE, "ResultEvaluation": _STRING, "InJob": _BOOL}
+"""A feature of the job in force, in OPC 40210's names where they fit (lengths in mm; the
+tolerances as deviations from the nominal; ``ResultEvaluation``: ``InTolerance``,
+``AboveTolerance``, ``BelowTolerance``, or ``NotMeasured``)."""
 _DEFAULTS = {_DOUBLE: math.nan, _STRING: "", _BOOL: False, _INT: -1}
 
 _CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
@@ -147,9 +153,10 @@ class GaugeView:
     """What the server shows and does, as callables into the gauge.
 
     ``values()`` returns the current values by variable name (``MONITORING`` and
-    ``COMPENSATION``; None for "none"); ``measure_now()`` takes a new measurement and returns
-    ``(diameter_mm or None, status)``; ``reset(who)`` resets compensation and returns what
-    happened.
+    ``COMPENSATION``; None for "none"), and under ``Characteristics`` each feature of the job
+    in force by its number (``CHARACTERISTIC``); ``measure_now()`` takes a new measurement
+    and returns ``(diameter_mm or None, status)``; ``reset(who)`` resets compensation and
+    returns what happened.
     """
 
     values: Callable[[], dict[str, Any]]
@@ -185,7 +192,10 @@ class OpcUaServer:
         self.refused_certificates = 0
         self.last_refused_certificate = ""
         self._nodes: dict[str, Any] = {}
-        self._written: dict[str, Any] = {}
+        self._written: dict[Any, Any] = {}
+        self._char_nodes: dict[int, dict[str, Any]] = {}
+        self._characteristics: Any = None
+        self._idx = 0
         self.calls = {"MeasureNow": 0, "ResetCompensation": 0}
 
     @property
@@ -267,6 +277,8 @@ class OpcUaServer:
             for name, vtype in table.items():
                 self._nodes[name] = await parent.add_variable(
                     idx, name, ua.Variant(_DEFAULTS[vtype], vtype))
+        self._idx = idx
+        self._characteristics = await gauge.add_object(idx, "Characteristics")
         await gauge.add_method(idx, "MeasureNow", self._measure_now, [],
                                [ua.VariantType.Double, ua.VariantType.String])
         await gauge.add_method(idx, "ResetCompensation", self._reset, [],
@@ -282,18 +294,37 @@ class OpcUaServer:
         self.calls["ResetCompensation"] += 1
         return [ua.Variant(await self.view.reset("opcua:technician"), _STRING)]
 
+    async def _characteristic(self, number: int) -> dict[str, Any]:
+        """A feature's object (``Characteristic<n>``), made when it is first seen."""
+        nodes = self._char_nodes.get(number)
+        if nodes is None:
+            obj = await self._characteristics.add_object(self._idx, f"Characteristic{number}")
+            nodes = self._char_nodes[number] = {
+                name: await obj.add_variable(self._idx, name,
+                                             ua.Variant(_DEFAULTS[vtype], vtype))
+                for name, vtype in CHARACTERISTIC.items()}
+        return nodes
+
+    async def _write(self, key: Any, node: Any, value: Any, vtype: ua.VariantType) -> None:
+        if value is None or (isinstance(value, float) and not math.isfinite(value)):
+            value = _DEFAULTS[vtype]
+        if key in self._written and _same(self._written[key], value):
+            return
+        await node.write_value(ua.Variant(value, vtype))
+        self._written[key] = value
+
     async def refresh(self) -> None:
         """Write the gauge's current values into the variables that changed."""
         values = self.view.values()
+        features: dict[int, dict[str, Any]] = values.get("Characteristics") or {}
+        for number in sorted({*features, *self._char_nodes}):
+            nodes = await self._characteristic(number)
+            got = {**features.get(number, {}), "InJob": number in features}
+            for name, vtype in CHARACTERISTIC.items():
+                await self._write((number, name), nodes[name], got.get(name), vtype)
         for name, node in self._nodes.items():
-            vtype = MONITORING.get(name) or COMPENSATION[name]
-            value = values.get(name)
-            if value is None or (isinstance(value, float) and not math.isfinite(value)):
-                value = _DEFAULTS[vtype]
-            if name in self._written and _same(self._written[name], value):
-                continue
-            await node.write_value(ua.Variant(value, vtype))
-            self._written[name] = value
+            await self._write(name, node, values.get(name),
+                              MONITORING.get(name) or COMPENSATION[name])
 
     async def run(self) -> None:
         """Start, then keep the variables current until cancelled."""

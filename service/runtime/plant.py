@@ -16,7 +16,9 @@ from drivers.camera.base import Camera, CameraError
 from drivers.plc.client import OffsetWriter
 from drivers.plc.pull import PullCnc
 from service.compensation import Decision, Kind
+from service.compensation.job import JobFeature
 from service.config import Settings
+from service.record import MeasurementRecord
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
@@ -51,15 +53,27 @@ class LastOffset:
             self.offset_mm = d.offset_mm
 
 
+def characteristic(f: JobFeature, latest: MeasurementRecord | None) -> dict[str, Any]:
+    """A feature and its latest measurement as the OPC UA server shows it
+    (``service.plant.opcua.CHARACTERISTIC``)."""
+    value = latest.diameter_mm if latest is not None and latest.status == "ok" else None
+    evaluation = "NotMeasured" if value is None else "InTolerance" if latest.in_tolerance \
+        else "AboveTolerance" if (latest.deviation_mm or 0.0) > 0 else "BelowTolerance"
+    return {"CharacteristicIdentifier": f.number, "Name": f.name, "Nominal": f.nominal_mm,
+            "LowerTolerance": f.tol_lower_mm, "UpperTolerance": f.tol_upper_mm,
+            "ResultValue": value, "ResultEvaluation": evaluation}
+
+
 class OpcUaValues:
     """The OPC UA server's view of the gauge: values and methods (``GaugeView``)."""
 
     def __init__(self, feed: MeasurementFeed, compensation: CompensationService,
                  camera: Camera, writer: OffsetWriter | PullCnc | None,
-                 form: Callable[[], dict[str, Any]] = dict) -> None:
+                 form: Callable[[], dict[str, Any]] = dict,
+                 jobs: JobService | None = None) -> None:
         self.feed, self.compensation, self.camera, self.writer = (feed, compensation, camera,
                                                                   writer)
-        self.form = form
+        self.form, self.jobs = form, jobs
         self.last_offset = LastOffset()
         compensation.on_decision(self.last_offset)
 
@@ -78,6 +92,9 @@ class OpcUaValues:
         out.update({name: f[key] for name, key in (
             ("RunoutTir", "tir_mm"), ("RunoutPhase", "eccentricity_deg"), ("Ront", "ront_mm"),
             ("Lobes", "lobes")) if f.get(key) is not None})
+        if self.jobs is not None and self.jobs.job is not None:
+            out["Characteristics"] = {f.number: characteristic(f, self.jobs.latest.get(f.number))
+                                      for f in self.jobs.job.features}
         if r is not None:
             out.update(Diameter=r.diameter_mm, Uncertainty=r.uncertainty_mm,
                        FusedDiameter=r.fused_diameter_mm, Deviation=r.deviation_mm,
@@ -137,7 +154,7 @@ def make_plant_links(settings: Settings, feed: MeasurementFeed,
         if ua.none_security is None:
             ua = ua.model_copy(update={"none_security": embedded})
 
-        values = OpcUaValues(feed, compensation, camera, writer, health.form_position)
+        values = OpcUaValues(feed, compensation, camera, writer, health.form_position, jobs)
         links.append(OpcUaServer(ua, GaugeView(
             values.values, values.measure_now, values.reset,
             serial_number=settings.camera.device_id or settings.camera.sim_serial,

@@ -247,3 +247,37 @@ async def test_a_port_in_use_is_a_problem_not_a_crash(tmp_path: Path) -> None:
     assert server.server is None
     assert f"127.0.0.1:{port} did not start" in server.problem
     assert server.problems()[0][0] == "opcua_down"
+
+
+async def test_each_feature_of_the_job_is_a_characteristic(served) -> None:
+    """OPC 40210's names: CharacteristicIdentifier, Nominal, the tolerances, ResultValue and
+    ResultEvaluation; a feature of a job no longer in force stays, marked not in the job."""
+    _, gauge, url = served
+    gauge.values["Characteristics"] = {
+        1: {"CharacteristicIdentifier": 1, "Name": "journal", "Nominal": 30.0,
+            "LowerTolerance": -0.015, "UpperTolerance": 0.015, "ResultValue": 30.004,
+            "ResultEvaluation": "InTolerance"},
+        2: {"CharacteristicIdentifier": 2, "Name": "seat", "Nominal": 25.0,
+            "LowerTolerance": -0.01, "UpperTolerance": 0.01, "ResultValue": None,
+            "ResultEvaluation": "NotMeasured"}}
+    async with Client(url) as client:
+        for _ in range(100):
+            try:
+                seat = await _node(client, "Shaftgauge", "Characteristics", "Characteristic2")
+                break
+            except ua.UaStatusCodeError:
+                await asyncio.sleep(0.05)
+        value = await (await _node(client, "Shaftgauge", "Characteristics",
+                                   "Characteristic1", "ResultValue")).read_value()
+        assert value == pytest.approx(30.004)
+        idx = await client.get_namespace_index("urn:shaftgauge")
+        assert await (await seat.get_child(f"{idx}:Name")).read_value() == "seat"
+        assert math.isnan(await (await seat.get_child(f"{idx}:ResultValue")).read_value())
+        assert await (await seat.get_child(f"{idx}:InJob")).read_value() is True
+        del gauge.values["Characteristics"][2]  # another job
+        in_job = await seat.get_child(f"{idx}:InJob")
+        for _ in range(100):
+            if await in_job.read_value() is False:
+                break
+            await asyncio.sleep(0.05)
+        assert await in_job.read_value() is False
