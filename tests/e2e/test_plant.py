@@ -27,11 +27,11 @@ def sub(port: int, topic: str, count: int, timeout_s: int = 30) -> list[str]:
     return done.stdout.splitlines()
 
 
-async def read_diameter(url: str) -> float:
+async def read_diameter(url: str, *path: str) -> float:
     async with Client(url) as client:
         idx = await client.get_namespace_index("urn:shaftgauge")
         node = await client.nodes.objects.get_child(
-            [f"{idx}:Shaftgauge", f"{idx}:Monitoring", f"{idx}:Diameter"])
+            [f"{idx}:{p}" for p in ("Shaftgauge", *(path or ("Monitoring", "Diameter")))])
         return await node.read_value()
 
 
@@ -54,6 +54,10 @@ def test_the_embedded_default_reports_to_mqtt_opcua_and_aqdef(tmp_path: Path) ->
         assert ua["running"], f"{ua}\n{svc.stderr()[-3000:]}"
         diameter = asyncio.run(read_diameter(f"opc.tcp://127.0.0.1:{opcua}"))
         assert abs(diameter - 30.0) < 0.02
+        # The single feature is the job's characteristic 1 (OPC 40210's names).
+        result = asyncio.run(read_diameter(f"opc.tcp://127.0.0.1:{opcua}", "Characteristics",
+                                           "Characteristic1", "ResultValue"))
+        assert abs(result - 30.0) < 0.02
 
         deadline, lines = time.monotonic() + 20, []
         while time.monotonic() < deadline and len(lines) < 2:
