@@ -247,6 +247,7 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
     from drivers.sim.disturb import Disturbances
     from drivers.sim.gige import SimCameraSettings, SimGigECamera
     from drivers.sim.rig import RigConfig
+    from drivers.sim.stepped import SteppedPart
 
     try:
         spec = Disturbances.from_dict(json.loads(args.disturbances)) if args.disturbances \
@@ -257,12 +258,16 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
         lathe = lathe_config(args.lathe, args.diameter) if args.lathe else None
     except ValueError as err:
         return _fail(f"--lathe: {err}")
+    try:
+        stepped = SteppedPart.from_json(args.stepped) if args.stepped else None
+    except ValueError as err:
+        return _fail(f"--stepped: {err}")
     settings = SimCameraSettings(
         serial=args.serial, address=args.address, diameter_mm=args.diameter,
         drift_um_per_min=args.drift_um_per_min, drift_period_min=args.drift_period_min,
         fps=args.fps, lost_ratio=args.lost_ratio,
         seed=args.seed, replay_frames=args.replay, rig=RigConfig(disturbances=spec),
-        lathe=lathe)
+        lathe=lathe, stepped=stepped)
     camera = SimGigECamera(settings)
     try:
         camera.start()
@@ -658,6 +663,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "drivers/sim/lathe.py), e.g. '{\"wear_per_min_mm\": 0.03, "
                    "\"laser_distance_mm\": 2, \"feed_mm_per_min\": 60}'; the CNC's total "
                    "offset comes from --cnc or the control port's cnc_total_mm")
+    p.add_argument("--stepped", metavar="JSON",
+                   help="a stepped shaft, part after part, its segments in turn "
+                   "(drivers/sim/stepped.py), e.g. '{\"segments\": [{\"diameter_mm\": 30, "
+                   "\"tool\": 1}, {\"diameter_mm\": 25, \"tool\": 2}], \"dwell_s\": 3, "
+                   "\"wear_um_per_min\": {\"1\": 0.4, \"2\": 0.8}}'")
     p.add_argument("--cnc", metavar="HOST:PORT",
                    help="with --lathe: the push CNC (sim-plc) whose applied total the lathe "
                    "follows, read over Modbus TCP")

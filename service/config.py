@@ -80,6 +80,11 @@ class CameraSettings(_Section):
     feature is the simulated shaft (its diameter, the compensation's tolerance, +-0.020 mm by
     default) and the tool wears slowly, so a newcomer sees a trend in its band, offsets
     proposed in shadow mode, the SPC view filling and a gauge study that passes."""
+    sim_part: Literal["cylinder", "stepped"] = "stepped"
+    """With ``sim_feature``: ``stepped`` shows the embedded default's stepped shaft (four
+    diameters finished by two tools that wear at their own rates, part after part, with
+    part-to-part scatter; its job is put in force on the first start); ``cylinder`` one
+    diameter, ``sim_diameter_mm``."""
     sim_lathe: bool = False
     """The simulated camera shows what a virtual lathe cuts (``drivers/sim/lathe.py``,
     continuous turning): the tool wears at the drift's rate (a new insert every

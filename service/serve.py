@@ -145,6 +145,37 @@ def sim_lathe_args(settings: Settings) -> list[str]:
     return args
 
 
+def embedded_job(cam: CameraSettings) -> dict:
+    """The embedded default's stepped shaft: its job, around the simulated diameter."""
+    d = cam.sim_diameter_mm
+    return {"part_number": "DEMO-4", "name": "simulated stepped shaft", "features": [
+        {"number": 1, "name": "journal", "nominal_mm": d, "tol_upper_mm": 0.02,
+         "tol_lower_mm": -0.02, "tool": 1},
+        {"number": 2, "name": "bearing seat", "nominal_mm": round(d - 4.0, 3),
+         "tol_upper_mm": 0.012, "tol_lower_mm": -0.012, "tool": 1},
+        {"number": 3, "name": "collar", "nominal_mm": round(d + 4.0, 3), "tol_upper_mm": 0.025,
+         "tol_lower_mm": -0.025, "tool": 2},
+        {"number": 4, "name": "slender end", "nominal_mm": round(d - 2.0, 3),
+         "tol_upper_mm": 0.015, "tol_lower_mm": -0.015, "tool": 2}]}
+
+
+def sim_stepped_args(settings: Settings) -> list[str]:
+    """The simulated camera's stepped shaft (``camera.sim_part``), its tools wearing at
+    the drift's rate and twice it, a new insert every ``sim_drift_period_min``."""
+    cam = settings.camera
+    if cam.source != "sim" or not (cam.sim_feature and cam.sim_part == "stepped") \
+            or cam.sim_lathe:
+        return []
+    rate = sim_drift_um_per_min(cam)
+    spec = {"segments": [{"diameter_mm": f["nominal_mm"], "tool": f["tool"],
+                          "deflection_mm": 0.004 if f["number"] == 4 else 0.0}
+                         for f in embedded_job(cam)["features"]],
+            "dwell_s": 3.0, "wear_um_per_min": {"1": rate, "2": 2 * rate},
+            "insert_every_min": cam.sim_drift_period_min, "part_sigma_mm": 0.0015,
+            "seed": cam.sim_seed}
+    return ["--stepped", json.dumps(spec)]
+
+
 def embedded_feature(settings: Settings) -> Settings:
     """With the simulated camera, ``sim_feature`` on and no nominal set: the feature is the
     simulated shaft (``camera.sim_feature``)."""
@@ -200,7 +231,8 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
                  "--drift-um-per-min", str(sim_drift_um_per_min(cam_cfg)),
                  "--drift-period-min", str(cam_cfg.sim_drift_period_min), "--seed",
                  str(cam_cfg.sim_seed), "--replay", str(cam_cfg.sim_replay_frames),
-                 "--calibration-out", str(cal_path), *sim_lathe_args(settings)], "camera")
+                 "--calibration-out", str(cal_path), *sim_lathe_args(settings),
+                 *sim_stepped_args(settings)], "camera")
             device_id = ready["device_id"]
             extras["sim_camera_control_port"] = ready["control_port"]
             sim_cal = load_calibration(cal_path)
@@ -229,6 +261,9 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     if store is not None and sim_cal is not None and not store.list():
         store.add(sim_cal, by="shaftgauge", note="simulated rig (embedded default)",
                   activate=True)
+    if jobs is not None and sim_stepped_args(settings) and not jobs.list():
+        jobs.add(embedded_job(cam_cfg), by="shaftgauge", note="simulated stepped shaft "
+                 "(embedded default)", activate=True)
     extras["camera"] = device_id if cam_cfg.source != "rig" else "rig"
     return wire(settings, camera, store, comp_log, writer, store_error, jobs), extras
 

@@ -39,6 +39,7 @@ from drivers.sim.disturb import Disturbances
 from drivers.sim.lathe import LaserView, LatheConfig, VirtualLathe
 from drivers.sim.replay import FrameRing, crop, min_frame_period_us
 from drivers.sim.rig import RigConfig, ShaftRenderer, Turning
+from drivers.sim.stepped import SteppedPart
 
 log = logging.getLogger("shaftgauge.sim.gige")
 
@@ -111,6 +112,10 @@ class SimCameraSettings:
     """A virtual lathe decides the diameter shown (continuous turning, the laser a dead time
     behind the tool; ``set_cnc_total`` or ``follow_cnc`` tell it the CNC's wear offset);
     ``diameter_mm`` and the drift are then not used."""
+    stepped: SteppedPart | None = None
+    """A stepped shaft, part after part, its segments in turn (``drivers.sim.stepped``);
+    ``diameter_mm`` and the drift are then not used, until ``set_diameter`` (a master put
+    in) ends it."""
 
 
 class CameraLathe:
@@ -236,12 +241,12 @@ class SimGigECamera:
     # ---- live changes ------------------------------------------------------------------
 
     def set_diameter(self, diameter_mm: float, drift_um_per_min: float | None = None) -> None:
-        """Jump to a diameter (and optionally change the wear drift) from now on."""
+        """Jump to a diameter (a master put in ends a stepped part), and the drift if given."""
         if self.lathe is not None:
             raise ValueError("the virtual lathe decides the diameter shown: tell it the "
                              "CNC's offset ('cnc_total_mm'), not a diameter")
         with self._lock:
-            self._d0, self._t0 = float(diameter_mm), time.monotonic()
+            self._d0, self._t0, self.settings.stepped = float(diameter_mm), time.monotonic(), None
             if drift_um_per_min is not None:
                 self.settings.drift_um_per_min = float(drift_um_per_min)
 
@@ -292,6 +297,8 @@ class SimGigECamera:
         if self.lathe is not None:
             return self.lathe.diameter_mm()
         with self._lock:
+            if self.settings.stepped is not None:  # its segments in turn
+                return self.settings.stepped.at(time.monotonic() - self._t0)
             minutes = (time.monotonic() - self._t0) / 60.0
             if self.settings.drift_period_min > 0:
                 minutes %= self.settings.drift_period_min

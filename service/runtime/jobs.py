@@ -4,8 +4,8 @@ laser, and the records of the parts as they are finished. One owner of all three
 With no stored job active, the job is today's one feature: the compensation settings'
 nominal and tolerance, finished by tool 1 (``Job.single``). A stored job of one feature sets
 the compensation's feature when activated. A job of several features is measured feature by
-feature and recorded part by part; its offsets are held: per-tool offsets need a CNC link
-that names the tool (register map version 4), which this release does not have yet.
+feature and recorded part by part; its offsets are held: per-tool offsets need the tool in
+the offset's handshake with the CNC, which this release does not have yet.
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ log = logging.getLogger("shaftgauge.jobs")
 
 RECENT_PARTS = 50
 SEVERAL_FEATURES = (
-    "the active job has several features: per-tool offsets need the CNC link of register map "
-    "version 4 (not in this release), so offsets are held; every feature is measured and "
-    "each part recorded")
+    "the active job has several features: per-tool offsets need the tool in the offset's "
+    "handshake with the CNC (not in this release), so offsets are held; every feature is "
+    "measured and each part recorded")
 
 
 class JobService:

@@ -67,7 +67,7 @@ class Publisher:
         runout = in_use.runout.runout if in_use.runout is not None else None
         held = "runout" if runout is not None and runout.tir_mm > self.max_tir_mm else None
         if self.jobs.several():
-            held = "several_features"  # until the CNC link names the tool (map v4)
+            held = "several_features"  # until the offset's handshake names the tool
         comp.submit(record, frame.received_ns / 1e9, held=held)
 
 

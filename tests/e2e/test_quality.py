@@ -12,6 +12,7 @@ import httpx
 from playwright.sync_api import expect
 
 from drivers.plc.registers import FaultBit
+from drivers.sim.control import control
 from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_for_js, wait_ready
 from tests.e2e.test_dashboard import browser, enter_key, open_page, shot  # noqa: F401
 from tests.faults.test_cnc_trust import read_register
@@ -34,6 +35,7 @@ def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None
         st = svc.get("/api/v1/status").json()
         comp = svc.get("/api/v1/compensation").json()
         assert comp["settings"]["nominal_mm"] == 30.0 and comp["settings"]["shadow"]
+        assert st["job"]["job"]["part_number"] == "DEMO-4" and st["job"]["job"]["tools"] == 2
         assert st["compensation"]["state"] != "alarm"
         deadline, spc = time.monotonic() + 30, {}
         while time.monotonic() < deadline and spc.get("cpk") is None:
@@ -42,6 +44,8 @@ def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None
         assert spc["cpk"] is not None and spc["n"] >= 5, spc
         print(f"\nembedded default SPC after {30 - (deadline - time.monotonic()):.0f} s: "
               f"n {spc['n']}, Cpk {spc['cpk']:.2f}")
+        # The embedded default turns a stepped shaft: the technician clamps the master.
+        assert control(svc.control_port, {"set": {"diameter_mm": 30.0}})["ok"]
         r = httpx.post(svc.url + "/api/v1/gauge-studies", timeout=10,
                        json={"certified_mm": 30.0, "n": 25}, headers={"X-API-Key": TECH_KEY})
         assert r.status_code == 202, r.text

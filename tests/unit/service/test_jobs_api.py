@@ -36,7 +36,7 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     job = r.json()
     assert job["version"] == 1 and job["active"] and job["created_by"].startswith("technician")
     st = client.get("/api/v1/status").json()["job"]
-    assert st["job"]["features"] == 2 and "map version 4" in st["offsets_held"]
+    assert st["job"]["features"] == 2 and "tool in the offset's handshake" in st["offsets_held"]
     m = latest_with(client, lambda m: m["feature"] == 1 and m["status"] == "ok")
     assert abs(m["deviation_mm"]) < 0.01
     client.gauge.camera.diameter_mm = 25.0  # the laser on the seat
