@@ -322,6 +322,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     health.jobs = jobs
     spc = SpcService(settings.spc, ms.fuse_frames, jobs.feature_for)
     jobs.on_new_job(spc.forget)
+    jobs.on_new_job(feed.restart_fusion)  # another job's features are others
     feed.on_publish(spc)
     q = settings.quality
     studies = GaugeStudies(

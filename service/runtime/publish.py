@@ -51,13 +51,15 @@ class Publisher:
         comp = self.compensation
         feature, refused = self.jobs.assign(m.diameter_mm if m else None)
         number = None if feature is None else feature.number
-        if number != self._feature:  # a shoulder passed: no fused value across it
+        if number is not None and number != self._feature:
+            # A shoulder passed: no fused value across it (a frame without a diameter, or
+            # one that fits no feature, leaves the window as it is).
             self.feed.restart_fusion()
             self._feature = number
         record = make_record(
             seq=self.sequence.next(), wall_time=time.time(), frame_id=frame.frame_id,
             raw=raw, m=m, fused=self.feed.fused(m),
-            feature=self.jobs.feature_of(feature) if feature or refused else comp.feature(),
+            feature=comp.feature() if self.jobs.job is None else self.jobs.feature_of(feature),
             part_temp_c=comp.part_temp_c, alpha_per_k=comp.alpha_per_k,
             latency_ms=(time.monotonic_ns() - frame.received_ns) / 1e6,
             calibration_id=in_use.info.id,
