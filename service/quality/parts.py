@@ -32,6 +32,8 @@ class FeatureResult:
     uncertainty_mm: float | None
     n: int
     verdict: str
+    tol_lower_mm: float = 0.0
+    tol_upper_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -105,12 +107,13 @@ class PartAssembler:
             got = self._values.get(f.number, [])
             if not got:
                 results.append(FeatureResult(f.number, f.name, f.nominal_mm, None, None, 0,
-                                             "missing"))
+                                             "missing", f.tol_lower_mm, f.tol_upper_mm))
                 continue
             w = [1.0 / u ** 2 for _, u in got]
             d = sum(wi * di for wi, (di, _) in zip(w, got, strict=True)) / sum(w)
             results.append(FeatureResult(f.number, f.name, f.nominal_mm, d,
-                                         1.0 / math.sqrt(sum(w)), len(got), judge(f, d)))
+                                         1.0 / math.sqrt(sum(w)), len(got), judge(f, d),
+                                         f.tol_lower_mm, f.tol_upper_mm))
         verdicts = {r.verdict for r in results}
         verdict = "out" if verdicts & {"above", "below"} else \
             "incomplete" if "missing" in verdicts else "ok"

@@ -351,6 +351,7 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
     expect(page.locator("#parts-head")).to_contain_text("2 seat")
     expect(row.locator("td.out").first).to_be_visible()  # the seat's cell, and the verdict
     expect(row).to_contain_text("out")
+    expect(page.locator("#feature-trends canvas")).to_have_count(2)  # a trend a feature
     assert control(service.control_port, {"set": {"diameter_mm": 35.0}})["ok"]
     expect(page.locator("#feature-now")).to_have_text("no feature fits", timeout=15000)
     expect(page.locator("#job-refused")).to_contain_text("fits no feature")
