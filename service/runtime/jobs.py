@@ -50,7 +50,7 @@ class JobService:
         self.store, self.compensation, self.store_error = store, compensation, store_error
         self.stored: JobInfo | None = None
         self.selected: int | None = None
-        self._feature_set = compensation.feature()  # as the stored job left it
+        self._feature_set = compensation.feature()  # as the job in force left it
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
         self._part_listeners: list[Callable[[dict[str, Any]], None]] = []
         self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
@@ -106,6 +106,7 @@ class JobService:
         if job is None and self.compensation.settings.nominal_mm is not None:
             job = Job.single(self.compensation.settings)
         self._job = job
+        self._feature_set = self.compensation.feature()
         self.selected = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
@@ -116,11 +117,13 @@ class JobService:
     def settings_changed(self) -> None:
         """The compensation settings changed (a listener): the single feature follows; a
         feature set directly (the API's feature, the CNC's nominal) ends a stored job."""
-        if self.stored is not None and self.compensation.feature() != self._feature_set:
+        if self.compensation.feature() == self._feature_set:
+            return  # another setting (shadow mode, tuning): the job is as it was
+        if self.stored is not None:
             log.warning("job %s no longer in force: a feature was set directly",
                         self.stored.part_number)
             self.deactivate("a feature set directly")
-        elif self.stored is None:
+        else:
             self._rebuild()
 
     def several(self) -> bool:
@@ -154,7 +157,6 @@ class JobService:
                 tol_lower_mm=f.tol_lower_mm)
         self._store().activate(job_id, by)
         self.stored = self._store().get(job_id)
-        self._feature_set = self.compensation.feature()
         self._rebuild()
         log.info("job %s version %d in force (%s)", info.part_number, info.version, by)
         return self.stored

@@ -160,7 +160,7 @@ async function loadMaster() {
 }
 
 export async function loadTechnician() {
-  $("key").value = key();
+  if (!$("key").value) $("key").value = key();  // never over what is being typed
   await Promise.all([loadHistory(), loadMaster(), loadSessions()]);
 }
 

@@ -173,3 +173,20 @@ def test_a_gauge_study_of_a_features_master_takes_its_tolerance(client) -> None:
     assert r.status_code == 202, r.text
     assert r.json()["tolerance_mm"] == 0.1 and r.json()["feature"] == 1
     assert client.get("/api/v1/gauge-studies").json()["items"][0]["feature"] == 1
+
+
+def test_another_setting_leaves_the_job_and_its_spc_as_they_were(client) -> None:
+    """Shadow mode or tuning is no new feature: the part under way and the charts stay."""
+    jobs, spc = client.gauge.jobs, client.gauge.spc
+    latest_with(client, lambda m: m["feature"] == 1 and m["status"] == "ok")
+    job, parts = jobs.job, jobs.parts
+    deadline = time.monotonic() + 10
+    while not spc.monitors:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    assert client.put("/api/v1/compensation/shadow", headers=H,
+                      json={"shadow": False}).status_code == 200
+    assert jobs.job is job and jobs.parts is parts and spc.monitors
+    client.put("/api/v1/feature", headers=H, json={"nominal_mm": 30.001, "tol_upper_mm": 0.02,
+                                                   "tol_lower_mm": -0.02})
+    assert jobs.job is not job and jobs.job.features[0].nominal_mm == 30.001
