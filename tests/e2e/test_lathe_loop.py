@@ -155,7 +155,7 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
     try:
         camera = CAMERA.replace(f"sim_drift_um_per_min = {WEAR_UM_PER_MIN}",
                                 "sim_drift_um_per_min = 20.0") + \
-            "sim_lathe_thermal_um = 30.0\nsim_lathe_thermal_tau_s = 10.0\n"
+            "sim_lathe_thermal_um = 30.0\nsim_lathe_thermal_tau_s = 6.0\n"
         svc = start_service(tmp_path, camera_toml=camera, compensation_toml=PREDICTIVE,
                             plc_port=cnc.port)
         assert wait_ready(svc)
@@ -163,7 +163,7 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
         r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": False},
                       headers={"X-API-Key": TECH_KEY}, timeout=10)
         assert r.status_code == 200, r.text
-        before = follow(svc, 30.0)
+        before = follow(svc, 20.0)
         assert max(abs(s["cut_diameter_mm"] - 30.0) for s in before[-10:]) * 1000 < 20.0
         assert lathe(svc)["cnc_total_mm"] < -0.030  # growth and wear carried by the offset
         assert control(svc.control_port, {"do": "new_insert"})["ok"]

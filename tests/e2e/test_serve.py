@@ -121,8 +121,11 @@ def test_drift_beyond_the_deadband_sends_an_offset_to_the_plc(service) -> None:
     first = events[0]
     # oversize by 12 um, gain 0.7 -> about -8.4 um, never beyond the 10 um step limit
     assert -100 <= first["value_units"] < -40, first
-    decisions = service.get("/api/v1/compensation/log", params={"kinds": "applied"}).json()
-    assert decisions["items"] and decisions["items"][0]["offset_seq"] == first["seq"]
+    # The gauge learns of the application from the PLC's acknowledgement, a poll later than
+    # the PLC's own log line.
+    decisions = wait_for(lambda: service.get(
+        "/api/v1/compensation/log", params={"kinds": "applied"}).json()["items"], timeout_s=10)
+    assert decisions and decisions[0]["offset_seq"] == first["seq"], decisions
     st = service.get("/api/v1/status").json()
     assert st["compensation"]["cumulative_offset_mm"] < 0
     r = httpx.put(service.url + "/api/v1/compensation/shadow", json={"shadow": True},

@@ -28,7 +28,7 @@ from tests.e2e.conftest import TECH_KEY, start_service, stop_service
 from tests.faults.test_service_faults import H, applied_in, until
 from tests.integration.conftest import sim_camera_process
 
-KILLS_SHORT = 6
+KILLS_SHORT = 4
 KILLS_LONG = int(os.environ.get("SHAFTGAUGE_KILLS", "20"))
 """Kills in ``make test`` and in ``make soak`` (a start and its checks take about 7 s)."""
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -25,11 +26,15 @@ def deg(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @pytest.fixture(scope="module")
-def session():
-    rig = ShaftRenderer(RigConfig(), seed=3)
+def session(calibration_images):
+    """The session ``shaftgauge calibrate render`` writes (rendered once a run for every
+    test that reads it: a minute of rendering on its own otherwise), and its rig."""
+    rig = ShaftRenderer(RigConfig(), seed=3)  # the frames measured with what is recovered
     br = BoardRenderer(rig, BOARD)
-    image = {s.name: br.render(s.pose(br), laser=s.laser, frame_index=s.frame_index)
-             for s in session_shots()}
+    folder = {"view": "views", "plane_off": "plane", "plane_on": "plane", "axis": "axis"}
+    image = {s.name: cv2.imread(str(calibration_images / folder[s.kind] / f"{s.name}.png"),
+                                cv2.IMREAD_GRAYSCALE) for s in session_shots()}
+    assert all(im is not None for im in image.values()), calibration_images
     kinds = {k: [image[s.name] for s in session_shots() if s.kind == k]
              for k in ("view", "plane_off", "plane_on", "axis")}
     views, spindle = kinds["view"], kinds["axis"]
