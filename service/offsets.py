@@ -31,6 +31,8 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
+from service.compensation.job import JobFeature
+from service.compensation.tools import ToolCompensation
 
 log = logging.getLogger("shaftgauge.compensation")
 
@@ -64,7 +66,9 @@ class OffsetTransport(Protocol):
 
 
 class OffsetChannel:
-    """Drives one controller with one offset writer (None: nothing is ever written).
+    """Drives one controller with one offset writer (None: nothing is ever written): the
+    single feature's, or one tool's of a job (``tool``, judging each measurement against its
+    feature).
 
     Serialised by an asyncio lock: measurements, write outcomes, settings and people's
     commands are handled one at a time, in order. Every change of the controller goes
@@ -74,8 +78,10 @@ class OffsetChannel:
     def __init__(self, controller: CompensationController, writer: OffsetTransport | None,
                  store: CompensationLog | None = None,
                  on_decision: Callable[[Decision], None] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 tool: ToolCompensation | None = None) -> None:
         self.controller, self.writer, self.store = controller, writer, store
+        self.tool = tool
         self.on_decision = on_decision
         self.clock = clock
         self.last_write: WriteResult | None = None
@@ -124,10 +130,15 @@ class OffsetChannel:
             self.on_decision(decision)
         return decision
 
-    async def on_measurement(self, m: MeasurementIn) -> list[Decision]:
-        """Judge a measurement; write an offset when the controller asks for one."""
+    async def on_measurement(self, m: MeasurementIn, feature: JobFeature | None = None
+                             ) -> list[Decision]:
+        """Judge a measurement (of ``feature``, one of the tool's); write an offset when the
+        controller asks for one."""
         async with self._lock:
-            order = self.controller.on_measurement(m, self.clock())
+            if self.tool is not None and feature is not None:
+                order = self.tool.on_measurement(feature, m, self.clock())
+            else:
+                order = self.controller.on_measurement(m, self.clock())
             if order.kind is not Kind.WRITE:
                 return [self._note(order)]
             try:

@@ -72,9 +72,9 @@ def handle(req):
         return {"ok": True, "done": [mdi(line) for line in req["lines"]], "errors": errors()}
     if what == "call":
         mdi(f"o<shaftgauge_comp> call [{req.get('tool', 1)}]")
-        mdi("M68 E5 Q#<_value>")
+        mdi("M68 E7 Q#<_value>")  # E0-E5 carry the report
         time.sleep(0.05)
-        return {"ok": True, "value": hal.get_value("motion.analog-out-05"), "errors": errors()}
+        return {"ok": True, "value": hal.get_value("motion.analog-out-07"), "errors": errors()}
     if what == "run":  # a program to its end
         command.mode(linuxcnc.MODE_AUTO)
         command.wait_complete()

@@ -15,6 +15,12 @@ a sequence it has not settled (or any, after its own restart):
   report arrived): reports APPLIED and applies nothing;
 - otherwise: reports NOT_APPLIED, certainly not applied.
 
+Map version 4 carries the tool: ``request_tool`` names the T number a request is for and
+``cnc_tool`` the one a report's total is of (0 in both: the one tool of a job with one, as in
+version 3, whose CNCs compute the same check words). A CNC applies a request only when called
+for its tool. The one request block serves the tools in turn: a tool's request waits behind
+another's until the CNC has answered it (``PullCnc.tool``).
+
 Posting the same request again can therefore never apply it twice, and every request gets an
 answer that settles it: the gauge posts its unsettled offset again after its own restart
 (``resume``). Encodings (all unsigned 16-bit):
@@ -44,8 +50,8 @@ TOTAL_BIAS = 1 << 30
 REQUEST_KEY = 0x5A5A
 REPORT_KEY = 0xA5A5
 REQUEST = ("request_seq", "request_offset", "request_base_hi", "request_base_lo",
-           "request_check")
-REPORT = ("cnc_ack", "cnc_result", "cnc_total_hi", "cnc_total_lo", "cnc_check")
+           "request_check", "request_tool")
+REPORT = ("cnc_ack", "cnc_result", "cnc_total_hi", "cnc_total_lo", "cnc_check", "cnc_tool")
 
 
 class Result(enum.IntEnum):
@@ -75,23 +81,25 @@ def total_units(hi: int, lo: int) -> int:
     return (int(hi) << 16 | int(lo)) - TOTAL_BIAS
 
 
-def request_check(seq: int, offset: int, base_hi: int, base_lo: int) -> int:
-    """The request block's check word."""
-    return (seq + offset + base_hi + base_lo + REQUEST_KEY) & 0xFFFF
+def request_check(seq: int, offset: int, base_hi: int, base_lo: int, tool: int = 0) -> int:
+    """The request block's check word (its tool adds in: 0, as version 3 computes it)."""
+    return (seq + offset + base_hi + base_lo + tool + REQUEST_KEY) & 0xFFFF
 
 
-def report_check(ack: int, result: int, total_hi: int, total_lo: int) -> int:
-    """The report block's check word."""
-    return (ack + result + total_hi + total_lo + REPORT_KEY) & 0xFFFF
+def report_check(ack: int, result: int, total_hi: int, total_lo: int, tool: int = 0) -> int:
+    """The report block's check word (its tool adds in: 0, as version 3 computes it)."""
+    return (ack + result + total_hi + total_lo + tool + REPORT_KEY) & 0xFFFF
 
 
 @dataclass(frozen=True)
 class Request:
-    """An offset request as posted (controller sequence, offset and base in 0.1 um)."""
+    """An offset request as posted (controller sequence, offset and base in 0.1 um, the
+    tool's T number or 0)."""
 
     seq: int
     offset_units: int
     base_units: int
+    tool: int = 0
 
     def words(self) -> dict[str, int]:
         """The request registers' values."""
@@ -100,7 +108,8 @@ class Request:
                              f"encoding (+-3.2768 mm)")
         seq, offset = wire_seq(self.seq), self.offset_units + OFFSET_BIAS
         hi, lo = total_words(self.base_units)
-        return dict(zip(REQUEST, (seq, offset, hi, lo, request_check(seq, offset, hi, lo)),
+        return dict(zip(REQUEST, (seq, offset, hi, lo,
+                                  request_check(seq, offset, hi, lo, self.tool), self.tool),
                         strict=True))
 
 
@@ -111,6 +120,7 @@ class Report:
     ack: int          # 16-bit request sequence it settled last (0: none)
     result: Result
     total_units: int  # its total, 0.1 um of diameter
+    tool: int = 0     # the T number it reports for (0: one tool, map v3)
 
     @property
     def total_mm(self) -> float:
@@ -121,23 +131,27 @@ class Report:
 def read_report(bank: RegisterBank) -> Report | None:
     """The CNC's report in ``bank``, or None when there is none whole (never written, torn,
     or an unknown result code)."""
-    ack, result, hi, lo, check = (bank.get(name) for name in REPORT)
-    if check != report_check(ack, result, hi, lo) or result not in Result._value2member_map_:
+    ack, result, hi, lo, check, tool = (bank.get(name) for name in REPORT)
+    if check != report_check(ack, result, hi, lo, tool) or \
+            result not in Result._value2member_map_:
         return None
-    return Report(ack, Result(result), total_units(hi, lo))
+    return Report(ack, Result(result), total_units(hi, lo), tool)
 
 
-def read_request(bank: RegisterBank) -> tuple[int, int, int] | None:
-    """The request in ``bank`` as the CNC reads it: (16-bit sequence, offset and base in
-    0.1 um), or None when there is none or it is not whole."""
-    seq, offset, hi, lo, check = (bank.get(name) for name in REQUEST)
-    if seq == 0 or check != request_check(seq, offset, hi, lo):
+def read_request(bank: RegisterBank, tool: int = 0) -> tuple[int, int, int] | None:
+    """The request in ``bank`` as the CNC called for ``tool`` reads it: (16-bit sequence,
+    offset and base in 0.1 um), or None when there is none, it is not whole, or it is for
+    another tool (0 in the request: for whichever tool the CNC compensates)."""
+    seq, offset, hi, lo, check, for_tool = (bank.get(name) for name in REQUEST)
+    if seq == 0 or check != request_check(seq, offset, hi, lo, for_tool) or \
+            for_tool not in (0, tool):
         return None
     return seq, offset - OFFSET_BIAS, total_units(hi, lo)
 
 
 class PullCnc:
-    """The gauge's side of the pull handshake over its own register bank.
+    """The gauge's side of the pull handshake over its own register bank: itself the
+    transport of a job with one tool (tool 0 on the wire), ``tool(n)`` that of tool ``n``.
 
     Parameters
     ----------
@@ -160,25 +174,50 @@ class PullCnc:
         self.bank, self.host, self.port = bank, host, port
         self.ack_timeout_s, self.poll_s, self.clock = ack_timeout_s, poll_s, clock
         self.posted: Request | None = None
-        self._last_total: int | None = None
         self.last_error = ""
         self.outage_since: float | None = None
+        self._waiting: list[Request] = []  # behind the posted one, in turn
+        self._totals: dict[int, int] = {}  # each tool's total as last reported
+        self._latest: int | None = None  # the total last reported, whichever tool's
+        self._answers: dict[int, tuple[int, Result]] = {}  # each tool's last answer
+        self._tools: dict[int, PullTool] = {}
 
     @property
     def connected(self) -> bool:
         """Whether the CNC has reported (a whole report is in the registers)."""
         return read_report(self.bank) is not None
 
+    def tool(self, number: int) -> PullTool:
+        """The transport of tool ``number`` (its requests and its total)."""
+        if number not in self._tools:
+            self._tools[number] = PullTool(self, number)
+        return self._tools[number]
+
     def post(self, request: Request | None) -> None:
-        """Post ``request`` (None withdraws the one posted)."""
+        """Show ``request`` in the request registers (None: withdraw the one shown)."""
         self.posted = request
         self.bank.set_many(request.words() if request is not None
                            else dict.fromkeys(REQUEST, 0))
 
-    async def read_cnc(self) -> CncReading | None:
-        """The CNC's side: the posted request's sequence while it waits for an answer (0 once
-        the CNC refused it or none is posted), the sequence the CNC applied, its total; None
-        while the CNC has not reported."""
+    def offer(self, request: Request) -> None:
+        """Post ``request``, or queue it behind the one posted for another tool (one of the
+        same tool is replaced: a tool has one offset in flight)."""
+        self._waiting = [r for r in self._waiting if r.tool != request.tool]
+        if self.posted is None or self.posted.tool == request.tool:
+            self.post(request)
+        else:
+            self._waiting.append(request)
+
+    def pending(self, tool: int) -> Request | None:
+        """``tool``'s request posted or waiting, if any."""
+        for r in ([self.posted] if self.posted else []) + self._waiting:
+            if r.tool == tool:
+                return r
+        return None
+
+    def look(self) -> Report | None:
+        """Read the CNC's report: note its tool's total, and the answer to the posted
+        request (which is then withdrawn, the next one posted)."""
         report = read_report(self.bank)
         if report is None:
             self.last_error = "the CNC has not reported in the pull registers"
@@ -186,67 +225,122 @@ class PullCnc:
                 self.outage_since = self.clock()
             return None
         self.outage_since = None
-        self._last_total = report.total_units
+        self._totals[report.tool] = self._latest = report.total_units
         posted = self.posted
-        answered = posted is not None and report.ack == wire_seq(posted.seq)
-        ack = posted.seq if answered and report.result is Result.APPLIED else 0
-        request = 0 if posted is None or (answered and report.result is Result.NOT_APPLIED) \
-            else posted.seq
-        return CncReading(ack, request, report.total_mm)
+        # A request for tool 0 is for whichever tool the CNC compensates (map v3).
+        if posted is not None and posted.tool in (0, report.tool) and \
+                report.ack == wire_seq(posted.seq) and report.result is not Result.NONE:
+            self._answers[posted.tool] = (posted.seq, report.result)
+            self.post(self._waiting.pop(0) if self._waiting else None)
+        return report
+
+    async def watch(self, period_s: float = 0.05) -> None:
+        """Look at the report every ``period_s`` until cancelled: an answer withdraws its
+        request at once and posts the next tool's, before the CNC calls for that tool."""
+        while True:
+            self.look()
+            await asyncio.sleep(period_s)
+
+    async def read_cnc(self) -> CncReading | None:
+        """Tool 0's side (a job with one tool): see ``PullTool.read_cnc``."""
+        return await self.tool(0).read_cnc()
 
     async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
-        """Post one offset and wait for the CNC's answer.
+        """Tool 0's offset (a job with one tool): see ``PullTool.write_offset``."""
+        return await self.tool(0).write_offset(offset_mm, seq)
+
+    async def resume(self, seq: int, offset_mm: float, base_mm: float) -> None:
+        """Tool 0's unsettled offset again: see ``PullTool.resume``."""
+        await self.tool(0).resume(seq, offset_mm, base_mm)
+
+
+class PullTool:
+    """One tool's transport over the shared request block (``PullCnc.tool``)."""
+
+    def __init__(self, cnc: PullCnc, number: int) -> None:
+        self.cnc, self.number = cnc, number
+
+    def total(self) -> int | None:
+        """The tool's total as last reported (tool 0: the CNC's one tool's)."""
+        return self.cnc._latest if self.number == 0 else self.cnc._totals.get(self.number)
+
+    async def read_cnc(self) -> CncReading | None:
+        """The CNC's side for this tool: its request's sequence while it waits for an answer
+        (posted or queued; 0 once the CNC refused it or none is), the sequence the CNC
+        applied, the tool's total as last reported; None while the CNC has not reported, or
+        not yet for this tool."""
+        if self.cnc.look() is None:
+            return None
+        total = self.total()
+        if total is None:
+            self.cnc.last_error = f"the CNC has not reported tool {self.number}'s total yet"
+            return None
+        waiting = self.cnc.pending(self.number)
+        seq, result = self.cnc._answers.get(self.number, (0, Result.NONE))
+        if waiting is not None:
+            return CncReading(0, waiting.seq, total * UM_PER_UNIT / 1000.0)
+        ack = seq if result is Result.APPLIED else 0
+        return CncReading(ack, 0, total * UM_PER_UNIT / 1000.0)
+
+    async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
+        """Offer one offset and wait for the CNC's answer.
 
         APPLIED or NOT_APPLIED as the CNC reports it (the request is then withdrawn); UNKNOWN
-        when it has not answered within ``ack_timeout_s`` (the request stays posted: the CNC
-        still applies it once, and ``read_cnc`` settles it); NOT_APPLIED at once when the
-        CNC has never reported (there is no total to apply to).
+        when it has not answered within ``ack_timeout_s`` (the request stays posted, or
+        queued behind another tool's: the CNC still applies it once, and ``read_cnc``
+        settles it); NOT_APPLIED at once when the CNC has never reported this tool's total
+        (there is nothing to apply to).
         """
-        t0 = self.clock()
+        cnc = self.cnc
+        t0 = cnc.clock()
         units = round(offset_mm * 1000.0 / UM_PER_UNIT)
 
         def result(outcome: Outcome, message: str) -> WriteResult:
-            return WriteResult(outcome, seq, units, message, self.clock() - t0)
+            return WriteResult(outcome, seq, units, message, cnc.clock() - t0)
 
-        report = read_report(self.bank)
-        if report is None:
+        cnc.look()
+        base = self.total()
+        if base is None:
             return result(Outcome.NOT_APPLIED, "the CNC has not reported in the pull "
-                          "registers (is its Modbus client polling the gauge?)")
-        base = self._last_total if self._last_total is not None else report.total_units
+                          "registers (is its Modbus client polling the gauge?)"
+                          if cnc.look() is None else f"the CNC has not reported tool "
+                          f"{self.number}'s total yet (its subroutine reports the tool it "
+                          "is called for)")
         try:
-            self.post(Request(seq, units, base))
+            cnc.offer(Request(seq, units, base, self.number))
         except ValueError as err:
             return result(Outcome.NOT_APPLIED, str(err))
-        wire = wire_seq(seq)
-        while self.clock() - t0 < self.ack_timeout_s:
-            await asyncio.sleep(self.poll_s)
-            report = read_report(self.bank)
-            if report is None or report.ack != wire:
+        while cnc.clock() - t0 < cnc.ack_timeout_s:
+            await asyncio.sleep(cnc.poll_s)
+            cnc.look()
+            answered, outcome = cnc._answers.get(self.number, (0, Result.NONE))
+            if answered != seq or cnc.pending(self.number) is not None:
                 continue
-            self.post(None)
-            if report.result is Result.APPLIED:
+            if outcome is Result.APPLIED:
                 return result(Outcome.APPLIED, "the CNC applied it and reported its total")
             return result(Outcome.NOT_APPLIED, f"the CNC did not apply it: its total "
-                          f"({report.total_units} x 0.1 um) was not the request's base "
-                          f"({base})")
+                          f"({self.total()} x 0.1 um) was not the "
+                          f"request's base ({base})")
+        ahead = cnc.posted.tool if cnc.posted is not None else self.number
+        where = "posted" if ahead == self.number else f"queued behind tool {ahead}'s"
         return result(Outcome.UNKNOWN, f"no answer from the CNC within "
-                      f"{self.ack_timeout_s:g} s (the request stays posted)")
+                      f"{cnc.ack_timeout_s:g} s (the request stays {where})")
 
     async def resume(self, seq: int, offset_mm: float, base_mm: float) -> None:
-        """Post an offset again whose fate was unknown when the gauge stopped (same
+        """Offer an offset again whose fate was unknown when the gauge stopped (same
         sequence, offset and base: the CNC applies it at most once, and answers)."""
-        self.post(Request(seq, round(offset_mm * 1000.0 / UM_PER_UNIT),
-                          round(base_mm * 1000.0 / UM_PER_UNIT)))
+        self.cnc.offer(Request(seq, round(offset_mm * 1000.0 / UM_PER_UNIT),
+                               round(base_mm * 1000.0 / UM_PER_UNIT), self.number))
 
 
-def settle_request(bank: RegisterBank, total_units_now: int, settled: int | None
-                   ) -> tuple[Result, int, int | None]:
+def settle_request(bank: RegisterBank, total_units_now: int, settled: int | None,
+                   tool: int = 0) -> tuple[Result, int, int | None]:
     """What a polling CNC does with the request in ``bank`` (the rules the NC subroutine in
     ``deploy/linuxcnc`` follows; pure, for its simulation and the tests): given its total
     (0.1 um) and the 16-bit sequence it settled last (None after its restart), returns the
     result, its total after, and the sequence it reports (None when there was nothing to
-    settle)."""
-    request = read_request(bank)
+    settle). ``tool``: the T number it is called for (0: a CNC of map v3)."""
+    request = read_request(bank, tool)
     if request is None or request[0] == settled:
         return Result.NONE, total_units_now, None
     seq, offset, base = request
@@ -257,8 +351,11 @@ def settle_request(bank: RegisterBank, total_units_now: int, settled: int | None
     return Result.NOT_APPLIED, total_units_now, seq
 
 
-def write_report(bank: RegisterBank, ack: int, result: Result, total: int) -> None:
-    """Write a CNC's report into ``bank`` as its Modbus client would."""
+def write_report(bank: RegisterBank, ack: int, result: Result, total: int, tool: int = 0
+                 ) -> None:
+    """Write a CNC's report (for ``tool``'s total) into ``bank`` as its Modbus client
+    would."""
     hi, lo = total_words(total)
     bank.set_many(dict(zip(REPORT, (ack, int(result), hi, lo,
-                                    report_check(ack, int(result), hi, lo)), strict=True)))
+                                    report_check(ack, int(result), hi, lo, tool), tool),
+                           strict=True)))

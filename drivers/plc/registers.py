@@ -13,8 +13,10 @@ Version 3 adds form and position: the run-out (TIR and its phase) and roundness 
 dominant lobing) of the surface under the laser, with the spindle's angle known.
 
 Version 4 adds the whole part: the job in force, the feature under the laser and the CNC's
-part counter, each written by the CNC. A CNC written for version 3 reads and writes what it
-did, and the gauge behaves as it did.
+part counter, each written by the CNC, and the tool in the pull handshake (``request_tool``,
+``cnc_tool``; each adds into its block's check word, so a CNC written for version 3, leaving
+them 0, computes the same checks). A CNC written for version 3 reads and writes what it did,
+and the gauge behaves as it did for a job with one tool.
 """
 
 from __future__ import annotations
@@ -106,7 +108,7 @@ REGISTERS: tuple[Register, ...] = (
        "to, high word (as the CNC reported it)"),
     _r("request_base_lo", 33, U16, "see below", "pull: ... low word"),
     _r("request_check", 34, U16, "-", "pull: (request_seq + request_offset + "
-       "request_base_hi + request_base_lo + 0x5A5A) mod 65536"),
+       "request_base_hi + request_base_lo + request_tool + 0x5A5A) mod 65536"),
     _r("cnc_ack", 35, U16, "count", "pull, written by the CNC: the request sequence it "
        "settled last; 0 none", writable=True),
     _r("cnc_result", 36, U16, "code", "pull, written by the CNC: 1 applied, 2 not "
@@ -116,7 +118,7 @@ REGISTERS: tuple[Register, ...] = (
     _r("cnc_total_lo", 38, U16, "see below", "pull, written by the CNC: ... low word",
        writable=True),
     _r("cnc_check", 39, U16, "-", "pull, written by the CNC last: (cnc_ack + cnc_result + "
-       "cnc_total_hi + cnc_total_lo + 0xA5A5) mod 65536", writable=True),
+       "cnc_total_hi + cnc_total_lo + cnc_tool + 0xA5A5) mod 65536", writable=True),
     # Form and position, with the spindle's angle (spindle.source = "encoder").
     _r("runout_tir", 40, I32, "0.1 um", "run-out of the surface under the laser: TIR, "
        "twice its eccentricity (what a dial indicator reads); no value while not known"),
@@ -133,6 +135,11 @@ REGISTERS: tuple[Register, ...] = (
        "(1-99); 0: recognised from the diameter", writable=True),
     _r("part_counter", 48, U16, "count", "the CNC's part counter: a new value starts the next "
        "part record (wraps); 0: the gauge counts parts itself", writable=True),
+    _r("request_tool", 49, U16, "T number", "pull: the tool the request is for; 0 for the "
+       "one tool of a job with one (the tool the CNC compensates, as in version 3)"),
+    _r("cnc_tool", 50, U16, "T number", "pull, written by the CNC with its report: the tool "
+       "it was called for, whose total and answer the report gives; 0 from a version 3 CNC",
+       writable=True),
 )
 
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}

@@ -244,9 +244,9 @@ class ModbusFacade:
                                 "feature": jobs.selected or 0})
 
     def _check_jobs(self, entries: list[tuple[str, int]]) -> str:
-        """Why the job, feature or part counter written cannot be taken ("" when it can)."""
+        """Why the job, feature or tool written cannot be taken ("" when it can)."""
         values = dict(entries)
-        if self.jobs is None or not {"job", "feature"} & values.keys():
+        if self.jobs is None or not {"job", "feature", "cnc_tool"} & values.keys():
             return ""
         job = self.jobs.job
         if values.get("job"):
@@ -265,6 +265,14 @@ class ModbusFacade:
                 job.feature(values["feature"])
             except KeyError as err:
                 return f"feature: {err.args[0]}"
+        tool = values.get("cnc_tool")
+        # The settings' single feature has whatever tool the CNC compensates.
+        if tool and self.jobs.stored is not None and (job is None
+                                                      or tool not in job.tool_numbers()):
+            return (f"cnc_tool: tool {tool} is not in "
+                    + ("any job: none is in force" if job is None else
+                       f"job {job.part_number!r} (its tools: "
+                       f"{', '.join(str(t) for t in job.tool_numbers())})"))
         return ""
 
     def _check_write(self, entries: list[tuple[str, int]]) -> str:

@@ -138,6 +138,55 @@ def test_transport_against_a_polling_cnc() -> None:
     asyncio.run(go())
 
 
+def test_two_tools_take_the_request_block_in_turn() -> None:
+    """A request names its tool; a CNC called for another tool leaves it; a second tool's
+    request waits behind the first until the CNC answered that, then is posted; each tool's
+    view reads its own total and its own answers."""
+    async def go() -> None:
+        bank = RegisterBank()
+        gauge = PullCnc(bank, ack_timeout_s=0.0)
+        t1, t2 = gauge.tool(1), gauge.tool(2)
+        write_report(bank, 0, Result.NONE, 500, tool=1)
+        assert (await t1.read_cnc()).total_mm == pytest.approx(0.05)
+        assert await t2.read_cnc() is None  # tool 2 has not reported
+        r = await t2.write_offset(0.001, 1)
+        assert r.outcome is Outcome.NOT_APPLIED and "tool 2's total" in r.message
+        write_report(bank, 0, Result.NONE, 700, tool=2)
+        assert (await t1.write_offset(-0.0012, 4)).outcome is Outcome.UNKNOWN
+        r = await t2.write_offset(0.0009, 9)
+        assert r.outcome is Outcome.UNKNOWN and "queued behind tool 1's" in r.message
+        assert (bank.get("request_seq"), bank.get("request_tool")) == (4, 1)
+        assert (await t2.read_cnc()).request_seq == 9  # waiting: cannot tell yet
+        # The CNC called for tool 2 finds tool 1's request and leaves it.
+        assert settle_request(bank, 700, None, tool=2) == (Result.NONE, 700, None)
+        assert settle_request(bank, 500, None, tool=1) == (Result.APPLIED, 488, 4)
+        write_report(bank, 4, Result.APPLIED, 488, tool=1)
+        gauge.look()
+        assert (bank.get("request_seq"), bank.get("request_tool")) == (9, 2)
+        reading = await t1.read_cnc()
+        assert (reading.ack_seq, reading.request_seq, reading.total_mm) == (
+            4, 0, pytest.approx(0.0488))
+        assert settle_request(bank, 700, None, tool=2) == (Result.APPLIED, 709, 9)
+        write_report(bank, 9, Result.APPLIED, 709, tool=2)
+        reading = await t2.read_cnc()
+        assert (reading.ack_seq, reading.request_seq) == (9, 0)
+        assert bank.get("request_seq") == 0
+        assert (await t1.read_cnc()).ack_seq == 4  # its answer is kept
+
+    asyncio.run(go())
+
+
+def test_a_version_3_cnc_computes_the_same_checks_for_one_tool() -> None:
+    """Tool 0 adds nothing to the check words: a CNC written for map v3 reads the request
+    and writes its report as it did."""
+    bank = RegisterBank()
+    PullCnc(bank).post(pull.Request(5, 10, 2000))
+    words = [bank.get(n) for n in pull.REQUEST[:4]]
+    assert bank.get("request_check") == (sum(words) + pull.REQUEST_KEY) & 0xFFFF
+    assert pull.report_check(5, 1, 3, 4) == (5 + 1 + 3 + 4 + pull.REPORT_KEY) & 0xFFFF
+    assert pull.read_request(bank, tool=7) is not None  # for whichever tool calls
+
+
 class PullLoop:
     """The gauge's side: a channel over a fresh bank after each restart (the service's
     registers start empty), offering an unsettled offset again as the service does."""

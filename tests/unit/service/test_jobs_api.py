@@ -145,6 +145,11 @@ def test_the_cnc_puts_a_job_in_force_names_the_feature_and_counts_parts(client) 
         bad = c.write_register(feature, 7, device_id=1)
         assert bad.isError() and bad.exception_code == 3
         assert c.read_holding_registers(feature, count=1, device_id=1).registers == [2]
+        tool = BY_NAME["cnc_tool"].address  # a pull report for a tool the job lacks
+        bad = c.write_register(tool, 3, device_id=1)
+        assert bad.isError() and bad.exception_code == 3
+        assert c.read_holding_registers(tool, count=1, device_id=1).registers == [0]
+        assert not c.write_register(tool, 2, device_id=1).isError()
         assert not c.write_register(feature, 0, device_id=1).isError()  # recognise again
         assert not c.write_register(counter, 41, device_id=1).isError()
         latest_with(client, lambda m: m["feature"] == 1)
