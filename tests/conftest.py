@@ -61,11 +61,12 @@ def pytest_itemcollected(item: pytest.Item) -> None:
 
 
 EARLY = ("tests/faults/test_soak.py", "tests/e2e/test_lathe_loop.py",
-         "tests/e2e/test_store_backup.py", "tests/e2e/test_plant.py")
-"""Files of a test or two that mostly wait on what they started (a soak, a lathe turning
-parts, a service backed up or reporting to the plant: 20-70 s each, a fifth of it CPU): in
-xdist's own order (the groups with most tests first) they came last, and the suite's last
-half minute or minute ran on half the machine."""
+         "tests/e2e/test_store_backup.py", "tests/e2e/test_plant.py",
+         "tests/integration/linuxcnc/test_linuxcnc_pull.py")
+"""Files that mostly wait on what they started (a soak, a lathe turning parts, a service
+backed up or reporting to the plant: 20-70 s each, a fifth of it CPU; LinuxCNC's lathe, 200 s
+in one group, a tenth): in xdist's own order (the groups with most tests first) they came
+late, and the suite's last half minute or minute ran on half the machine."""
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

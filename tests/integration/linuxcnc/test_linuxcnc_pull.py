@@ -499,7 +499,7 @@ def test_two_tools_four_features_in_tolerance_under_compensation(lathe) -> None:
 
 def test_two_tools_four_features_in_shadow_mode_leave_the_tolerance(lathe) -> None:
     gauge, cnc = lathe
-    deviations, decisions, x_change = make_job_parts(gauge, cnc, shadow=True, parts=12)
+    deviations, decisions, x_change = make_job_parts(gauge, cnc, shadow=True, parts=9)
     out = out_of_tolerance(deviations)
     print(f"\nFIGURES two tools, shadow: parts out per feature "
           f"{ {n: len(v) for n, v in out.items()} }")
