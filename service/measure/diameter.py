@@ -23,6 +23,7 @@ from service.measure.section import (
     project_to_section,
 )
 from service.measure.sheet_correction import correct_sheet_bias
+from service.measure.shoulder import second_diameter
 from service.measure.stripe import (
     StripePoints,
     extract_stripe,
@@ -103,8 +104,15 @@ def on_the_shaft(points: SectionPoints, params: MeasureParams,
     scatter, unless the stripe is lopsided: ``consensus.ring_consensus``), else by RANSAC
     (``service.measure.consensus``) unless one algebraic circle through all of them already
     holds nine in ten within ``consensus_mm`` (a clean frame: nothing to choose between)."""
+    keep = _on_the_shaft_mask(points, params, known)
+    return points if keep.all() else points.subset(keep)
+
+
+def _on_the_shaft_mask(points: SectionPoints, params: MeasureParams,
+                       known: tuple[np.ndarray, float] | None) -> np.ndarray:
+    """Which of the points ``on_the_shaft`` keeps."""
     if len(points.section) < 3:
-        return points
+        return np.ones(len(points.section), bool)
     if known is not None:
         window = params.consensus_mm + 3.0 * known[1]
         # A lopsided stripe's scatter is a second line's pull, not the stripe's own: the ring
@@ -121,8 +129,7 @@ def on_the_shaft(points: SectionPoints, params: MeasureParams,
         if not inside.mean() >= 0.9:
             inside = consensus.circle_consensus(points.section, params.consensus_mm,
                                                 params.max_diameter_mm / 2.0)
-    keep = consensus.by_chain(inside, points.stripe.chain)
-    return points if keep.all() else points.subset(keep)
+    return consensus.by_chain(inside, points.stripe.chain)
 
 
 def axis_center(geometry: RigGeometry) -> np.ndarray | None:
@@ -320,7 +327,10 @@ def measure_frame(
     if method is Method.AXIS:
         known = center_prior if center_prior is not None else (
             None if (c0 := axis_center(geometry)) is None else (c0, params.axis_sigma_mm))
-    points, found, on_circle = _shaft_points(stripe, geometry, method, params, known)
+    points, found, on_circle, shoulder = _shaft_points(stripe, geometry, method, params, known)
+    if shoulder:
+        return Measurement.failed(Status.UNCERTAIN, method, shoulder,
+                                  n_points=len(points.section), points_px=points.stripe.xy)
     if len(points.section) < params.min_points:
         why = "" if on_circle == found else \
             f" ({on_circle} of the {found} found lie on one circle, the shaft's)"
@@ -361,16 +371,26 @@ def _still_suits(stripe: StripePoints, scale_px: float, params: MeasureParams) -
 
 def _shaft_points(stripe: StripePoints, geometry: RigGeometry, method: Method,
                   params: MeasureParams, known: tuple[np.ndarray, float] | None
-                  ) -> tuple[SectionPoints, int, int]:
+                  ) -> tuple[SectionPoints, int, int, str]:
     """The stripe's section points on the shaft's circle (``axis``, ``geometric``) and not
-    grazing; with the number found and the number on the circle."""
+    grazing; with the number found, the number on the circle, and why the points set aside
+    are a second diameter ("" when they are not: ``shoulder.second_diameter``)."""
     points = section_points(stripe, geometry)
     found = len(points.section)
+    shoulder = ""
     if method in (Method.AXIS, Method.GEOMETRIC):
-        points = on_the_shaft(points, params, known)
+        keep = _on_the_shaft_mask(points, params, known)
+        # About the surface's own centre (the kept points'), not the axis: a run-out would
+        # read as a step.
+        kept = fits.fit_hyper(points.section[keep], uncertainty=False) \
+            if keep.sum() >= 3 else None
+        if kept:
+            shoulder = second_diameter(points.section, kept.center)
+        if not keep.all():
+            points = points.subset(keep)
     on_circle = len(points.section)
     points = drop_grazing(points, geometry, params, None if known is None else known[0])
-    return points, found, on_circle
+    return points, found, on_circle, shoulder
 
 
 def _with_matched_filters(image: np.ndarray, points: SectionPoints, geometry: RigGeometry,
