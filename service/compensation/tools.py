@@ -29,15 +29,21 @@ class ToolCompensation:
     judging each measurement against its feature's nominal and bands."""
 
     def __init__(self, job: Job, tool: int, base: CompensationSettings,
-                 state: ControllerState | None = None) -> None:
+                 state: ControllerState | None = None,
+                 controller: CompensationController | None = None) -> None:
         self.job, self.tool, self.base = job, tool, base
         features = job.features_of(tool)
         if not features:
             raise KeyError(f"tool {tool} finishes no feature of job {job.part_number!r}")
-        # The tool's law and limits; its reference feature is the first it finishes.
-        self.controller = CompensationController(job.settings_for(features[0], base),
-                                                 state or ControllerState())
+        # The tool's law and limits; its reference feature is the first it finishes. A
+        # running service brings its own controller (its settings and persisted state).
+        self.controller = controller or CompensationController(
+            job.settings_for(features[0], base), state or ControllerState())
         self.agreement = FeatureAgreement()
+
+    def rebase(self, base: CompensationSettings) -> None:
+        """New settings under the job's features (a technician changed them)."""
+        self.base = base
 
     def terms(self, feature: JobFeature) -> FeatureTerms:
         """How the tool takes a measurement of ``feature`` now: less its empirical value and

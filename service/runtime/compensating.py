@@ -24,6 +24,8 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
+from service.compensation.job import Job, JobFeature
+from service.compensation.tools import ToolCompensation
 from service.offsets import OffsetChannel, OffsetTransport
 from service.record import Feature, MeasurementRecord
 
@@ -112,7 +114,7 @@ class CompensationService:
         self._decision_listeners: list[Callable[[Decision], None]] = []
         self._settings_listeners: list[Callable[[CompensationSettings], None]] = []
         self._hold: OffsetHold | None = None
-        self._queue: asyncio.Queue[MeasurementIn] | None = None
+        self._queue: asyncio.Queue[tuple[MeasurementIn, JobFeature | None]] | None = None
         self.dropped = 0
         self.errors = 0
 
@@ -171,29 +173,41 @@ class CompensationService:
 
     # ---- the measurements ----------------------------------------------------------------
 
-    def submit(self, record: MeasurementRecord, received_s: float, held: str | None = None
-               ) -> None:
-        """Queue a published measurement for the controller (the oldest is dropped and
-        counted when the queue is full). Held measurements go in with a held status: while
-        offsets are held, or when ``held`` names why this one may not move the tool
-        (``held_for_<held>``)."""
+    def set_job(self, job: Job | None) -> None:
+        """The job in force: one whose features one tool finishes has each measurement
+        judged against its feature and taken into the tool's law (``ToolCompensation``);
+        otherwise the settings' single feature, as before."""
+        tools = job.tool_numbers() if job is not None else ()
+        if job is None or len(job.features) < 2 or len(tools) != 1:
+            self.channel.tool = None
+            return
+        self.channel.tool = ToolCompensation(job, tools[0], self.settings,
+                                             controller=self.channel.controller)
+
+    def submit(self, record: MeasurementRecord, received_s: float, held: str | None = None,
+               feature: JobFeature | None = None) -> None:
+        """Queue a published measurement (of ``feature`` of the job) for the controller (the
+        oldest is dropped and counted when the queue is full). Held measurements go in with a
+        held status: while offsets are held, or when ``held`` names why this one may not move
+        the tool (``held_for_<held>``)."""
         if self._queue is None:
             return
         if self._queue.full():
             self._queue.get_nowait()
             self.dropped += 1
         hold = self._hold.code if self.offset_hold() and self._hold else held
-        self._queue.put_nowait(MeasurementIn(
+        self._queue.put_nowait((MeasurementIn(
             record.seq, received_s, ("held_for_" + hold) if hold else record.status,
-            record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id))
+            record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id),
+            feature))
 
     async def run(self) -> None:
         """Judge queued measurements until cancelled."""
         self._queue = asyncio.Queue(QUEUE_SIZE)
         while True:
-            m = await self._queue.get()
+            m, feature = await self._queue.get()
             try:
-                await self.channel.on_measurement(m)
+                await self.channel.on_measurement(m, feature)
             except asyncio.CancelledError:
                 raise
             except Exception:
@@ -241,6 +255,8 @@ class CompensationService:
         changed what."""
         d = await self.channel.update_settings(settings, who, lambda: self._save(RuntimeSettings(
             settings, self.part_temp_c, self.alpha_per_k)))
+        if self.channel.tool is not None:
+            self.channel.tool.rebase(settings)
         for listener in self._settings_listeners:
             listener(settings)
         return d

@@ -4,8 +4,9 @@ laser, and the records of the parts as they are finished. One owner of all three
 With no stored job active, the job is today's one feature: the compensation settings'
 nominal and tolerance, finished by tool 1 (``Job.single``). A stored job of one feature sets
 the compensation's feature when activated. A job of several features is measured feature by
-feature and recorded part by part; its offsets are held: per-tool offsets need the tool in
-the offset's handshake with the CNC, which this release does not have yet.
+feature and recorded part by part; when one tool finishes them all, each measurement goes
+into that tool's law against its own feature (``CompensationService.set_job``). The offsets of
+a job of several tools are held: the running service drives one controller (this release).
 """
 
 from __future__ import annotations
@@ -26,10 +27,10 @@ from service.runtime.compensating import CompensationService
 log = logging.getLogger("shaftgauge.jobs")
 
 RECENT_PARTS = 50
-SEVERAL_FEATURES = (
-    "the active job has several features: per-tool offsets need the tool in the offset's "
-    "handshake with the CNC (not in this release), so offsets are held; every feature is "
-    "measured and each part recorded")
+SEVERAL_TOOLS = (
+    "the active job's features are finished by several tools: the running service drives "
+    "one tool's compensation (this release), so offsets are held; every feature is measured "
+    "and each part recorded")
 
 
 class JobService:
@@ -110,6 +111,7 @@ class JobService:
         self.selected = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
+        self.compensation.set_job(job)
         for listener in self._job_listeners:
             listener()
         self._changed()
@@ -126,9 +128,10 @@ class JobService:
         else:
             self._rebuild()
 
-    def several(self) -> bool:
-        """Whether the job has several features (its offsets are held)."""
-        return self._job is not None and len(self._job.features) > 1
+    def several_tools(self) -> bool:
+        """Whether the job's features are finished by several tools (its offsets are
+        held)."""
+        return self._job is not None and len(self._job.tool_numbers()) > 1
 
     def _store(self) -> JobStore:
         if self.store is None:
@@ -253,6 +256,6 @@ class JobService:
                     "version": None if self.stored is None else self.stored.version,
                     "features": len(job.features), "tools": len(job.tool_numbers())},
                 "feature_selected": self.selected,
-                "offsets_held": SEVERAL_FEATURES if self.several() else None,
+                "offsets_held": SEVERAL_TOOLS if self.several_tools() else None,
                 "refused_diameters": self.refused, "last_refused": self.last_refused or None,
                 "store_error": self.store_error or None}

@@ -68,9 +68,11 @@ class Publisher:
         self.feed.publish(record, m, frame, in_use.geometry)
         runout = in_use.runout.runout if in_use.runout is not None else None
         held = "runout" if runout is not None and runout.tir_mm > self.max_tir_mm else None
-        if self.jobs.several():
-            held = "several_features"  # until the offset's handshake names the tool
-        comp.submit(record, frame.received_ns / 1e9, held=held)
+        if refused and self.jobs.job is not None and len(self.jobs.job.features) > 1:
+            held = "no_feature"  # a diameter that fits none of the features moves no tool
+        elif self.jobs.several_tools():
+            held = "several_tools"  # until the service drives a controller per tool
+        comp.submit(record, frame.received_ns / 1e9, held=held, feature=feature)
 
 
 def judged(m: Measurement, frame_id: int, in_use: CalibrationInUse, t_s: float

@@ -36,7 +36,7 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     job = r.json()
     assert job["version"] == 1 and job["active"] and job["created_by"].startswith("technician")
     st = client.get("/api/v1/status").json()["job"]
-    assert st["job"]["features"] == 2 and "tool in the offset's handshake" in st["offsets_held"]
+    assert st["job"]["features"] == 2 and "several tools" in st["offsets_held"]
     m = latest_with(client, lambda m: m["feature"] == 1 and m["status"] == "ok")
     assert abs(m["deviation_mm"]) < 0.01
     client.gauge.camera.diameter_mm = 25.0  # the laser on the seat
@@ -63,9 +63,35 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     dfq = client.get("/api/v1/export/aqdef/parts")
     assert dfq.status_code == 200 and "K1001 SH-4711" in dfq.text
     assert "K2002/2 seat" in dfq.text and "K0014/2 SH-4711-g1" in dfq.text
-    # The offsets are held, and the decision log says why.
+    # Two tools: the offsets are held, and the decision log says why.
     log = client.get("/api/v1/compensation/log", params={"limit": 50}).json()["items"]
-    assert any("several_features" in (row["code"] + row["reason"]) for row in log), log[:3]
+    assert any("several_tools" in (row["code"] + row["reason"]) for row in log), log[:3]
+
+
+ONE_TOOL = {"part_number": "SH-1T", "name": "two steps, one tool", "features": [
+    {"number": 1, "name": "journal", "nominal_mm": 30.0, "tol_upper_mm": 0.05,
+     "tol_lower_mm": -0.05, "tool": 1},
+    {"number": 2, "name": "seat", "nominal_mm": 25.0, "tol_upper_mm": 0.02,
+     "tol_lower_mm": -0.02, "tool": 1}]}
+
+
+def test_a_job_one_tool_finishes_is_compensated_feature_by_feature(client) -> None:
+    """Each measurement is judged against its own feature and goes into the one tool's law:
+    nothing is held for the job, and the seat's deviation is from 25 mm, not 30."""
+    r = client.post("/api/v1/jobs", headers=H, json={"document": ONE_TOOL, "activate": True})
+    assert r.status_code == 201, r.text
+    assert client.get("/api/v1/status").json()["job"]["offsets_held"] is None
+    client.gauge.camera.diameter_mm = 25.012
+    deadline, rows = time.monotonic() + 20, []
+    while time.monotonic() < deadline:
+        rows = client.get("/api/v1/compensation/log", params={"limit": 200}).json()["items"]
+        seat = [r for r in rows if r.get("deviation_mm") is not None
+                and abs(r["deviation_mm"] - 0.012) < 0.004]
+        if seat:
+            break
+        time.sleep(0.1)
+    assert seat, rows[:5]
+    assert not [r for r in rows if "held_for" in r["code"] + r["reason"]], rows[:5]
 
 
 def test_a_diameter_that_fits_no_feature_is_refused_with_a_reason(client) -> None:
