@@ -25,7 +25,7 @@ def test_a_frame_in_flight_keeps_its_calibration(tmp_path) -> None:
     ctx.set_calibration(*ctx.store.get(new_id))
     ctx.set_correction(DiameterCorrection(0.005, 1.0, 0.0))  # the new calibration's
     queue: list[MeasurementIn] = []
-    comp.submit = lambda record, received_s, held=None: queue.append(  # what it is given
+    comp.submit = lambda record, received_s, held=None, feature=None: queue.append(  # given
         MeasurementIn(record.seq, received_s, record.status, record.diameter_mm,
                       record.uncertainty_mm, record.calibration_id))
     frame = Frame(np.zeros((4, 4), np.uint8), 1, 0, 0)
