@@ -23,7 +23,10 @@ MIN_SHARE = 0.1
 MIN_STEP_MM = 0.05
 """The least step of radius between the two (smaller: the form, a run-out, the scatter)."""
 MAX_SPREAD = 0.25
-"""Each side's scatter of radius (robust sigma) at most this share of the step."""
+"""Each side's scatter of radius (robust sigma) at most this share of the step..."""
+MAX_SPREAD_MM = 0.03
+"""... and at most this (a surface's points scatter by micrometres; a lit machine part or a
+line in the background, set aside by the circle's consensus, by millimetres)."""
 
 
 def second_diameter(section_mm: np.ndarray, center_mm: np.ndarray) -> str:
@@ -65,7 +68,7 @@ def second_diameter(section_mm: np.ndarray, center_mm: np.ndarray) -> str:
     ra, rb = float(np.median(a)), float(np.median(b))
     step = abs(rb - ra)
     spread = 1.4826 * max(float(np.median(np.abs(a - ra))), float(np.median(np.abs(b - rb))))
-    if step < MIN_STEP_MM or spread > MAX_SPREAD * step:
+    if step < MIN_STEP_MM or spread > min(MAX_SPREAD * step, MAX_SPREAD_MM):
         return ""
     return (f"two diameters in one frame, {2.0 * ra:.3f} and {2.0 * rb:.3f} mm, over "
             f"{100.0 * split / n:.0f} and {100.0 * (n - split) / n:.0f} % of the stripe: a "
