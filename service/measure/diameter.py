@@ -23,7 +23,7 @@ from service.measure.section import (
     project_to_section,
 )
 from service.measure.sheet_correction import correct_sheet_bias
-from service.measure.shoulder import second_diameter
+from service.measure.shoulder import MIN_SHARE, second_diameter
 from service.measure.stripe import (
     StripePoints,
     extract_stripe,
@@ -380,10 +380,12 @@ def _shaft_points(stripe: StripePoints, geometry: RigGeometry, method: Method,
     shoulder = ""
     if method in (Method.AXIS, Method.GEOMETRIC):
         keep = _on_the_shaft_mask(points, params, known)
-        # About the surface's own centre (the kept points'), not the axis: a run-out would
-        # read as a step.
+        # A second diameter a step beyond the consensus's ring is set aside by it; only then
+        # (a clean frame pays nothing), about the surface's own centre (the kept points'),
+        # not the axis: a run-out would read as a step.
+        aside = len(keep) - int(keep.sum())
         kept = fits.fit_hyper(points.section[keep], uncertainty=False) \
-            if keep.sum() >= 3 else None
+            if aside >= MIN_SHARE * len(keep) and keep.sum() >= 3 else None
         if kept:
             shoulder = second_diameter(points.section, kept.center)
         if not keep.all():
