@@ -259,6 +259,7 @@ class PullTool:
 
     def __init__(self, cnc: PullCnc, number: int) -> None:
         self.cnc, self.number = cnc, number
+        self.read_total: int | None = None  # as ``read_cnc`` gave it (checked against limits)
 
     def total(self) -> int | None:
         """The tool's total as last reported (tool 0: the CNC's one tool's)."""
@@ -275,6 +276,7 @@ class PullTool:
         if total is None:
             self.cnc.last_error = f"the CNC has not reported tool {self.number}'s total yet"
             return None
+        self.read_total = total
         waiting = self.cnc.pending(self.number)
         seq, result = self.cnc._answers.get(self.number, (0, Result.NONE))
         if waiting is not None:
@@ -298,12 +300,13 @@ class PullTool:
         def result(outcome: Outcome, message: str) -> WriteResult:
             return WriteResult(outcome, seq, units, message, cnc.clock() - t0)
 
-        cnc.look()
-        base = self.total()
-        if base is None:
+        reported = cnc.look() is not None
+        # The base: the total the channel read and checked just before, as the CNC reported it.
+        base = self.read_total if self.read_total is not None else self.total()
+        if base is None or not reported:
             return result(Outcome.NOT_APPLIED, "the CNC has not reported in the pull "
                           "registers (is its Modbus client polling the gauge?)"
-                          if cnc.look() is None else f"the CNC has not reported tool "
+                          if not reported else f"the CNC has not reported tool "
                           f"{self.number}'s total yet (its subroutine reports the tool it "
                           "is called for)")
         try:
