@@ -22,8 +22,10 @@ trap stop EXIT INT TERM
 # The compensation's dead time is the demo's own, from an offset applied to a measurement that
 # shows it: LinuxCNC applies it as a part starts, the part's program runs about 6 s before
 # the camera's lathe is told the tool's offset, the cut reaches the laser 1.2 s later and the
-# camera's ring of 8 frames shows it within 0.8 s more.
-SHAFTGAUGE_PLC__SOURCE=pull SHAFTGAUGE_COMPENSATION__SHADOW=false \
+# camera's ring of 8 frames shows it within 0.8 s more. Its store is its own: `make run`'s
+# puts a job of two tools in force (its stepped shaft), whose offsets this release holds.
+SHAFTGAUGE_STORE__PATH="$run/data/gauge.db" \
+  SHAFTGAUGE_PLC__SOURCE=pull SHAFTGAUGE_COMPENSATION__SHADOW=false \
   SHAFTGAUGE_CAMERA__SIM_DRIFT_UM_PER_MIN=6 SHAFTGAUGE_CAMERA__SIM_LATHE=true \
   SHAFTGAUGE_CAMERA__SIM_REPLAY_FRAMES=8 SHAFTGAUGE_COMPENSATION__DEAD_TIME_S=8.0 \
   .venv/bin/shaftgauge serve > "$run/gauge.out" 2> "$run/gauge.log" &
