@@ -98,7 +98,7 @@ class GaugeStudies:
                 self.compensation.hold_offsets(VALUE_TIMEOUT_S * 2, f"gauge study {sid} "
                                                "running: the master is in the lathe",
                                                owner, code="gauge_study")
-                values.append(await self._next_value(queue))
+                values.append(await self._next_value(queue, run["started"]))
             study = type1_study(values, run["certified_mm"], run["tolerance_mm"],
                                 resolution=self.policy.resolution_mm,
                                 min_index=self.policy.min_index)
@@ -120,13 +120,16 @@ class GaugeStudies:
             self.running = None
             log.info("gauge study %d %s%s", sid, state, f": {reason}" if reason else "")
 
-    async def _next_value(self, queue: asyncio.Queue) -> float:
-        """The fused value of ``fuse_frames`` new good measurements."""
+    async def _next_value(self, queue: asyncio.Queue, since: float) -> float:
+        """The fused value of ``fuse_frames`` new good measurements of frames received after
+        ``since`` (Unix seconds): frames still in the pipeline when the study started may
+        show what was in the lathe before the master."""
         good = 0
         async with asyncio.timeout(VALUE_TIMEOUT_S) as deadline:
             while True:
                 record = await queue.get()
-                if record.status != "ok" or record.diameter_mm is None:
+                if record.status != "ok" or record.diameter_mm is None \
+                        or record.time - record.latency_ms / 1000.0 < since:
                     continue
                 deadline.reschedule(asyncio.get_running_loop().time() + VALUE_TIMEOUT_S)
                 good += 1

@@ -1,15 +1,19 @@
 """The runtime's SPC (events when a rule fires, the feature followed) and the studies' gate
-(a failed, an overdue and a missing study)."""
+(a failed, an overdue and a missing study), and a study's values from frames received after
+it started."""
 
 from __future__ import annotations
 
 import asyncio
 import time
+from pathlib import Path
 
 import numpy as np
 
+from calib_store.gauge_studies import GaugeStudyStore
 from service.config import SpcConfig
 from service.record import Feature
+from service.runtime.feed import Subscribers
 from service.runtime.spc import SpcService
 from service.runtime.studies import GaugeStudies, StudyPolicy
 from tests.integration.plant.test_mqtt import record
@@ -77,3 +81,33 @@ def test_the_gate_blocks_a_failed_an_overdue_and_a_missing_study() -> None:
     assert gate(StudyPolicy(max_age_h=8), study(True, now - 3600)).blocking() is None
     old = gate(StudyPolicy(max_age_h=8), study(True, now - 9 * 3600)).blocking()
     assert "9.0 h old" in old and "study_max_age_h = 8" in old
+
+
+class _Holds:
+    def hold_offsets(self, *args: object, **kwargs: object) -> None:
+        pass
+
+    def release_hold(self, owner: str) -> bool:
+        return True
+
+
+async def test_a_study_takes_no_frame_received_before_it_started(tmp_path: Path) -> None:
+    class Feed:
+        subscribers = Subscribers()
+
+    studies = GaugeStudies(GaugeStudyStore(tmp_path / "g.db"), Feed(), _Holds(),  # type: ignore[arg-type]
+                           3, StudyPolicy(), lambda: None)
+    sid = studies.start(30.0, 25, 0.04, "tech")
+    await asyncio.sleep(0)  # the study subscribes
+    now = time.time()
+    # Still in the pipeline when the master went in: the part's other diameter.
+    for i in range(5):
+        Feed.subscribers.publish(record(i, 25.0)._replace(time=now + 0.01, latency_ms=1010.0))
+    for i in range(5, 5 + 3 * 25):
+        Feed.subscribers.publish(record(i, 30.0 + 0.0001 * (i % 3))._replace(
+            time=now + 0.1, latency_ms=5.0))
+        await asyncio.sleep(0)
+    await asyncio.wait_for(studies._task, 5)  # type: ignore[arg-type]
+    done = studies.store.latest_done()  # type: ignore[union-attr]
+    assert done is not None and done["id"] == sid
+    assert abs(done["result"]["mean"] - 30.0) < 0.001, done["result"]
