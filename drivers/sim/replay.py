@@ -147,11 +147,21 @@ class FrameRing:
             self._shown = [math.inf] * self.size
 
     def take(self) -> tuple[np.ndarray, int]:
-        """The next frame to send (not to be written to) and its slot."""
+        """The next frame to send (not to be written to) and its slot. A slot still showing
+        the diameter before a jump (or the renderer before a change) is rendered now: a
+        camera never shows the part that was in the lathe before, however slowly the ring
+        is rendered again (the frame rate dips instead)."""
+        d = self._diameter()
         with self._lock:
             slot = self._next
             self._next = (self._next + 1) % self.size
-            return self._frames[slot], slot
+            if not abs(self._shown[slot] - d) > JUMP_MM:
+                return self._frames[slot], slot
+        image = self._render(d, slot)
+        with self._lock:
+            self._frames[slot], self._shown[slot] = image, d
+            self._crc.pop(slot, None)
+        return image, slot
 
     def full_crc(self, slot: int, image: np.ndarray) -> int:
         """CRC-32 of rows 1.. of a slot's full frame (computed once per rendering)."""
@@ -164,10 +174,9 @@ class FrameRing:
         return crc
 
     def _render(self, diameter_mm: float, slot: int) -> np.ndarray:
+        with self._lock:  # ``take`` and ``refresh`` render from two threads
+            index, self._rendered = self._rendered, self._rendered + 1
         if self.spindle_step_deg:  # a turning surface: the slot's frames are at its angle
-            image = self.renderer.render(diameter_mm, self._rendered,
-                                         spindle_deg=slot * self.spindle_step_deg)
-        else:
-            image = self.renderer.render(diameter_mm, self._rendered)
-        self._rendered += 1
-        return image
+            return self.renderer.render(diameter_mm, index,
+                                        spindle_deg=slot * self.spindle_step_deg)
+        return self.renderer.render(diameter_mm, index)

@@ -29,6 +29,27 @@ def test_the_ring_sends_its_frames_in_turn_and_renders_again_only_on_a_new_diame
     assert not np.array_equal(ring.take()[0], first[1][0])
 
 
+def test_after_a_jump_no_frame_shows_the_part_before() -> None:
+    """A master put in: the frames sent next show it before the ring is rendered again (a
+    frame of the part before would be measured as the master); a drift's step does not hold
+    the frames up."""
+    diameter = [30.0]
+    renderer = ShaftRenderer(RigConfig(image_size=(320, 240)), seed=1)
+    shown: list[float] = []
+    real = renderer.render
+    renderer.render = lambda d, i=0: shown.append(d) or real(d, i)  # type: ignore[method-assign]
+    ring = FrameRing(renderer, 4, lambda: diameter[0])
+    ring.fill()
+    diameter[0] = 30.0002  # within a step and below a jump: the ring's frames go out
+    shown.clear()
+    [ring.take() for _ in range(4)]
+    assert shown == []
+    diameter[0] = 26.0
+    [ring.take() for _ in range(2)]
+    assert shown == [26.0, 26.0]
+    assert ring.refresh(threading.Event()) == 2  # the other two, in the background
+
+
 def test_crop_and_readout_time() -> None:
     image = np.arange(100 * 80, dtype=np.uint32).reshape(100, 80)
     part = crop(image, 10, 20, 30, 40)
@@ -98,9 +119,9 @@ def test_a_turning_ring_renders_each_slot_at_its_own_spindle_angle() -> None:
     ring.spindle_step_deg = 90.0
     ring.fill()
     diameter[0] = 30.5
-    ring.take()  # the next to send is slot 1: rendered again first
+    ring.take()  # a jump: slot 0 is rendered as it is sent, the others from slot 2 on
     ring.refresh(threading.Event())
-    assert [a for _, a in angles] == [0.0, 90.0, 180.0, 270.0, 180.0, 270.0, 0.0, 90.0]
+    assert [a for _, a in angles] == [0.0, 90.0, 180.0, 270.0, 0.0, 180.0, 270.0, 90.0]
     assert len({i for i, _ in angles}) == 8  # fresh speckle every time
 
 
