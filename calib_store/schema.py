@@ -177,6 +177,13 @@ def _v3(db: sqlite3.Connection) -> None:
         db.execute(statement)
 
 
+def _v4(db: sqlite3.Connection) -> None:
+    db.execute("ALTER TABLE compensation_decisions ADD COLUMN tool INTEGER")
+    db.execute("""CREATE TABLE tool_states (
+        tool INTEGER PRIMARY KEY,
+        state TEXT NOT NULL)""")
+
+
 @dataclass(frozen=True)
 class Migration:
     """One step of the schema: to ``version``, what it does, and how."""
@@ -195,6 +202,8 @@ MIGRATIONS = (
     Migration(3, "jobs (part programs: features and tools, versioned and audited), one record "
                  "per part, and the feature of each archived measurement and gauge study",
               _v3),
+    Migration(4, "a compensation state per tool of a job of several tools, and the tool of "
+                 "each decision (none: the single channel's, kept as before)", _v4),
 )
 SCHEMA_VERSION = MIGRATIONS[-1].version
 

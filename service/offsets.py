@@ -16,7 +16,7 @@ import logging
 import sqlite3
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Protocol
 
 from calib_store.compensation_log import CompensationLog
@@ -79,9 +79,11 @@ class OffsetChannel:
                  store: CompensationLog | None = None,
                  on_decision: Callable[[Decision], None] | None = None,
                  clock: Callable[[], float] = time.monotonic,
-                 tool: ToolCompensation | None = None) -> None:
+                 tool: ToolCompensation | None = None, tool_number: int | None = None
+                 ) -> None:
         self.controller, self.writer, self.store = controller, writer, store
         self.tool = tool
+        self.tool_number = tool_number  # a tool's own channel in a job of several
         self.on_decision = on_decision
         self.clock = clock
         self.last_write: WriteResult | None = None
@@ -99,10 +101,16 @@ class OffsetChannel:
         assert self.store is not None
         return self.store.submit(decision.as_dict(), time.time(),
                                  asdict(self.controller.persisted),
-                                 quiet=decision.kind in QUIET_KINDS, durable=durable)
+                                 quiet=decision.kind in QUIET_KINDS, durable=durable,
+                                 tool=self.tool_number)
+
+    def _named(self, decision: Decision) -> Decision:
+        return decision if self.tool_number is None else replace(decision,
+                                                                 tool=self.tool_number)
 
     def _note(self, decision: Decision) -> Decision:
         """Hand a decision to the log (without waiting), the log file and the listeners."""
+        decision = self._named(decision)
         if self.store is not None:
             try:
                 self._submit(decision)
@@ -111,7 +119,8 @@ class OffsetChannel:
         level = logging.WARNING if decision.kind in (Kind.ALARM, Kind.STOPPED, Kind.UNCERTAIN,
                                                      Kind.NOT_APPLIED, Kind.LIMIT) \
             else logging.DEBUG
-        log.log(level, "compensation %s: %s", decision.kind.value, decision.reason)
+        log.log(level, "compensation%s %s: %s", "" if decision.tool is None else
+                f" of tool {decision.tool}", decision.kind.value, decision.reason)
         if self.on_decision is not None:
             self.on_decision(decision)
         return decision
@@ -119,6 +128,7 @@ class OffsetChannel:
     async def _note_durable(self, decision: Decision) -> Decision:
         """Log a decision and wait until it is committed (LogUnavailableError if it cannot
         be)."""
+        decision = self._named(decision)
         if self.store is not None:
             fut = self._submit(decision, durable=True)
             try:
@@ -215,17 +225,21 @@ class OffsetChannel:
         except Exception:  # settling below still works without it
             log.exception("offering an unsettled offset again failed")
         while True:
-            try:
-                if self.controller.state is State.UNCERTAIN:
-                    await self.settle()
-                elif self._baseline_wanted() or \
-                        self.clock() - self._last_refresh >= CNC_REFRESH_S:
-                    await self.refresh()
-            except asyncio.CancelledError:
-                raise
-            except Exception:  # keep settling: a bug here must not end the task silently
-                log.exception("settling an offset failed")
+            await self.tick()
             await asyncio.sleep(period_s)
+
+    async def tick(self) -> None:
+        """One step of ``run_settler``: settle an unknown offset, or read the CNC when due."""
+        try:
+            if self.controller.state is State.UNCERTAIN:
+                await self.settle()
+            elif self._baseline_wanted() or \
+                    self.clock() - self._last_refresh >= CNC_REFRESH_S:
+                await self.refresh()
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # keep settling: a bug here must not end the task silently
+            log.exception("settling an offset failed")
 
     def _baseline_wanted(self) -> bool:
         """Compensation is on and its reference (or the CNC's total) is not known yet."""

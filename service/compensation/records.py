@@ -93,6 +93,9 @@ class Decision:
     of one kind and code are "the same" for the log's runs."""
     who: str = ""
     """Who asked, for a person's or the CNC's command (``api:technician``, ``modbus``)."""
+    tool: int | None = None
+    """The tool whose controller decided, in a job of several tools (None: the single
+    channel's)."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""

@@ -35,8 +35,8 @@ def _open_all(path: Path) -> tuple[CalibrationStore, CompensationLog, GaugeStudy
     return CalibrationStore(path), CompensationLog(path), GaugeStudyStore(path)
 
 
-def test_stores_of_four_earlier_releases_are_here() -> None:
-    assert len(FIXTURES) >= 4, FIXTURES
+def test_stores_of_five_earlier_releases_are_here() -> None:
+    assert len(FIXTURES) >= 5, FIXTURES
 
 
 @pytest.mark.parametrize("fixture", FIXTURES, ids=lambda p: p.stem)
@@ -64,6 +64,22 @@ def test_a_store_of_an_earlier_release_opens_with_every_row_kept(fixture: Path, 
     db.close()
     kept = list(tmp_path.glob("shaftgauge.db.v*-*.bak"))  # v0: before versions
     assert len(kept) == 1 and _counts(kept[0]) == before
+
+
+def test_the_store_of_the_release_with_jobs_gains_a_state_per_tool(tmp_path) -> None:
+    (fixture,) = (f for f in FIXTURES if f.name.startswith("2026-12-06.2-"))
+    path = tmp_path / "shaftgauge.db"
+    shutil.copy(fixture, path)
+    db = sqlite3.connect(str(path))
+    single = db.execute("SELECT state FROM compensation_state").fetchone()[0]
+    db.close()
+    log_ = CompensationLog(path)
+    try:
+        assert log_.load_state() == json.loads(single) and log_.load_state(1) is None
+        assert {r["tool"] for r in log_.decisions(limit=1000)} == {None}
+    finally:
+        log_.close()
+    assert _counts(path)["tool_states"] == 0 and _counts(path)["parts"] > 0
 
 
 def test_a_new_store_is_made_at_the_latest_version_without_a_backup(tmp_path) -> None:
