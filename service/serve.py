@@ -287,7 +287,8 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                                  if sp.source == "encoder" else None)
     compensation = CompensationService(
         RuntimeSettings(settings.compensation, ts.part_temp_c, ts.alpha_per_k), writer,
-        comp_log, reset_command=settings.modbus.reset_command, store_error=store_error)
+        comp_log, reset_command=settings.modbus.reset_command, store_error=store_error,
+        tool_transport=writer.tool if isinstance(writer, PullCnc) else None)
     feed = MeasurementFeed(ms.history, ms.fuse_frames)
     compensation.on_decision(feed.decisions.publish)
     context.on_change(compensation.set_calibration)

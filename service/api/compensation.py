@@ -61,6 +61,14 @@ def router(comp: CompensationService, log: CompensationLog | None, run_command: 
 
     @r.post("/compensation/command", summary="Reset compensation or acknowledge an alarm")
     async def command(body: CommandIn, caller: Caller = technician) -> dict:
+        if body.tool is not None:  # one tool's: not a command of the CNC's registers
+            who = f"api:{caller}"
+            try:
+                d = await (comp.reset("api", who, body.tool) if body.command == "reset"
+                           else comp.acknowledge(who, body.tool))
+            except KeyError as err:
+                raise HTTPException(404, err.args[0]) from None
+            return {"decision": d.as_dict(), "state": comp.state.value}
         code = Command.RESET_COMPENSATION if body.command == "reset" \
             else Command.ACKNOWLEDGE_ALARM
         d = await run_command(code, source="api", who=f"api:{caller}")

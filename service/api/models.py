@@ -70,6 +70,8 @@ class CommandIn(_Strict):
     """A command to the compensation."""
 
     command: Literal["reset", "acknowledge"]
+    tool: int | None = Field(None, ge=1, le=99999, description=(
+        "one tool of a job of several tools (none: the compensation and every tool's)"))
 
 
 class TemperatureIn(_Strict):

@@ -28,6 +28,7 @@ from service.compensation.job import Job, JobFeature
 from service.compensation.tools import ToolCompensation
 from service.offsets import OffsetChannel, OffsetTransport
 from service.record import Feature, MeasurementRecord
+from service.runtime.tool_channels import NO_TOOL_IN_HANDSHAKE, ToolChannels
 
 log = logging.getLogger("shaftgauge.compensation")
 
@@ -49,6 +50,9 @@ class RuntimeSettings:
         return json.loads(json.dumps({"compensation": asdict(self.compensation),
                                       "part_temp_c": self.part_temp_c,
                                       "alpha_per_k": self.alpha_per_k}))
+
+
+_GRAVITY = (State.ACTIVE, State.PENDING, State.UNCERTAIN, State.ALARM, State.STOPPED)
 
 
 @dataclass(frozen=True)
@@ -97,11 +101,15 @@ class CompensationService:
         Whether a reset from the CNC's command register is carried out.
     store_error : str
         Why there is no log (changes are then refused: they could not be kept).
+    tool_transport : callable or None
+        Tool number -> its transport, where the handshake names the tool (``PullCnc.tool``):
+        a job of several tools then has a channel per tool (``ToolChannels``).
     """
 
     def __init__(self, from_file: RuntimeSettings, writer: OffsetTransport | None,
                  log_: CompensationLog | None, reset_command: bool = False,
-                 store_error: str = "") -> None:
+                 store_error: str = "",
+                 tool_transport: Callable[[int], OffsetTransport] | None = None) -> None:
         self.from_file = from_file
         self.log = log_
         self.store_error = store_error
@@ -111,6 +119,9 @@ class CompensationService:
         state = ControllerState.from_dict(log_.load_state() if log_ else None)
         self.channel = OffsetChannel(CompensationController(current.compensation, state),
                                      writer, log_, on_decision=self._decided)
+        self.tools = ToolChannels(tool_transport, log_, self._decided, blocked=""
+                                  if tool_transport is not None or writer is None
+                                  else NO_TOOL_IN_HANDSHAKE)
         self._decision_listeners: list[Callable[[Decision], None]] = []
         self._settings_listeners: list[Callable[[CompensationSettings], None]] = []
         self._hold: OffsetHold | None = None
@@ -147,8 +158,11 @@ class CompensationService:
 
     @property
     def state(self) -> State:
-        """The controller's state."""
-        return self.channel.controller.state
+        """The controller's state; in a job of several tools, the gravest of the tools' (a
+        stopped tool is the gauge's stop)."""
+        states = [self.channel.controller.state,
+                  *(ch.controller.state for ch in self.tools.channels.values())]
+        return max(states, key=_GRAVITY.index)
 
     def feature(self) -> Feature:
         """Nominal and tolerance in force."""
@@ -164,20 +178,23 @@ class CompensationService:
         """The compensation's part of the service status."""
         c = self.channel.controller
         p = c.persisted
-        return {"state": c.state.value, "shadow": c.settings.shadow,
+        return {"state": self.state.value, "shadow": c.settings.shadow,
                 "cumulative_offset_mm": c.cumulative_mm, "cnc_total_mm": p.cnc_total_mm,
                 "baseline_mm": p.baseline_mm, "cnc_offset_from_baseline_mm": p.cnc_offset_mm(),
                 "max_total_mm": c.settings.max_total_mm, "offset_seq": p.offset_seq,
                 "pending_seq": p.pending_seq, "held": self.offset_hold(),
-                "log_rows": None if self.log is None else self.log.rows_written}
+                "log_rows": None if self.log is None else self.log.rows_written,
+                "tools": self.tools.status()}
 
     # ---- the measurements ----------------------------------------------------------------
 
     def set_job(self, job: Job | None) -> None:
         """The job in force: one whose features one tool finishes has each measurement
-        judged against its feature and taken into the tool's law (``ToolCompensation``);
-        otherwise the settings' single feature, as before."""
+        judged against its feature and taken into the tool's law (``ToolCompensation``); one
+        of several tools, a channel per tool (``ToolChannels``); otherwise the settings'
+        single feature, as before."""
         tools = job.tool_numbers() if job is not None else ()
+        self.tools.set_job(job, self.settings, self.channel.controller.calibration_id)
         if job is None or len(job.features) < 2 or len(tools) != 1:
             self.channel.tool = None
             return
@@ -207,7 +224,8 @@ class CompensationService:
         while True:
             m, feature = await self._queue.get()
             try:
-                await self.channel.on_measurement(m, feature)
+                if feature is None or not await self.tools.judge(m, feature):
+                    await self.channel.on_measurement(m, feature)
             except asyncio.CancelledError:
                 raise
             except Exception:
@@ -244,10 +262,12 @@ class CompensationService:
     def set_calibration(self, calibration_id: int) -> None:
         """Only measurements made with this calibration count from now on."""
         self.channel.set_calibration(calibration_id)
+        self.tools.set_calibration(calibration_id)
 
     def set_writes_blocked(self, why: str) -> None:
         """Offsets are only proposed while ``why`` is not empty (a master check)."""
         self.channel.set_writes_blocked(why)
+        self.tools.set_writes_blocked(why)
 
     async def update_settings(self, settings: CompensationSettings, who: str) -> Decision:
         """New compensation settings (ValueError naming the bad one), stored before they are
@@ -257,6 +277,7 @@ class CompensationService:
             settings, self.part_temp_c, self.alpha_per_k)))
         if self.channel.tool is not None:
             self.channel.tool.rebase(settings)
+        await self.tools.update_settings(settings, who)
         for listener in self._settings_listeners:
             listener(settings)
         return d
@@ -278,19 +299,28 @@ class CompensationService:
             f"temperature changed (part_temp_c={part_temp_c!r}, alpha_per_k={alpha!r})", who,
             lambda: self._save(RuntimeSettings(self.settings, part_temp_c, alpha)), apply)
 
-    async def reset(self, source: str, who: str) -> Decision:
-        """Reset compensation. From the CNC's command register (``source`` "modbus") it is
-        refused and logged unless ``reset_command`` allows it; a reset moves the reference of
-        the cumulative limit to where the CNC's total stands."""
+    async def reset(self, source: str, who: str, tool: int | None = None) -> Decision:
+        """Reset compensation: ``tool``'s of a job of several tools, or (None) the single
+        channel's and every tool's. From the CNC's command register (``source`` "modbus")
+        it is refused and logged unless ``reset_command`` allows it; a reset moves the
+        reference of the cumulative limit to where the CNC's total stands. KeyError when
+        ``tool`` has no compensation of its own."""
         if source == "modbus" and not self.reset_command:
             return await self.channel.refuse_reset(
                 who, "resets from the CNC's command register are off (modbus.reset_command); "
                 "a technician resets over the API")
-        return await self.channel.command("reset", who)
+        return await self._command("reset", who, tool)
 
-    async def acknowledge(self, who: str) -> Decision:
-        """Acknowledge an out-of-tolerance alarm."""
-        return await self.channel.command("acknowledge", who)
+    async def acknowledge(self, who: str, tool: int | None = None) -> Decision:
+        """Acknowledge an out-of-tolerance alarm (``tool``'s, or every one's)."""
+        return await self._command("acknowledge", who, tool)
+
+    async def _command(self, action: str, who: str, tool: int | None) -> Decision:
+        if tool is not None:
+            return (await self.tools.command(action, who, tool))[0]
+        d = await self.channel.command(action, who)
+        await self.tools.command(action, who)
+        return d
 
     async def _save(self, settings: RuntimeSettings) -> None:
         """Store ``settings`` as the runtime settings (NotStoredError when they cannot be)."""

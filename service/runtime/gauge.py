@@ -65,9 +65,12 @@ class Gauge:
             self._tasks += [
                 loop.create_task(comp.run(), name="compensation"),
                 loop.create_task(comp.channel.run_settler(), name="settler"),
+                loop.create_task(comp.tools.run_settlers(), name="tool-settlers"),
                 loop.create_task(comp.follow_master_gate(
                     lambda: self.context.master_status()["blocking"]
                     or self.studies.blocking()), name="master-gate")]
+            if isinstance(self.writer, PullCnc):  # an answer posts the next tool's request
+                self._tasks.append(loop.create_task(self.writer.watch(), name="pull-watch"))
             self._tasks += await self.modbus.start(self.health.snapshot, self.health.healthy)
             self._tasks += [loop.create_task(link.run(), name=link.name) for link in self.plant]
             if self.form:

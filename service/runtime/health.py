@@ -100,9 +100,15 @@ class HealthReport:
         w = self.writer
         if w is not None and not w.connected and w.outage_since is not None:
             out.append(Problem("plc_unreachable", f"CNC/PLC unreachable: {w.last_error}"))
-        if comp.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
-            out.append(Problem(f"compensation_{comp.state.value}",
-                               f"compensation {comp.state.value}"))
+        if comp.channel.controller.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
+            out.append(Problem(f"compensation_{comp.channel.controller.state.value}",
+                               f"compensation {comp.channel.controller.state.value}"))
+        for t, ch in sorted(comp.tools.channels.items()):
+            if ch.controller.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
+                out.append(Problem(f"compensation_{ch.controller.state.value}",
+                                   f"compensation of tool {t} {ch.controller.state.value}"))
+        if comp.tools.channels and comp.tools.blocked:
+            out.append(Problem("offsets_blocked", f"offsets blocked: {comp.tools.blocked}"))
         study = self.quality[1].blocking() if self.quality else None
         if comp.controller.writes_blocked and comp.controller.writes_blocked != study:
             out.append(Problem("offsets_blocked",
@@ -149,7 +155,7 @@ class HealthReport:
             latest_in_tolerance=None if latest is None else latest.in_tolerance,
             age_s=self.feed.measurement_age_s(),
             max_age_s=self.settings.measurement.max_age_s,
-            shadow=c.settings.shadow, compensation=c.state,
+            shadow=c.settings.shadow, compensation=self.compensation.state,
             plc_configured=w is not None, plc_connected=w is not None and w.connected,
             plc_outage=w is not None and w.outage_since is not None,
             writes_blocked=bool(self.context.master_status()["blocking"]),

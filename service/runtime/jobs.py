@@ -5,8 +5,8 @@ With no stored job active, the job is today's one feature: the compensation sett
 nominal and tolerance, finished by tool 1 (``Job.single``). A stored job of one feature sets
 the compensation's feature when activated. A job of several features is measured feature by
 feature and recorded part by part; when one tool finishes them all, each measurement goes
-into that tool's law against its own feature (``CompensationService.set_job``). The offsets of
-a job of several tools are held: the running service drives one controller (this release).
+into that tool's law against its own feature (``CompensationService.set_job``); a job of
+several tools has a controller per tool (``ToolChannels``).
 """
 
 from __future__ import annotations
@@ -27,10 +27,6 @@ from service.runtime.compensating import CompensationService
 log = logging.getLogger("shaftgauge.jobs")
 
 RECENT_PARTS = 50
-SEVERAL_TOOLS = (
-    "the active job's features are finished by several tools: the running service drives "
-    "one tool's compensation (this release), so offsets are held; every feature is measured "
-    "and each part recorded")
 
 
 class JobService:
@@ -129,8 +125,7 @@ class JobService:
             self._rebuild()
 
     def several_tools(self) -> bool:
-        """Whether the job's features are finished by several tools (its offsets are
-        held)."""
+        """Whether the job's features are finished by several tools."""
         return self._job is not None and len(self._job.tool_numbers()) > 1
 
     def _store(self) -> JobStore:
@@ -256,6 +251,7 @@ class JobService:
                     "version": None if self.stored is None else self.stored.version,
                     "features": len(job.features), "tools": len(job.tool_numbers())},
                 "feature_selected": self.selected,
-                "offsets_held": SEVERAL_TOOLS if self.several_tools() else None,
+                "offsets_held": self.compensation.tools.blocked or None
+                if self.several_tools() else None,
                 "refused_diameters": self.refused, "last_refused": self.last_refused or None,
                 "store_error": self.store_error or None}

@@ -70,8 +70,6 @@ class Publisher:
         held = "runout" if runout is not None and runout.tir_mm > self.max_tir_mm else None
         if refused and self.jobs.job is not None and len(self.jobs.job.features) > 1:
             held = "no_feature"  # a diameter that fits none of the features moves no tool
-        elif self.jobs.several_tools():
-            held = "several_tools"  # until the service drives a controller per tool
         comp.submit(record, frame.received_ns / 1e9, held=held, feature=feature)
 
 

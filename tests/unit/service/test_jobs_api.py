@@ -1,6 +1,6 @@
 """Jobs over the API on the simulated rig: a two-feature part measured feature by feature,
-recorded part by part, diameters that fit no feature refused with a reason, offsets held
-while the CNC link cannot name the tool."""
+recorded part by part, each tool with its compensation of its own, diameters that fit no
+feature refused with a reason."""
 
 from __future__ import annotations
 
@@ -36,7 +36,9 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     job = r.json()
     assert job["version"] == 1 and job["active"] and job["created_by"].startswith("technician")
     st = client.get("/api/v1/status").json()["job"]
-    assert st["job"]["features"] == 2 and "several tools" in st["offsets_held"]
+    assert st["job"]["features"] == 2 and st["offsets_held"] is None
+    tools = client.get("/api/v1/status").json()["compensation"]["tools"]
+    assert [(t["tool"], t["features"]) for t in tools] == [(1, [1]), (2, [2])]
     m = latest_with(client, lambda m: m["feature"] == 1 and m["status"] == "ok")
     assert abs(m["deviation_mm"]) < 0.01
     client.gauge.camera.diameter_mm = 25.0  # the laser on the seat
@@ -63,9 +65,19 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     dfq = client.get("/api/v1/export/aqdef/parts")
     assert dfq.status_code == 200 and "K1001 SH-4711" in dfq.text
     assert "K2002/2 seat" in dfq.text and "K0014/2 SH-4711-g1" in dfq.text
-    # Two tools: the offsets are held, and the decision log says why.
-    log = client.get("/api/v1/compensation/log", params={"limit": 50}).json()["items"]
-    assert any("several_tools" in (row["code"] + row["reason"]) for row in log), log[:3]
+    # Two tools: each judged its own feature's parts (the seat's from 25 mm, not 30).
+    log = client.get("/api/v1/compensation/log", params={"limit": 200}).json()["items"]
+    judged = {(row["tool"], row["deviation_mm"] is not None and abs(row["deviation_mm"]) < 0.01)
+              for row in log if row["measurement_seq"] is not None}
+    assert {(1, True), (2, True)} <= judged, log[:5]
+    assert not [r for r in log if "held_for" in r["code"] + r["reason"]], log[:5]
+    # One tool reset, by its number; a tool the job lacks is named in the refusal.
+    r = client.post("/api/v1/compensation/command", headers=H,
+                    json={"command": "reset", "tool": 2})
+    assert r.status_code == 200 and r.json()["decision"]["tool"] == 2, r.text
+    r = client.post("/api/v1/compensation/command", headers=H,
+                    json={"command": "reset", "tool": 3})
+    assert r.status_code == 404 and "has tools [1, 2]" in r.json()["detail"]
 
 
 ONE_TOOL = {"part_number": "SH-1T", "name": "two steps, one tool", "features": [
