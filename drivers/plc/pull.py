@@ -234,6 +234,9 @@ class PullCnc:
             self.post(self._waiting.pop(0) if self._waiting else None)
         return report
 
+    async def close(self) -> None:
+        """Nothing to close: the CNC comes to the gauge's own server (stopped with it)."""
+
     async def watch(self, period_s: float = 0.05) -> None:
         """Look at the report every ``period_s`` until cancelled: an answer withdraws its
         request at once and posts the next tool's, before the CNC calls for that tool."""
