@@ -5,14 +5,16 @@ let switching = false;  // a shadow-mode change is on its way: leave the switch 
 
 const QUIET = ["held", "refused", "proposed"];  // a run of these is one row (with a count)
 
-function kindText(kind, count) {
-  return count > 1 ? `${kind} \u00d7${count}` : kind;
+function kindText(kind, count, tool) {
+  const what = tool == null ? kind : `T${tool} ${kind}`;
+  return count > 1 ? `${what} \u00d7${count}` : what;
 }
 
 function row(d) {
   const tr = document.createElement("tr");
   const count = d.count ?? 1;
-  const cells = [clock(d.last_time ?? d.wall_time ?? d.time ?? d.time_s), kindText(d.kind, count),
+  const cells = [clock(d.last_time ?? d.wall_time ?? d.time ?? d.time_s),
+                 kindText(d.kind, count, d.tool),
                  d.offset_mm == null ? "" : (d.offset_mm * 1000).toFixed(1),
                  d.deviation_mm == null ? "" : (d.deviation_mm * 1000).toFixed(1), d.reason];
   cells.forEach((c, i) => {
@@ -24,7 +26,29 @@ function row(d) {
   tr.dataset.kind = d.kind;
   tr.dataset.code = d.code ?? "";
   tr.dataset.count = count;
+  tr.dataset.tool = d.tool ?? "";
   return tr;
+}
+
+// A job of several tools: a row a tool (its state, offsets and exchange with the CNC).
+function showTools(tools, shadow) {
+  $("comp-tools-card").hidden = !tools.length;
+  $("comp-tools").replaceChildren(...tools.map((t) => {
+    const tr = document.createElement("tr");
+    const cells = [`T${t.tool}`, t.features.join(", "), t.state, um(t.cumulative_offset_mm),
+                   t.cnc_total_mm != null ? um(t.cnc_total_mm)
+                     : t.writes_blocked ? "\u2013" : "not read yet", handshake(t),
+                   t.writes_blocked ? "proposed only: " + t.writes_blocked
+                     : shadow ? "proposed only (shadow mode)" : "written to the CNC"];
+    cells.forEach((c) => {
+      const td = document.createElement("td");
+      td.textContent = c;
+      tr.append(td);
+    });
+    tr.dataset.tool = t.tool;
+    tr.dataset.state = t.state;
+    return tr;
+  }));
 }
 
 // The offset exchange with the CNC: an offset on its way, or the last one settled.
@@ -48,6 +72,7 @@ export async function loadCompensation() {
   $("comp-cnc").textContent = c.cnc_total_mm == null || c.baseline_mm == null ? "not read yet"
     : `${um(c.cnc_total_mm - c.baseline_mm)} of ±${um(c.settings.max_total_mm)}`;
   if (!switching) $("shadow").checked = c.settings.shadow;
+  showTools(c.tools ?? [], c.settings.shadow);
   const kinds = $("comp-filter").value;
   const log = await api("/compensation/log?limit=100" + (kinds ? "&kinds=" + kinds : ""));
   $("decisions").replaceChildren(...log.items.map(row));
@@ -60,22 +85,24 @@ export function onDecision(d) {
   const body = $("decisions");
   const top = body.firstElementChild;
   if (top && QUIET.includes(d.kind) && top.dataset.kind === d.kind &&
-      top.dataset.code === (d.code ?? "")) {  // the run goes on: count it, show the latest
+      top.dataset.code === (d.code ?? "") && top.dataset.tool === String(d.tool ?? "")) {  // the run goes on: count it, show the latest
     top.replaceWith(row({ ...d, count: Number(top.dataset.count) + 1,
                           wall_time: Date.now() / 1000 }));
     return;
   }
   body.prepend(row({ ...d, wall_time: Date.now() / 1000 }));
   while (body.children.length > 100) body.lastChild.remove();
-  $("comp-cumulative").textContent = um(d.after_mm);
+  if (d.tool == null) $("comp-cumulative").textContent = um(d.after_mm);
 }
 
 export function onStatus(st) {
   const held = st.compensation.held;
   $("comp-held").textContent = held ? "held: " + held
+    : (st.compensation.tools ?? []).length ? "each tool's, below"
     : st.compensation.shadow ? "proposed only (shadow mode)" : "written to the CNC";
   $("comp-state").textContent = st.compensation.state;
   showCnc(st.compensation);
+  showTools(st.compensation.tools ?? [], st.compensation.shadow);
   if (!switching) $("shadow").checked = st.compensation.shadow;  // the service's word counts
 }
 

@@ -362,4 +362,10 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
     page.select_option("#spc-feature", "2")
     expect(page.locator("#spc-n")).to_contain_text("values", timeout=10000)
     assert httpx.get(service.url + "/api/v1/spc?feature=2", timeout=10).json()["feature"] == 2
+    # Compensation a tool: a row each, and each decision named by its tool.
+    page.goto(service.url + "/ui/#compensation")
+    expect(page.locator("#comp-tools tr")).to_have_count(2, timeout=15000)
+    expect(page.locator("#comp-tools tr").nth(1)).to_contain_text("T2")
+    expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=15000)
+    shot(page, "compensation-tools")
     assert not page.errors  # type: ignore[attr-defined]
