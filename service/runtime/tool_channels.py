@@ -34,6 +34,13 @@ NO_TOOL_IN_HANDSHAKE = (
     "requests name the tool")
 
 
+def own_settings(job: Job, tool: int, base: CompensationSettings) -> CompensationSettings:
+    """A tool's controller settings: ``base`` with its law (the job's ``tools[].gain``,
+    ``trend_gain``) and the bands of the first feature it finishes (each measurement is then
+    judged against its own feature's)."""
+    return job.settings_for(job.features_of(tool)[0], base)
+
+
 class ToolChannels:
     """The channels of the job's tools (empty unless the job in force has several).
 
@@ -58,6 +65,7 @@ class ToolChannels:
         self.channels: dict[int, OffsetChannel] = {}
         self._resumed: set[int] = set()  # id() of the channels offered their offset again
         self._gate = ""  # the master gate's reason, for every tool
+        self._retuning: set[asyncio.Task] = set()
 
     def set_job(self, job: Job | None, base: CompensationSettings,
                 calibration_id: int | None) -> None:
@@ -69,14 +77,29 @@ class ToolChannels:
             return
         self._drop(set(self.channels) - set(tools))
         for t in tools:
-            ch = self.channels.get(t) or self._channel(t, base, calibration_id)
+            own = own_settings(job, t, base)
+            ch = self.channels.get(t)
+            if ch is None:
+                ch = self.channels[t] = self._channel(t, own, calibration_id)
+            elif ch.controller.settings != own:  # a new version of the job: the tool's law
+                self._retune(ch, own, "job")
             ch.tool = ToolCompensation(job, t, base, controller=ch.controller)
-            self.channels[t] = ch
 
-    def _channel(self, tool: int, base: CompensationSettings,
+    def _retune(self, ch: OffsetChannel, settings: CompensationSettings, who: str) -> None:
+        """New settings for a channel, in turn with what it is doing (its lock), logged."""
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:  # not running yet (the service starting): nothing is in flight
+            ch.controller.update_settings(settings, ch.clock(), who)
+            return
+        task = loop.create_task(ch.update_settings(settings, who))
+        self._retuning.add(task)
+        task.add_done_callback(self._retuning.discard)
+
+    def _channel(self, tool: int, own: CompensationSettings,
                  calibration_id: int | None) -> OffsetChannel:
         state = ControllerState.from_dict(self.log.load_state(tool) if self.log else None)
-        ch = OffsetChannel(CompensationController(base, state),
+        ch = OffsetChannel(CompensationController(own, state),
                            self.transport(tool) if self.transport else None, self.log,
                            on_decision=self.on_decision, tool_number=tool)
         ch.set_calibration(calibration_id)
@@ -118,10 +141,11 @@ class ToolChannels:
             ch.set_writes_blocked(why or self.blocked)
 
     async def update_settings(self, settings: CompensationSettings, who: str) -> None:
-        """New settings under every tool's features (stored already by the caller)."""
-        for ch in list(self.channels.values()):
-            await ch.update_settings(settings, who)
+        """New settings under every tool's features and law (stored already by the
+        caller)."""
+        for t, ch in list(self.channels.items()):
             if ch.tool is not None:
+                await ch.update_settings(own_settings(ch.tool.job, t, settings), who)
                 ch.tool.rebase(settings)
 
     async def command(self, action: str, who: str, tool: int | None = None

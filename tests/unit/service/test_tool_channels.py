@@ -4,6 +4,7 @@ tool, and a handshake that names no tool proposes offsets without writing any.""
 
 from __future__ import annotations
 
+import asyncio
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -97,6 +98,12 @@ async def test_settings_reach_every_tool_and_a_job_of_one_tool_has_no_channels(t
     comp = service(tmp_path / "g.db", {1: FakeCnc(), 2: FakeCnc()}, FakeCnc())
     await comp.update_settings(replace(comp.settings, shadow=True), "api:technician")
     assert all(ch.controller.settings.shadow for ch in comp.tools.channels.values())
+    # A new version of the job gives tool 2 a law of its own: its controller takes it.
+    comp.set_job(job_from_doc({**DOC, "tools": [{"number": 2, "gain": 0.3}]}, LIVE))
+    await asyncio.sleep(0.01)  # the change, in turn with the channel's work
+    assert comp.tools.channel(2).controller.settings.gain == 0.3
+    assert comp.tools.channel(1).controller.settings.gain == LIVE.gain
+    assert comp.tools.channel(2).controller.settings.nominal_mm == 25.0
     comp.set_job(job_from_doc({**DOC, "features": DOC["features"][:1]}, LIVE))
     assert comp.tools.channels == {} and comp.status()["tools"] == []
     comp.log.close()
