@@ -315,13 +315,17 @@ def cmd_sim_plc(args: argparse.Namespace) -> int:
     from drivers.plc.sim import SimPlc
 
     async def serve() -> int:
-        plc = SimPlc(args.host, args.port,
-                     PlcOffsetMap(args.offset_address, args.ack_address, args.total_address,
-                                  args.unit_id, WordOrder(args.word_order)),
-                     ack_delay_s=args.ack_delay,
-                     log_path=Path(args.log) if args.log else None,
-                     state_path=Path(args.state) if args.state else None,
-                     never_ack=args.never_ack)
+        try:
+            plc = SimPlc(args.host, args.port,
+                         PlcOffsetMap(args.offset_address, args.ack_address,
+                                      args.total_address, args.unit_id,
+                                      WordOrder(args.word_order), args.tool_stride),
+                         ack_delay_s=args.ack_delay,
+                         log_path=Path(args.log) if args.log else None,
+                         state_path=Path(args.state) if args.state else None,
+                         never_ack=args.never_ack, tools=args.tools)
+        except ValueError as err:
+            return _fail(str(err))
         try:
             port = await plc.start()
         except (OSError, RuntimeError) as err:
@@ -689,6 +693,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds between receiving and acknowledging an offset")
     p.add_argument("--log", metavar="FILE", help="JSON-lines log of writes and applications")
     p.add_argument("--state", metavar="FILE", help="keep the applied total across restarts")
+    p.add_argument("--tools", type=int, default=0, metavar="N",
+                   help="keep a block for each of tools 1..N too (--tool-stride apart)")
+    p.add_argument("--tool-stride", type=int, default=10, metavar="REGISTERS",
+                   help="registers from one tool's block to the next")
     p.add_argument("--never-ack", action="store_true",
                    help="keep every offset request, apply and acknowledge none")
     p.set_defaults(func=cmd_sim_plc)

@@ -135,11 +135,22 @@ class PlcSettings(_Section):
     total_address: int = Field(106, ge=0, le=65534)
     word_order: Literal["big", "little"] = "big"
     ack_timeout_s: float = Field(3.0, gt=0, le=60)
+    tool_stride: int | None = Field(None, ge=0, le=10000)
+    """Registers from one tool's offset block to the next in the CNC (tool n's at
+    ``n * tool_stride`` past the addresses above): the offsets of a job of several tools then
+    go each to its tool's block. 0: the CNC keeps one block, and such offsets are only
+    proposed. None: 10 for the simulated PLC, 0 for a real one."""
     sim_ack_delay_s: float = Field(0.05, ge=0)
     tls: TlsSettings | None = None
     """``source = "modbus"`` over Modbus/TCP Security: the CNC's certificate must come from
     ``tls.cafile``'s authority and name ``host``; the gauge shows ``tls.certfile``. None:
     plain Modbus TCP."""
+
+    def stride(self) -> int:
+        """``tool_stride`` as in force (see there)."""
+        if self.tool_stride is not None:
+            return self.tool_stride
+        return 10 if self.source == "sim" else 0
 
     @model_validator(mode="after")
     def _tls_for_a_real_cnc(self) -> PlcSettings:

@@ -108,6 +108,8 @@ def _shaftgauge() -> str:
     return str(Path(sys.executable).with_name("shaftgauge"))
 
 
+SIM_PLC_TOOLS = 8
+"""Tools with an offset block of their own in the simulated PLC (``sim-plc --tools``)."""
 SIM_WEAR_UM_PER_MIN = 0.4
 """The embedded default's tool wear: 12 um on the diameter in a 30-minute insert."""
 
@@ -249,12 +251,16 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
                         "--unit-id", str(plc.unit_id), "--offset-address",
                         str(plc.offset_address), "--ack-address", str(plc.ack_address),
                         "--total-address", str(plc.total_address), "--word-order",
-                        plc.word_order, "--ack-delay", str(plc.sim_ack_delay_s), "--log",
+                        plc.word_order, "--tools", str(SIM_PLC_TOOLS if plc.stride() else 0),
+                        "--tool-stride", str(plc.stride() or 10),
+                        "--ack-delay", str(plc.sim_ack_delay_s), "--log",
                         str(data_dir / "sim-plc.log"), "--state", str(state)], "PLC")
     if plc.source in ("sim", "modbus"):
-        writer = OffsetWriter(plc.host, plc.port, PlcOffsetMap(
-            plc.offset_address, plc.ack_address, plc.total_address, plc.unit_id,
-            WordOrder(plc.word_order)), ack_timeout_s=plc.ack_timeout_s,
+        offsets = PlcOffsetMap(plc.offset_address, plc.ack_address, plc.total_address,
+                               plc.unit_id, WordOrder(plc.word_order), plc.stride())
+        if plc.stride():
+            offsets.for_tool(SIM_PLC_TOOLS)  # ValueError now, not at a job's first offset
+        writer = OffsetWriter(plc.host, plc.port, offsets, ack_timeout_s=plc.ack_timeout_s,
             sslctx=client_context(TlsFiles(plc.tls.certfile, plc.tls.keyfile, plc.tls.cafile))
             if plc.tls else None)
 
@@ -288,7 +294,8 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     compensation = CompensationService(
         RuntimeSettings(settings.compensation, ts.part_temp_c, ts.alpha_per_k), writer,
         comp_log, reset_command=settings.modbus.reset_command, store_error=store_error,
-        tool_transport=writer.tool if isinstance(writer, PullCnc) else None)
+        tool_transport=writer.tool if isinstance(writer, PullCnc) or (
+            isinstance(writer, OffsetWriter) and writer.map.tool_stride) else None)
     feed = MeasurementFeed(ms.history, ms.fuse_frames)
     compensation.on_decision(feed.decisions.publish)
     context.on_change(compensation.set_calibration)

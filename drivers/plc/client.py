@@ -148,7 +148,7 @@ class OffsetWriter:
             self.connected = False
 
     async def _read_u32(self, address: int) -> int:
-        assert self._client is not None
+        assert self._client is not None  # every block has the unit id of the map
         rr = await self._client.read_holding_registers(address, count=2,
                                                        device_id=self.map.unit_id)
         if rr.isError():
@@ -168,10 +168,16 @@ class OffsetWriter:
                 self._mark_down(f"reading the acknowledgement failed: {err}")
                 return None
 
-    async def read_cnc(self) -> CncReading | None:
+    def tool(self, number: int) -> PushTool:
+        """The transport of tool ``number``: its own block of the CNC's registers
+        (``PlcOffsetMap.for_tool``; ValueError when the CNC keeps none a tool)."""
+        return PushTool(self, self.map.for_tool(number), number)
+
+    async def read_cnc(self, block: PlcOffsetMap | None = None) -> CncReading | None:
         """The CNC's side of the exchange (request sequence, acknowledgement, total wear
-        offset), or None when it cannot be read now."""
-        m = self.map
+        offset) in ``block`` (None: the single tool's), or None when it cannot be read
+        now."""
+        m = block or self.map
         async with self._lock:
             if not await self._connect():
                 return None
@@ -193,16 +199,18 @@ class OffsetWriter:
                 return None
         return CncReading(ack, request, total * UM_PER_UNIT / 1000.0)
 
-    async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
-        """Write one offset with its sequence number, exactly once.
+    async def write_offset(self, offset_mm: float, seq: int,
+                           block: PlcOffsetMap | None = None) -> WriteResult:
+        """Write one offset with its sequence number into ``block`` (None: the single tool's),
+        exactly once.
 
         Returns APPLIED when the CNC echoed ``seq`` and the registers read back as written;
         NOT_APPLIED when the write never reached the CNC or was refused; UNKNOWN when it was
-        sent but not acknowledged in time (settle it later with ``read_ack``).
+        sent but not acknowledged in time (settle it later with ``read_cnc``).
         """
         t0 = time.monotonic()
         units = mm_to_units(offset_mm)
-        m = self.map
+        m = block or self.map
 
         def result(outcome: Outcome, message: str) -> WriteResult:
             return WriteResult(outcome, seq, units, message, time.monotonic() - t0)
@@ -243,6 +251,22 @@ class OffsetWriter:
                 return result(Outcome.APPLIED, "acknowledged, but the read-back differs "
                               f"({getattr(rr, 'registers', rr)} != {words}): check the CNC")
             return result(Outcome.APPLIED, "acknowledged and verified")
+
+
+class PushTool:
+    """One tool's transport over the writer's connection: its own block of registers (one
+    request at a time on the connection, as every request)."""
+
+    def __init__(self, writer: OffsetWriter, block: PlcOffsetMap, number: int) -> None:
+        self.writer, self.block, self.number = writer, block, number
+
+    async def read_cnc(self) -> CncReading | None:
+        """The CNC's side of the exchange in the tool's block."""
+        return await self.writer.read_cnc(self.block)
+
+    async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
+        """Write one offset into the tool's block, exactly once (``OffsetWriter``)."""
+        return await self.writer.write_offset(offset_mm, seq, self.block)
 
 
 class CncTotalReader:

@@ -10,11 +10,14 @@ those of the simulated PLC (``shaftgauge sim-plc``).
 | offset_address + 2 | 2 | offset sequence number, uint32         | gauge (same FC16) |
 | ack_address        | 2 | sequence number last applied, uint32   | CNC |
 | total_address      | 2 | wear offset applied in total, int32, 0.1 um | CNC (for display) |
+
+A job of several tools: tool ``n``'s block is the same at ``n * tool_stride`` further (0: the
+CNC keeps one tool's block, and the offsets of a job of several tools are only proposed).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from drivers.plc.registers import WordOrder
 
@@ -28,3 +31,29 @@ class PlcOffsetMap:
     total_address: int = 106
     unit_id: int = 1
     word_order: WordOrder = WordOrder.BIG
+    tool_stride: int = 0
+    """Registers from one tool's block to the next (0: one block, the single tool's)."""
+
+    def span(self) -> int:
+        """Registers from the block's first to its last, inclusive."""
+        starts = (self.offset_address, self.ack_address, self.total_address)
+        return max(self.offset_address + 4, self.ack_address + 2, self.total_address + 2) \
+            - min(starts)
+
+    def for_tool(self, tool: int) -> PlcOffsetMap:
+        """Tool ``tool``'s block (0: the single tool's, this one). ValueError when the CNC
+        keeps no block a tool, or the blocks would overlap."""
+        if tool == 0:
+            return self
+        if self.tool_stride <= 0:
+            raise ValueError("the CNC keeps one offset block (plc.tool_stride = 0): no tool's "
+                             "own")
+        if self.tool_stride < self.span():
+            raise ValueError(f"plc.tool_stride {self.tool_stride} is shorter than a block "
+                             f"({self.span()} registers): the tools' blocks would overlap")
+        shift = tool * self.tool_stride
+        if max(self.offset_address, self.ack_address, self.total_address) + shift > 65533:
+            raise ValueError(f"tool {tool}'s block would lie beyond register 65535")
+        return replace(self, offset_address=self.offset_address + shift,
+                       ack_address=self.ack_address + shift,
+                       total_address=self.total_address + shift, tool_stride=0)

@@ -9,6 +9,10 @@ exchange). The request registers are volatile, as a PLC's exchange area is: afte
 they read 0. Every write received and every offset applied goes into a log (in memory and, when
 given, a JSON-lines file) so tests can prove that nothing was applied twice. Its applied total
 and last sequence persist in a state file, as a real CNC keeps its offsets across power cycles.
+
+With ``tools`` it keeps a block for each of tools 1 to ``tools`` as well, ``tool_stride``
+registers apart (``PlcOffsetMap.for_tool``): each tool's offsets, total and acknowledgement
+apart from the others'.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import json
 import logging
 import ssl
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +34,15 @@ from drivers.plc.offsets import PlcOffsetMap
 from drivers.plc.registers import RegisterType, from_words, to_words
 
 log = logging.getLogger("shaftgauge.sim.plc")
+
+
+@dataclass
+class _Tool:
+    """One block's CNC side: what it applied and the request in its registers."""
+
+    total_units: int = 0
+    last_seq: int = 0
+    request_seq: int = 0
 
 
 class SimPlc:
@@ -48,25 +62,30 @@ class SimPlc:
         Keep requests, apply and acknowledge none.
     sslctx : ssl.SSLContext, optional
         Speak Modbus/TCP Security (``drivers.plc.tls.server_context``), as a CNC that does.
+    tools : int
+        Tools with a block of their own (1 to ``tools``, ``offsets.tool_stride`` apart).
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 5021,
                  offsets: PlcOffsetMap | None = None, ack_delay_s: float = 0.0,
                  log_path: Path | None = None, state_path: Path | None = None,
-                 never_ack: bool = False, sslctx: ssl.SSLContext | None = None) -> None:
+                 never_ack: bool = False, sslctx: ssl.SSLContext | None = None,
+                 tools: int = 0) -> None:
         self.host, self.port = host, port
         self.sslctx = sslctx
         self.map = offsets or PlcOffsetMap()
+        self.blocks = {t: self.map.for_tool(t) for t in range(int(tools) + 1)}
         self.ack_delay_s = ack_delay_s
         self.never_ack = never_ack
-        self.request_seq = 0
         self.log_path, self.state_path = log_path, state_path
         self.events: list[dict[str, Any]] = []
-        self.total_units = 0
-        self.last_seq = 0
+        self.tools = {t: _Tool() for t in self.blocks}
         if state_path and state_path.exists():
             state = json.loads(state_path.read_text())
-            self.total_units, self.last_seq = state["total_units"], state["last_seq"]
+            self.tools[0] = _Tool(state["total_units"], state["last_seq"])
+            for t, kept in state.get("tools", {}).items():
+                if int(t) in self.tools:
+                    self.tools[int(t)] = _Tool(kept["total_units"], kept["last_seq"])
         self._regs: list[int] | None = None
         self._start = 0
         self._server: ModbusTcpServer | None = None
@@ -75,16 +94,29 @@ class SimPlc:
     def _words(self, value: int, kind: RegisterType) -> list[int]:
         return to_words(value, kind, self.map.word_order)
 
+    @property
+    def total_units(self) -> int:
+        """The single tool's applied total, 0.1 um."""
+        return self.tools[0].total_units
+
+    @property
+    def last_seq(self) -> int:
+        """The single tool's last applied sequence."""
+        return self.tools[0].last_seq
+
     def _device(self) -> SimDevice:
-        m = self.map
-        blocks = [
-            SimData(m.offset_address, count=4, values=0, datatype=DataType.REGISTERS),
-            SimData(m.ack_address, values=self._words(self.last_seq, RegisterType.U32),
-                    datatype=DataType.REGISTERS, readonly=True),
-            SimData(m.total_address, values=self._words(self.total_units, RegisterType.I32),
-                    datatype=DataType.REGISTERS, readonly=True),
-        ]
-        return SimDevice(id=m.unit_id, simdata=blocks, action=self._action)
+        blocks = []
+        for t, m in self.blocks.items():
+            state = self.tools[t]
+            blocks += [
+                SimData(m.offset_address, count=4, values=0, datatype=DataType.REGISTERS),
+                SimData(m.ack_address, values=self._words(state.last_seq, RegisterType.U32),
+                        datatype=DataType.REGISTERS, readonly=True),
+                SimData(m.total_address,
+                        values=self._words(state.total_units, RegisterType.I32),
+                        datatype=DataType.REGISTERS, readonly=True)]
+        blocks.sort(key=lambda b: b.address)
+        return SimDevice(id=self.map.unit_id, simdata=blocks, action=self._action)
 
     def _record(self, event: dict[str, Any]) -> None:
         event["time"] = time.time()
@@ -99,63 +131,69 @@ class SimPlc:
         self._regs, self._start = registers, start
         if values is None or fc in (3, 4):
             return None
-        m = self.map
-        if address != m.offset_address or count != 4:
+        tool = next((t for t, m in self.blocks.items() if address == m.offset_address), None)
+        if tool is None or count != 4:
             return ExcCodes.ILLEGAL_ADDRESS  # value and sequence go together, in one write
         words = [int(v) for v in values]
-        value = from_words(words[:2], RegisterType.I32, m.word_order)
-        seq = from_words(words[2:], RegisterType.U32, m.word_order)
-        self.request_seq = seq
+        value = from_words(words[:2], RegisterType.I32, self.map.word_order)
+        seq = from_words(words[2:], RegisterType.U32, self.map.word_order)
+        self.tools[tool].request_seq = seq
+        named = {"tool": tool} if tool else {}
         if seq == 0:
-            self._record({"event": "cleared", "seq": seq, "value_units": value})
+            self._record({"event": "cleared", "seq": seq, "value_units": value, **named})
             return None
-        self._record({"event": "write", "seq": seq, "value_units": value})
+        self._record({"event": "write", "seq": seq, "value_units": value, **named})
         if self.never_ack:
             return None
-        task = asyncio.get_running_loop().create_task(self._apply(seq, value, start))
+        task = asyncio.get_running_loop().create_task(self._apply(seq, value, start, tool))
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
         return None
 
-    async def _apply(self, seq: int, value: int, start: int) -> None:
+    async def _apply(self, seq: int, value: int, start: int, tool: int = 0) -> None:
         if self.ack_delay_s:
             await asyncio.sleep(self.ack_delay_s)
-        if self.request_seq != seq:
-            self._record({"event": "cancelled", "seq": seq, "value_units": value})
+        state, named = self.tools[tool], ({"tool": tool} if tool else {})
+        if state.request_seq != seq:
+            self._record({"event": "cancelled", "seq": seq, "value_units": value, **named})
             return
-        if seq == self.last_seq:
-            self._record({"event": "duplicate", "seq": seq, "value_units": value})
+        if seq == state.last_seq:
+            self._record({"event": "duplicate", "seq": seq, "value_units": value, **named})
         else:
-            self.total_units += value
-            self.last_seq = seq
+            state.total_units += value
+            state.last_seq = seq
             self._record({"event": "applied", "seq": seq, "value_units": value,
-                          "total_units": self.total_units})
+                          "total_units": state.total_units, **named})
             self._keep()
         self._publish(start)
 
-    def set_total_by_hand(self, total_units: int) -> None:
+    def set_total_by_hand(self, total_units: int, tool: int = 0) -> None:
         """An operator sets the wear offset at the panel (zeroed at an insert change): the
         total changes without a request (call on the server's loop)."""
-        self.total_units = int(total_units)
-        self._record({"event": "set_by_hand", "total_units": self.total_units})
+        self.tools[tool].total_units = int(total_units)
+        self._record({"event": "set_by_hand", "total_units": int(total_units),
+                      **({"tool": tool} if tool else {})})
         self._keep()
         self._publish(self._start)
 
     def _keep(self) -> None:
         if self.state_path:
             tmp = self.state_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps({"total_units": self.total_units,
-                                       "last_seq": self.last_seq}))
+            single = self.tools[0]
+            tmp.write_text(json.dumps({
+                "total_units": single.total_units, "last_seq": single.last_seq,
+                "tools": {str(t): {"total_units": s.total_units, "last_seq": s.last_seq}
+                          for t, s in self.tools.items() if t}}))
             tmp.replace(self.state_path)
 
     def _publish(self, start: int) -> None:
         if self._regs is None:
             return
-        m = self.map
-        ack = self._words(self.last_seq, RegisterType.U32)
-        total = self._words(self.total_units, RegisterType.I32)
-        self._regs[m.ack_address - start:m.ack_address - start + 2] = ack
-        self._regs[m.total_address - start:m.total_address - start + 2] = total
+        for t, m in self.blocks.items():
+            ack = self._words(self.tools[t].last_seq, RegisterType.U32)
+            total = self._words(self.tools[t].total_units, RegisterType.I32)
+            self._regs[m.ack_address - start:m.ack_address - start + 2] = ack
+            self._regs[m.total_address - start:m.total_address - start + 2] = total
 
     async def start(self) -> int:
         """Listen on the running loop; return the bound port."""

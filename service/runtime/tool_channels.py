@@ -2,9 +2,10 @@
 state kept in the store (``tool_states``), CNC transport and settling. The single channel of
 ``CompensationService`` stays for a job of one tool and for the settings' single feature.
 
-An offset reaches a tool only through that tool's transport (the pull handshake's request
-names it, map v4). A handshake that names no tool (the push writer) gets no transport: each
-tool's offsets are then proposed and logged, never written, and the block says why.
+An offset reaches a tool only through that tool's transport: the pull handshake's request
+names it (map v4), the push writer writes to the tool's own block of the CNC's registers
+(``plc.tool_stride``). A CNC with one block gets no transport a tool: each tool's offsets are
+then proposed and logged, never written, and the block says why.
 """
 
 from __future__ import annotations
@@ -29,9 +30,10 @@ from service.offsets import OffsetChannel, OffsetTransport
 log = logging.getLogger("shaftgauge.compensation")
 
 NO_TOOL_IN_HANDSHAKE = (
-    "the push handshake names no tool, so the offsets of a job of several tools are only "
-    "proposed: use the pull handshake (plc.source = \"pull\", register map v4), whose "
-    "requests name the tool")
+    "the CNC keeps one offset block (plc.tool_stride = 0), so the offsets of a job of several "
+    "tools are only proposed: set plc.tool_stride to where it keeps each tool's block, or use "
+    "the pull handshake (plc.source = \"pull\", register map v4), whose requests name the "
+    "tool")
 
 
 def own_settings(job: Job, tool: int, base: CompensationSettings) -> CompensationSettings:
@@ -66,6 +68,7 @@ class ToolChannels:
         self._resumed: set[int] = set()  # id() of the channels offered their offset again
         self._gate = ""  # the master gate's reason, for every tool
         self._retuning: set[asyncio.Task] = set()
+        self._no_transport: dict[int, str] = {}  # tool -> why it has no transport
 
     def set_job(self, job: Job | None, base: CompensationSettings,
                 calibration_id: int | None) -> None:
@@ -99,11 +102,15 @@ class ToolChannels:
     def _channel(self, tool: int, own: CompensationSettings,
                  calibration_id: int | None) -> OffsetChannel:
         state = ControllerState.from_dict(self.log.load_state(tool) if self.log else None)
-        ch = OffsetChannel(CompensationController(own, state),
-                           self.transport(tool) if self.transport else None, self.log,
+        transport = None
+        try:
+            transport = self.transport(tool) if self.transport else None
+        except ValueError as err:  # the CNC keeps no block for this tool
+            self._no_transport[tool] = f"tool {tool}'s offsets cannot be sent: {err}"
+        ch = OffsetChannel(CompensationController(own, state), transport, self.log,
                            on_decision=self.on_decision, tool_number=tool)
         ch.set_calibration(calibration_id)
-        ch.set_writes_blocked(self._gate or self.blocked)
+        ch.set_writes_blocked(self._why_blocked(tool))
         log.info("tool %d: its own compensation (state %s)", tool, ch.controller.state.value)
         return ch
 
@@ -137,8 +144,11 @@ class ToolChannels:
     def set_writes_blocked(self, why: str) -> None:
         """The master gate (and a handshake naming no tool) for every tool."""
         self._gate = why
-        for ch in self.channels.values():
-            ch.set_writes_blocked(why or self.blocked)
+        for t, ch in self.channels.items():
+            ch.set_writes_blocked(self._why_blocked(t))
+
+    def _why_blocked(self, tool: int) -> str:
+        return self._gate or self.blocked or self._no_transport.get(tool, "")
 
     async def update_settings(self, settings: CompensationSettings, who: str) -> None:
         """New settings under every tool's features and law (stored already by the

@@ -6,8 +6,11 @@ import asyncio
 import json
 from dataclasses import replace
 
+import pytest
+
 from calib_store.compensation_log import CompensationLog
 from drivers.plc.client import OffsetWriter, Outcome
+from drivers.plc.offsets import PlcOffsetMap
 from service.compensation import (
     CompensationController,
     CompensationSettings,
@@ -160,3 +163,31 @@ async def test_an_offset_that_cannot_be_logged_is_not_written(sim_plc_factory, s
     assert applied_seqs(sim_plc_factory.log) == [2]  # sequence 1 was never sent, never reused
     assert [d["kind"] for d in store.decisions(kinds=("applied",))] == ["applied"]
     await writer.close()
+
+
+async def test_each_tool_has_its_own_block(sim_plc_factory, tmp_path) -> None:
+    """A job of several tools over the push handshake: tool n's offsets go to its own block
+    (``tool_stride`` registers on), each with its own acknowledgement and total, kept across
+    the CNC's restart."""
+    plc = sim_plc_factory(None, "--tools", "3", "--tool-stride", "10")
+    writer = OffsetWriter("127.0.0.1", plc.port, PlcOffsetMap(tool_stride=10))
+    one, two = writer.tool(1), writer.tool(2)
+    assert (await one.write_offset(-0.004, 1)).outcome is Outcome.APPLIED
+    assert (await two.write_offset(0.003, 1)).outcome is Outcome.APPLIED  # its own sequence
+    assert (await two.write_offset(0.001, 2)).outcome is Outcome.APPLIED
+    r1, r2, single = await one.read_cnc(), await two.read_cnc(), await writer.read_cnc()
+    assert (r1.ack_seq, round(r1.total_mm * 1e4)) == (1, -40)
+    assert (r2.ack_seq, round(r2.total_mm * 1e4)) == (2, 40)
+    assert (single.ack_seq, single.total_mm) == (0, 0.0)  # the single tool's block untouched
+    applied = [(e.get("tool"), e["seq"]) for e in plc_log(sim_plc_factory.log)
+               if e["event"] == "applied"]
+    assert applied == [(1, 1), (2, 1), (2, 2)]
+    await writer.close()
+    plc.stop()
+    plc = sim_plc_factory(plc.port, "--tools", "3", "--tool-stride", "10")
+    writer = OffsetWriter("127.0.0.1", plc.port, PlcOffsetMap(tool_stride=10))
+    r2 = await writer.tool(2).read_cnc()
+    assert (r2.ack_seq, round(r2.total_mm * 1e4)) == (2, 40)
+    await writer.close()
+    with pytest.raises(ValueError, match="one offset block"):
+        OffsetWriter("127.0.0.1", plc.port).tool(1)

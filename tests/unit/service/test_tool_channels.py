@@ -1,6 +1,6 @@
 """A job of several tools in the running service's compensation: each tool's offsets go to
 its own transport only, each tool's state survives a restart in the store, a reset names its
-tool, and a handshake that names no tool proposes offsets without writing any."""
+tool, and a CNC that keeps no block a tool has offsets proposed, none written."""
 
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ async def test_each_tool_is_corrected_through_its_own_transport_and_kept(tmp_pat
     again.log.close()
 
 
-async def test_a_handshake_naming_no_tool_only_proposes(tmp_path) -> None:
+async def test_a_cnc_with_one_offset_block_only_has_offsets_proposed(tmp_path) -> None:
     primary = FakeCnc()
     comp = service(tmp_path / "g.db", None, primary)
     assert comp.tools.blocked == NO_TOOL_IN_HANDSHAKE
@@ -88,8 +88,8 @@ async def test_a_handshake_naming_no_tool_only_proposes(tmp_path) -> None:
     rows = comp.log.decisions(limit=1000)
     proposed = [r for r in rows if r["kind"] == "proposed"]
     assert {r["tool"] for r in proposed} == {1, 2}, rows[:5]
-    assert "push handshake names no tool" in proposed[0]["reason"]
-    assert "push handshake" in comp.status()["tools"][0]["writes_blocked"]
+    assert "keeps one offset block" in proposed[0]["reason"]
+    assert "plc.tool_stride" in comp.status()["tools"][0]["writes_blocked"]
     comp.log.close()
 
 
@@ -106,4 +106,22 @@ async def test_settings_reach_every_tool_and_a_job_of_one_tool_has_no_channels(t
     assert comp.tools.channel(2).controller.settings.nominal_mm == 25.0
     comp.set_job(job_from_doc({**DOC, "features": DOC["features"][:1]}, LIVE))
     assert comp.tools.channels == {} and comp.status()["tools"] == []
+    comp.log.close()
+
+
+async def test_a_tool_the_cnc_keeps_no_block_for_is_proposed_only(tmp_path) -> None:
+    def transport(tool: int) -> FakeCnc:
+        if tool == 2:
+            raise ValueError("tool 2's block would lie beyond register 65535")
+        return FakeCnc()
+
+    comp = CompensationService(RuntimeSettings(LIVE, None, 11.5e-6), FakeCnc(),
+                               CompensationLog(tmp_path / "g.db"), tool_transport=transport)
+    comp.set_job(job_from_doc(DOC, LIVE))
+    tools = {t["tool"]: t for t in comp.status()["tools"]}
+    assert tools[1]["writes_blocked"] is None
+    assert "beyond register 65535" in tools[2]["writes_blocked"]
+    comp.set_writes_blocked("master check overdue")  # the gate passes; the block stays
+    comp.set_writes_blocked("")
+    assert "beyond register 65535" in comp.tools.channel(2).controller.writes_blocked
     comp.log.close()
