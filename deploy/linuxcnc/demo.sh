@@ -23,7 +23,7 @@ trap stop EXIT INT TERM
 # shows it: LinuxCNC applies it as a part starts, the part's program runs about 6 s before
 # the camera's lathe is told the tool's offset, the cut reaches the laser 1.2 s later and the
 # camera's ring of 8 frames shows it within 0.8 s more. Its store is its own: `make run`'s
-# puts a job of two tools in force (its stepped shaft), whose offsets this release holds.
+# puts a job of two tools in force (its stepped shaft), where the demo's lathe cuts one.
 SHAFTGAUGE_STORE__PATH="$run/data/gauge.db" \
   SHAFTGAUGE_PLC__SOURCE=pull SHAFTGAUGE_COMPENSATION__SHADOW=false \
   SHAFTGAUGE_CAMERA__SIM_DRIFT_UM_PER_MIN=6 SHAFTGAUGE_CAMERA__SIM_LATHE=true \
