@@ -1,8 +1,9 @@
-"""Calibration images of the simulated rig: a chessboard at chosen poses, with or without the
-laser line across it, and clamped between the lathe centres at chosen rotations.
+"""Calibration images of the simulated rig: a target (a chessboard or a circle grid,
+``service.calibrate.board``) at chosen poses, with or without the laser line across it, and
+clamped between the lathe centres at chosen rotations.
 
-The board is a plane with ``cols x rows`` inner corners spaced ``square_mm`` apart; its own
-frame has the first inner corner at the origin, x along the columns, z out of the board. Each
+The board is a plane; its own frame has the target's first point at the origin, x along the
+columns, z out of the board. Each
 pixel's ray is intersected with the board plane; each pixel integrates over its area (3x3
 samples, 12x12 at edges), then the image is blurred and given shot and read noise like the
 shaft images. The laser line is the light sheet's Gaussian profile around the plane,
@@ -50,8 +51,7 @@ class BoardRenderer:
         """A board roughly facing the camera, tilted about x and y, centred on the optical
         axis (plus ``shift_mm``) at ``distance_mm``."""
         R = _rotation(180.0 + tilt_x_deg, tilt_y_deg, spin_deg)
-        w = (self.board.cols - 1) * self.board.square_mm
-        h = (self.board.rows - 1) * self.board.square_mm
+        w, h = self._span()
         centre = np.array([shift_mm[0], shift_mm[1], distance_mm])
         t = centre - R @ np.array([w / 2, h / 2, 0.0])
         return BoardPose(R, t)
@@ -71,17 +71,22 @@ class BoardRenderer:
         y = math.cos(th) * y0 + math.sin(th) * z0
         z = np.cross(a, y)
         R = np.column_stack([a, y, z])
-        w = (self.board.cols - 1) * self.board.square_mm
-        h = (self.board.rows - 1) * self.board.square_mm
+        w, h = self._span()
         # The axis runs along the board's middle row; shift along the axis to taste.
         t = a0 + (along_axis_mm - w / 2) * a - (h / 2) * y
         return BoardPose(R, t)
 
+    def _span(self) -> tuple[float, float]:
+        """From the target's first point to its last, along x and y, mm."""
+        pts = self.board.object_points()
+        return float(pts[:, 0].max()), float(pts[:, 1].max())
+
     def _bbox(self, pose: BoardPose) -> tuple[int, int, int, int]:
         """Pixel bounding box of the printed board, with a margin for the blur."""
-        b, m = self.board, self.board.margin_squares + 1.0
-        xs = np.array([-m, b.cols - 1 + m]) * b.square_mm
-        ys = np.array([-m, b.rows - 1 + m]) * b.square_mm
+        b = self.board
+        u0, u1, v0, v1 = b.extent()
+        xs = np.array([u0 - 1.0, u1 + 1.0]) * b.square_mm
+        ys = np.array([v0 - 1.0, v1 + 1.0]) * b.square_mm
         corners = np.array([[x, y, 0.0] for x in xs for y in ys])
         cam = corners @ pose.R.T + pose.t
         w, h = self.cfg.image_size
@@ -143,7 +148,8 @@ class BoardRenderer:
         from ``ss x ss`` samples each, and where the samples of a pixel disagree."""
         offsets = np.array(_offsets(ss)) / [K[0, 0], K[1, 1]]
         b, p = self.board, self._pose
-        board = np.array([b.square_mm, b.cols, b.rows, b.margin_squares], float)
+        board = np.array([b.square_mm, b.cols, b.rows, b.margin_squares,
+                          ("chess", "circles", "acircles").index(b.kind), b.dot_radius], float)
         sheet = np.array([*p.plane_normal, p.plane_d, self.cfg.sheet_sigma_mm], float)
         shape = rx.shape
         # Imported here: the kernels are numba's (0.2 s to import), and a simulator that

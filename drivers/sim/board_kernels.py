@@ -15,6 +15,18 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True)
+def _on_circle(u: float, v: float, cols: float, rows: float, kind: int, dot: float) -> bool:
+    """Whether (u, v), in pitches, lies on one of the grid's circles."""
+    cv = min(max(math.floor(v + 0.5), 0.0), rows - 1)
+    if kind == 1:
+        cu = min(max(math.floor(u + 0.5), 0.0), cols - 1)
+    else:  # row i's centres at 2 j + i mod 2
+        shift = cv % 2
+        cu = 2 * min(max(math.floor((u - shift) / 2 + 0.5), 0.0), cols - 1) + shift
+    return (u - cu) ** 2 + (v - cv) ** 2 <= dot * dot
+
+
+@numba.njit(cache=True, nogil=True)
 def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.ndarray,
                      t: np.ndarray, board: np.ndarray, sheet: np.ndarray, laser: bool
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -29,8 +41,10 @@ def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.
         Each sample's offset from the centre ray (already divided by the focal lengths).
     R, t : ndarray, shapes (3, 3) and (3,)
         The board's pose: ``X_cam = R X_board + t`` (mm).
-    board : ndarray, shape (4,)
-        ``square_mm, cols, rows, margin_squares``.
+    board : ndarray, shape (6,)
+        ``square_mm, cols, rows, margin_squares, kind, dot_radius``: kind 0 a chessboard, 1
+        a symmetric circle grid, 2 an asymmetric one (``square_mm`` its pitch, the circles'
+        radius ``dot_radius`` pitches).
     sheet : ndarray, shape (5,)
         The light plane's normal (3), its offset ``d`` (mm) and the sheet's sigma (mm).
     laser : bool
@@ -50,6 +64,7 @@ def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.
     n0, n1, n2 = R[0, 2], R[1, 2], R[2, 2]
     nt = n0 * t[0] + n1 * t[1] + n2 * t[2]
     sq, cols, rows, m = board[0], board[1], board[2], board[3]
+    kind, dot = int(board[4]), board[5]
     count = np.float32(offsets.shape[0])
     for i in range(n):
         a = np.float32(0.0)
@@ -66,9 +81,18 @@ def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.
                 X0, X1, X2 = x * s - t[0], y * s - t[1], s - t[2]
                 u = (X0 * R[0, 0] + X1 * R[1, 0] + X2 * R[2, 0]) / sq
                 v = (X0 * R[0, 1] + X1 * R[1, 1] + X2 * R[2, 1]) / sq
-                if s > 0 and -1 - m < u < cols + m and -1 - m < v < rows + m:
-                    checker = -1 < u < cols and -1 < v < rows
-                    white = (not checker) or (math.floor(u) + math.floor(v)) % 2 == 0
+                if kind == 0:
+                    inside = -1 - m < u < cols + m and -1 - m < v < rows + m
+                elif kind == 1:
+                    inside = -m < u < cols - 1 + m and -m < v < rows - 1 + m
+                else:
+                    inside = -m < u < 2 * cols - 1 + m and -m < v < rows - 1 + m
+                if s > 0 and inside:
+                    if kind == 0:
+                        checker = -1 < u < cols and -1 < v < rows
+                        white = (not checker) or (math.floor(u) + math.floor(v)) % 2 == 0
+                    else:
+                        white = not _on_circle(u, v, cols, rows, kind, dot)
                     r = 1.0 if white else 0.12
                     if laser:
                         dist = (x * s * sheet[0] + y * s * sheet[1] + s * sheet[2]) - sheet[3]

@@ -12,7 +12,7 @@ import numpy as np
 from calib_store.model import SCHEMA, Calibration, parse_calibration
 from service.calibrate import board
 from service.calibrate.axis import AxisResult, calibrate_axis
-from service.calibrate.board import Board
+from service.calibrate.board import Board, board_of
 from service.calibrate.intrinsics import IntrinsicsResult, calibrate_intrinsics
 from service.calibrate.master import correction_from_masters
 from service.calibrate.plane import PlaneResult, calibrate_plane
@@ -61,7 +61,7 @@ def intrinsics_step(images: list[str], board: Board) -> tuple[dict[str, Any], In
     res = calibrate_intrinsics(imgs, board)
     report = assess(res)
     out: dict[str, Any] = {"step": "intrinsics", "ok": bool(res), "reason": res.reason,
-                           "board": [board.cols, board.rows, board.square_mm],
+                           "board": board.describe(),
                            "image_size": [int(imgs[0].shape[1]), int(imgs[0].shape[0])]
                            if imgs else None, "images_used": len(res.used),
                            "rejected": {str(k): v for k, v in res.rejected.items()},
@@ -76,9 +76,7 @@ def _intrinsics(path: str) -> tuple[np.ndarray, np.ndarray, Board, dict[str, Any
     d = _load(path, "intrinsics")
     if not d.get("ok"):
         raise StepError(f"{path}: the intrinsics step failed ({d.get('reason')}): redo it")
-    cols, rows, sq = d["board"]
-    return (np.array(d["camera_matrix"]), np.array(d["dist_coeffs"]),
-            Board(cols=int(cols), rows=int(rows), square_mm=float(sq)), d)
+    return (np.array(d["camera_matrix"]), np.array(d["dist_coeffs"]), board_of(d["board"]), d)
 
 
 def plane_step(intrinsics: str, pairs: list[str]) -> tuple[dict[str, Any], PlaneResult]:

@@ -1,4 +1,5 @@
-"""Camera intrinsics from chessboard images (Zhang's method, OpenCV)."""
+"""Camera intrinsics from images of a target (Zhang's method, OpenCV): chessboards and
+circle grids (``service.calibrate.board``)."""
 
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ _kept_lock = threading.Lock()
 
 
 def find_corners(image: np.ndarray, board: Board) -> Corners:
-    """Sub-pixel inner corners of the chessboard in a grey image.
+    """The target's points in a grey image, in ``board.object_points`` order: a chessboard's
+    sub-pixel inner corners, a circle grid's centres.
 
     The detector takes about half a second an image; a detection of the same pixels (their
     digest) and board is given again from memory (the last ``KEPT_DETECTIONS``)."""
@@ -57,8 +59,10 @@ def find_corners(image: np.ndarray, board: Board) -> Corners:
 
 
 def _detect_corners(image: np.ndarray, board: Board) -> Corners:
+    if board.kind != "chess":
+        return _detect_circles(image, board)
     size = (board.cols, board.rows)
-    missing = Corners(None, f"board of {board.cols}x{board.rows} inner corners not found")
+    missing = Corners(None, f"{board.name} not found")
     try:
         ok, corners = cv2.findChessboardCornersSB(image, size, flags=cv2.CALIB_CB_ACCURACY)
         if not ok or corners is None:
@@ -70,6 +74,80 @@ def _detect_corners(image: np.ndarray, board: Board) -> Corners:
     except cv2.error:  # an image too small or odd for OpenCV's detectors holds no board
         return missing
     return Corners(corners.reshape(-1, 2).astype(np.float64))
+
+
+def _blob_detector(image: np.ndarray, board: Board, dark: bool) -> cv2.SimpleBlobDetector:
+    """Blobs from a few pixels up to a share of the image a circle of the grid can have
+    (OpenCV's defaults stop at 5000 px: a grid filling a 1920x1080 image has larger dots);
+    round enough for a circle seen at a tilt."""
+    p = cv2.SimpleBlobDetector_Params()
+    p.blobColor = 0 if dark else 255
+    p.minArea = 12.0
+    p.maxArea = float(image.shape[0] * image.shape[1]) / (board.cols * board.rows)
+    p.filterByCircularity = True
+    p.minCircularity = 0.5
+    p.filterByInertia = True
+    p.minInertiaRatio = 0.1
+    p.filterByConvexity = True
+    p.minConvexity = 0.8
+    p.minDistBetweenBlobs = 2.0
+    return cv2.SimpleBlobDetector_create(p)
+
+
+def _detect_circles(image: np.ndarray, board: Board) -> Corners:
+    """A circle grid's centres: dark circles on a light ground, or light on dark."""
+    grey = image if image.dtype == np.uint8 else cv2.convertScaleAbs(image, alpha=1 / 257)
+    flags = cv2.CALIB_CB_SYMMETRIC_GRID if board.kind == "circles" \
+        else cv2.CALIB_CB_ASYMMETRIC_GRID
+    size = (board.cols, board.rows)
+    seen = []
+    try:
+        for dark in (True, False):
+            detector = _blob_detector(grey, board, dark)
+            ok, centres = cv2.findCirclesGrid(grey, size, flags=flags, blobDetector=detector)
+            if ok and centres is not None:
+                return Corners(_refined(grey, centres.reshape(-1, 2).astype(np.float64),
+                                        dark))
+            seen.append(len(detector.detect(grey)))
+    except cv2.error:
+        seen = seen or [0]
+    return Corners(None, f"{board.name} not found: {seen[0]} dark and "
+                         f"{seen[-1] if len(seen) > 1 else 0} light round blobs seen, "
+                         f"{board.cols * board.rows} wanted in a grid")
+
+
+def _refined(image: np.ndarray, centres: np.ndarray, dark: bool, rounds: int = 3
+             ) -> np.ndarray:
+    """Each circle's centre as the centroid of its darkness (lightness) beyond a quarter of
+    the way from its local ground to its core, in a window of twice its radius at most (and
+    half way to its nearest neighbour), moved with the centroid a few times. The blob
+    detector's centres come from thresholded contours, tenths of a pixel off on a blurred,
+    tilted circle; above the threshold the ground's noise weighs nothing, so a window the
+    image's border cuts does not pull the centre."""
+    d = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    img = image.astype(np.float64)
+    h, w = img.shape
+    out = centres.copy()
+    for k, reach in enumerate(0.45 * d.min(axis=1)):
+        c, r = out[k], reach
+        for _ in range(rounds):
+            x0, x1 = int(max(0, np.floor(c[0] - r))), int(min(w, np.ceil(c[0] + r) + 1))
+            y0, y1 = int(max(0, np.floor(c[1] - r))), int(min(h, np.ceil(c[1] + r) + 1))
+            if x1 - x0 < 3 or y1 - y0 < 3:
+                break
+            ys, xs = np.mgrid[y0:y1, x0:x1]
+            inside = (xs - c[0]) ** 2 + (ys - c[1]) ** 2 <= r * r
+            patch = img[y0:y1, x0:x1][inside]
+            signal = -patch if dark else patch
+            ground, core = np.percentile(signal, 10), np.percentile(signal, 99)
+            wgt = np.clip(signal - (ground + 0.25 * (core - ground)), 0.0, None)
+            if not wgt.sum() > 0:
+                break
+            c = np.array([(xs[inside] * wgt).sum(), (ys[inside] * wgt).sum()]) / wgt.sum()
+            r = min(reach, 2.0 * np.sqrt(np.count_nonzero(wgt) / np.pi) + 2.0)
+        out[k] = c
+    return out
 
 
 @dataclass(frozen=True)
@@ -93,7 +171,7 @@ class IntrinsicsResult:
 
 def calibrate_intrinsics(images: list[np.ndarray], board: Board, min_images: int = 6,
                          min_tilt_deg: float = 15.0) -> IntrinsicsResult:
-    """Intrinsics (k1, k2, p1, p2; k3 fixed at 0) from chessboard images.
+    """Intrinsics (k1, k2, p1, p2; k3 fixed at 0) from images of the target.
 
     Refuses (a falsy result whose reason says what to do): too few images with a board found,
     boards never tilted (all normals within ``min_tilt_deg``: the focal length is then not
@@ -117,7 +195,8 @@ def calibrate_intrinsics(images: list[np.ndarray], board: Board, min_images: int
     if len(used) < min_images:
         return IntrinsicsResult(None, None, used=used, rejected=rejected, reason=(
             f"the board was found in {len(used)} of {len(images)} images, need {min_images}: "
-            "capture more views with the whole board in the picture"))
+            f"capture more views with the whole {board.name.split(' of ')[0]} in the "
+            "picture"))
     flags = cv2.CALIB_FIX_K3
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, (w, h), None, None, flags=flags)
     normals = [cv2.Rodrigues(r)[0][:, 2] for r in rvecs]

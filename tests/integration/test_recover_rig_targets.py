@@ -1,0 +1,96 @@
+"""Calibrating from rendered circle grids recovers the simulated rig within the chessboard's
+tolerances (tests/integration/test_recover_rig.py): a symmetric and an asymmetric grid, the
+session's views, laser pairs and spindle rotations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from calib_store.model import SCHEMA, parse_calibration
+from drivers.sim.board import BoardRenderer, session_shots
+from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.calibrate.axis import calibrate_axis
+from service.calibrate.board import parse_board
+from service.calibrate.intrinsics import calibrate_intrinsics, find_corners
+from service.calibrate.plane import calibrate_plane
+from service.measure.diameter import MeasureParams, measure_frame
+from service.measure.geometry import geometry_of
+from service.measure.result import Method
+from tests.integration.test_recover_rig import deg, in_rig_frame, off_axis_mm
+
+TARGETS = ["circles:11x8x8", "acircles:5x7x9"]
+
+
+@pytest.fixture(scope="module", params=TARGETS)
+def recovered(request):
+    board = parse_board(request.param)
+    rig = ShaftRenderer(RigConfig(), seed=3)
+    br = BoardRenderer(rig, board)
+    image = {s.name: br.render(s.pose(br), laser=s.laser, frame_index=s.frame_index)
+             for s in session_shots()}
+    kinds = {k: [image[s.name] for s in session_shots() if s.kind == k]
+             for k in ("view", "plane_off", "plane_on", "axis")}
+    pairs = list(zip(kinds["plane_off"], kinds["plane_on"], strict=True))
+    intr = calibrate_intrinsics(kinds["view"] + kinds["plane_off"] + kinds["axis"], board)
+    assert intr, intr.reason
+    plane = calibrate_plane(pairs, board, intr.camera_matrix, intr.dist_coeffs)
+    assert plane, plane.reason
+    axis = calibrate_axis(kinds["axis"], board, intr.camera_matrix, intr.dist_coeffs,
+                          (plane.normal, plane.d))
+    assert axis, axis.reason
+    return rig, board, intr, plane, axis
+
+
+def test_intrinsics(recovered) -> None:
+    rig, _, intr, _, _ = recovered
+    K, Kt = intr.camera_matrix, rig.config.camera_matrix()
+    assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.002 and abs(K[1, 1] / Kt[1, 1] - 1) < 0.002
+    assert abs(K[0, 2] - Kt[0, 2]) < 2.0 and abs(K[1, 2] - Kt[1, 2]) < 2.0
+    assert intr.rms_px < 0.2 and intr.coverage > 0.5 and intr.tilt_spread_deg > 30
+    assert len(intr.used) >= 20, intr.rejected
+
+
+def test_light_plane_and_spindle_axis(recovered) -> None:
+    rig, _, _, plane, axis = recovered
+    geo = geometry_of(rig.calibration)
+    assert deg(plane.normal, geo.plane_normal) < 0.05
+    assert abs(plane.d - geo.plane_d) < 0.1 and plane.rms_mm < 0.05
+    assert deg(axis.direction, geo.axis_direction) < 0.05
+    truth = in_rig_frame(geo.plane_normal, geo.axis_direction, geo.axis_point)
+    got = in_rig_frame(plane.normal, axis.direction, axis.point)
+    assert np.linalg.norm(got - truth) < 0.05, got - truth
+    assert off_axis_mm(axis.point, geo.axis_direction, geo.axis_point) < 0.05
+
+
+def test_diameters_with_the_recovered_calibration(recovered) -> None:
+    rig, _, intr, plane, axis = recovered
+    a = axis.direction / np.linalg.norm(axis.direction)
+    cal = geometry_of(parse_calibration({
+        "schema": SCHEMA, "units": "mm", "image_size": list(rig.config.image_size),
+        "camera_matrix": intr.camera_matrix.tolist(),
+        "dist_coeffs": [float(x) for x in intr.dist_coeffs],
+        "light_plane": {"normal": [float(x) for x in plane.normal], "d": float(plane.d)},
+        "axis": {"direction": [float(x) for x in a], "point": [float(x) for x in axis.point]},
+    }))
+    errors = []
+    for i, d in enumerate((20.113, 29.8, 39.76, 47.062)):
+        m = measure_frame(rig.render(d, i), cal, Method.GEOMETRIC,
+                          MeasureParams(max_uncertainty_mm=math.inf))
+        assert m, m.reason
+        errors.append(abs(m.diameter_mm - d))
+    assert np.mean(errors) < 0.015, errors
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_a_grid_not_found_says_what_was_looked_for_and_seen(target: str) -> None:
+    board = parse_board(target)
+    blank = np.full((1024, 1376), 90, np.uint8)
+    found = find_corners(blank, board)
+    assert found.points is None and board.name in found.reason
+    assert "0 dark and 0 light round blobs seen" in found.reason, found.reason
+    chess = BoardRenderer(ShaftRenderer(RigConfig(), seed=1), parse_board("11x8x8"))
+    wrong = find_corners(chess.render(chess.pose_facing_camera(10, 10, 400)), board)
+    assert wrong.points is None and "wanted in a grid" in wrong.reason, wrong.reason
