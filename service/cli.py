@@ -353,7 +353,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if args.step == "render":
             from drivers.sim.board import render_set
 
-            print(json.dumps(render_set(args.output, args.seed)))
+            print(json.dumps(render_set(args.output, args.seed, c.parse_board(args.board))))
             return EXIT_OK
         if args.step == "master":
             cal = load_calibration(args.calibration)
@@ -369,7 +369,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         elif args.step == "intrinsics":
             inputs = StepInputs(c.parse_board(args.board), {"view": args.images})
         elif args.step == "plane":
+            if args.laser_on_only and args.pairs:
+                return _fail("plane: give laser-off / laser-on pairs or --laser-on-only "
+                             "images, not both")
             off, on = args.pairs[0::2], args.pairs[1::2]
+            if args.laser_on_only:
+                off, on = [], args.laser_on_only
+            elif not args.pairs:
+                return _fail("plane: give laser-off / laser-on pairs (OFF ON OFF ON ...) or "
+                             "--laser-on-only IMAGE ...")
             inputs = StepInputs(Board(), {"plane_off": off, "plane_on": on},
                                 intrinsics=args.intrinsics)
         else:
@@ -706,14 +714,21 @@ def build_parser() -> argparse.ArgumentParser:
     p = steps.add_parser("render", help="write a simulated calibration image set")
     p.add_argument("--output", required=True, metavar="DIR")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--board", default="11x8x8", help="the target (as for intrinsics)")
     p = steps.add_parser("intrinsics", help="camera matrix and distortion from board views")
-    p.add_argument("--board", default="11x8x8", help="COLSxROWSxMM: inner corners, square")
+    p.add_argument("--board", default="11x8x8", help="the target: COLSxROWSxMM (a "
+                   "chessboard's inner corners, square), chess:..., circles:COLSxROWSxPITCH, "
+                   "acircles:COLSxROWSxPITCH (docs/calibrating.md)")
     p.add_argument("--output", required=True, metavar="FILE")
     p.add_argument("images", nargs="+", metavar="IMAGE")
-    p = steps.add_parser("plane", help="light plane from laser-off / laser-on pairs")
+    p = steps.add_parser("plane", help="light plane from laser-off / laser-on pairs, or "
+                         "laser-on images alone")
     p.add_argument("--intrinsics", required=True, metavar="FILE")
     p.add_argument("--output", required=True, metavar="FILE")
-    p.add_argument("pairs", nargs="+", metavar="IMAGE", help="OFF ON OFF ON ...")
+    p.add_argument("--laser-on-only", nargs="+", metavar="IMAGE", default=[],
+                   help="laser-on images with no laser-off twin (the line found by its "
+                   "colour, or above the board's pattern)")
+    p.add_argument("pairs", nargs="*", metavar="IMAGE", help="OFF ON OFF ON ...")
     p = steps.add_parser("axis", help="spindle axis from the board turned between centres")
     p.add_argument("--intrinsics", required=True, metavar="FILE")
     p.add_argument("--plane", metavar="FILE", help="to place the axis point on the plane")

@@ -64,8 +64,9 @@ def load_correction(path: str | Path) -> DiameterCorrection:
                               float(doc.get("created", 0.0) or 0.0))
 
 
-def read_grey_image(path: str | Path) -> np.ndarray:
-    """Read an 8- or 16-bit image file as a single-channel array (colour is converted to grey).
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an 8- or 16-bit image file (PNG, JPEG, TIFF, ...) as it is: grey (H, W) or colour
+    (H, W, 3), OpenCV's BGR order (an alpha channel is dropped).
 
     Raises
     ------
@@ -78,12 +79,29 @@ def read_grey_image(path: str | Path) -> np.ndarray:
     image = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ImageError(f"{p}: not an image file this program can read")
-    if image.ndim == 3:
-        code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-        image = cv2.cvtColor(image, code)
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[..., :3]
+    elif image.ndim == 3 and image.shape[2] == 1:
+        image = image[..., 0]
     if image.dtype not in (np.uint8, np.uint16):
-        raise ImageError(f"{p}: pixel type {image.dtype} is not 8- or 16-bit grey")
-    return image
+        raise ImageError(f"{p}: pixel type {image.dtype} is not 8- or 16-bit")
+    return np.ascontiguousarray(image)
+
+
+COLOUR_TO_GREY = "colour converted to grey (0.299 R + 0.587 G + 0.114 B, OpenCV's weights)"
+
+
+def read_grey_image(path: str | Path) -> np.ndarray:
+    """Read an 8- or 16-bit image file as a single-channel array (colour is converted to
+    grey, ``COLOUR_TO_GREY``).
+
+    Raises
+    ------
+    ImageError
+        When the file is missing or not an image OpenCV can decode.
+    """
+    image = read_image(path)
+    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
 
 
 def check_image_file(path: str | Path, calibration: Calibration) -> None:

@@ -228,5 +228,4 @@ def render_set(output: str, seed: int = 0, board: Board | None = None) -> dict:
         for i in range(10):
             cv2.imwrite(str(out / sub / f"frame_{i:02d}.png"), rig.render(d, 1000 + i))
     (out / "truth.json").write_text(rig.calibration.to_json() + "\n")
-    return {"output": str(out), "board": f"{br.board.cols}x{br.board.rows}x"
-            f"{br.board.square_mm:g}"}
+    return {"output": str(out), "board": br.board.describe()}

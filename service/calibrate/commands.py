@@ -14,14 +14,15 @@ from service.calibrate import board
 from service.calibrate.axis import AxisResult, calibrate_axis
 from service.calibrate.board import Board, board_of
 from service.calibrate.intrinsics import IntrinsicsResult, calibrate_intrinsics
+from service.calibrate.laser_line import grey_of
 from service.calibrate.master import correction_from_masters
-from service.calibrate.plane import PlaneResult, calibrate_plane
+from service.calibrate.plane import PlaneResult, calibrate_plane, calibrate_plane_laser_on
 from service.calibrate.report import QualityReport, assess
 from service.measure.diameter import measure_frame
 from service.measure.fuse import fuse
 from service.measure.geometry import geometry_of
 from service.measure.result import Method
-from service.offline import read_grey_image
+from service.offline import COLOUR_TO_GREY, read_image
 
 
 class StepError(ValueError):
@@ -29,18 +30,31 @@ class StepError(ValueError):
 
 
 def parse_board(text: str) -> Board:
-    """``COLSxROWSxSQUARE_MM`` (inner corners, square size), e.g. ``11x8x8``."""
+    """A board's description (``service.calibrate.board``), e.g. ``11x8x8``,
+    ``circles:7x7x37.5``; StepError naming what to write instead."""
     try:
         return board.parse_board(text)
     except ValueError as err:
         raise StepError(str(err)) from None
 
 
-def _read_all(paths: list[str]) -> list[np.ndarray]:
+def _read_raw(paths: list[str]) -> list[np.ndarray]:
     try:
-        return [read_grey_image(p) for p in paths]
+        return [read_image(p) for p in paths]
     except ValueError as err:
         raise StepError(str(err)) from None
+
+
+def _read_all(paths: list[str]) -> list[np.ndarray]:
+    """The images, grey (colour converted, ``COLOUR_TO_GREY``)."""
+    return [grey_of(im) for im in _read_raw(paths)]
+
+
+def how_read(images: list[np.ndarray]) -> dict[str, Any]:
+    """What a step did with its images' colour, for its record."""
+    colour = sum(1 for im in images if im.ndim == 3)
+    return {"images": len(images), "colour_images": colour,
+            "conversion": COLOUR_TO_GREY if colour else "grey as read"}
 
 
 def _load(path: str, what: str) -> dict[str, Any]:
@@ -56,12 +70,13 @@ def write_json(path: str, data: dict[str, Any]) -> None:
 
 
 def intrinsics_step(images: list[str], board: Board) -> tuple[dict[str, Any], IntrinsicsResult]:
-    """Camera matrix and distortion from chessboard images."""
-    imgs = _read_all(images)
+    """Camera matrix and distortion from images of the target."""
+    raw = _read_raw(images)
+    imgs = [grey_of(im) for im in raw]
     res = calibrate_intrinsics(imgs, board)
     report = assess(res)
     out: dict[str, Any] = {"step": "intrinsics", "ok": bool(res), "reason": res.reason,
-                           "board": board.describe(),
+                           "board": board.describe(), "read": how_read(raw),
                            "image_size": [int(imgs[0].shape[1]), int(imgs[0].shape[0])]
                            if imgs else None, "images_used": len(res.used),
                            "rejected": {str(k): v for k, v in res.rejected.items()},
@@ -79,14 +94,27 @@ def _intrinsics(path: str) -> tuple[np.ndarray, np.ndarray, Board, dict[str, Any
     return (np.array(d["camera_matrix"]), np.array(d["dist_coeffs"]), board_of(d["board"]), d)
 
 
-def plane_step(intrinsics: str, pairs: list[str]) -> tuple[dict[str, Any], PlaneResult]:
-    """The light plane from laser-off / laser-on image pairs."""
+def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | None = None
+               ) -> tuple[dict[str, Any], PlaneResult]:
+    """The light plane from laser-off / laser-on image pairs, or from laser-on images alone
+    (``laser_on_only``; their colour is used)."""
     if len(pairs) % 2:
         raise StepError("--pairs takes images two by two: laser off, then laser on")
+    if pairs and laser_on_only:
+        raise StepError("give laser-off / laser-on pairs or laser-on images alone, not both")
     K, dist, board, _ = _intrinsics(intrinsics)
-    imgs = _read_all(pairs)
-    res = calibrate_plane(list(zip(imgs[::2], imgs[1::2], strict=True)), board, K, dist)
+    if laser_on_only:
+        raw = _read_raw(laser_on_only)
+        res = calibrate_plane_laser_on(raw, board, K, dist)
+        read = {**how_read(raw), "conversion": "laser-on images alone: the line looked for "
+                "in the channel it stands out in (see how)"}
+    else:
+        raw = _read_raw(pairs)
+        imgs = [grey_of(im) for im in raw]
+        res = calibrate_plane(list(zip(imgs[::2], imgs[1::2], strict=True)), board, K, dist)
+        read = how_read(raw)
     out: dict[str, Any] = {"step": "plane", "ok": bool(res), "reason": res.reason,
+                           "read": read, "how": {str(k): v for k, v in res.how.items()},
                            "rms_mm": res.rms_mm, "per_pose_points": res.per_pose_points,
                            "per_pose_rms_mm": res.per_pose_rms_mm, "points": res.points,
                            "worst_mm": res.worst_mm,

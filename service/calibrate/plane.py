@@ -1,4 +1,6 @@
-"""The light plane from board poses with the laser line across the board."""
+"""The light plane from board poses with the laser line across the board: from laser-off /
+laser-on pairs (the line is their difference), or from laser-on images alone
+(``laser_line``)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,12 @@ import numpy as np
 
 from service.calibrate.board import Board
 from service.calibrate.intrinsics import find_corners
+from service.calibrate.laser_line import (
+    grey_of,
+    line_colour,
+    line_without_twin,
+    pattern_image,
+)
 from service.measure.stripe import StripeParams, extract_stripe
 from service.measure.triangulate import undistort_to_rays
 
@@ -23,25 +31,79 @@ class BoardPlane:
     reprojection_rms_px: float
 
 
-def board_plane(image: np.ndarray, board: Board, K: np.ndarray, dist: np.ndarray
-                ) -> BoardPlane | str:
-    """Pose of the board in an image by PnP, as its plane; a reason string when not found."""
+@dataclass(frozen=True)
+class BoardPose:
+    """A board's pose by PnP (``X_cam = R(rvec) X_board + tvec``) and its plane."""
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    plane: BoardPlane
+    points: np.ndarray  # the target's points it was solved from, px (object_points order)
+
+    def box(self, board: Board, K: np.ndarray, dist: np.ndarray,
+            shape: tuple[int, int]) -> tuple[int, int, int, int]:
+        """The printed board's bounding box in the image (x0, y0, x1, y1), clipped to it."""
+        u0, u1, v0, v1 = board.extent()
+        corners = np.array([[u, v, 0.0] for u in (u0, u1) for v in (v0, v1)]) * board.square_mm
+        img, _ = cv2.projectPoints(corners, self.rvec, self.tvec, K, dist)
+        img = img.reshape(-1, 2)
+        h, w = shape
+        x0, y0 = np.clip(np.floor(img.min(axis=0)).astype(int), 0, [w, h])
+        x1, y1 = np.clip(np.ceil(img.max(axis=0)).astype(int) + 1, 0, [w, h])
+        return int(x0), int(y0), int(max(x0, x1)), int(max(y0, y1))
+
+
+def board_pose(image: np.ndarray, board: Board, K: np.ndarray, dist: np.ndarray
+               ) -> BoardPose | str:
+    """Pose of the board in a grey image by PnP; a reason string when not found."""
     c = find_corners(image, board)
     if c.points is None:
         return c.reason
-    obj = board.object_points()
-    ok, rvec, tvec = cv2.solvePnP(obj, c.points, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+    return _solved(board.object_points(), c.points, K, dist) or \
+        "board pose could not be solved"
+
+
+def _solved(obj: np.ndarray, points: np.ndarray, K: np.ndarray, dist: np.ndarray,
+            keep: np.ndarray | None = None) -> BoardPose | None:
+    """The pose from the points (those ``keep`` marks), or None."""
+    o, p = (obj, points) if keep is None else (obj[keep], points[keep])
+    ok, rvec, tvec = cv2.solvePnP(o, p, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
-        return "board pose could not be solved"
-    proj, _ = cv2.projectPoints(obj, rvec, tvec, K, dist)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - c.points) ** 2, axis=1))))
+        return None
+    proj, _ = cv2.projectPoints(o, rvec, tvec, K, dist)
+    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - p) ** 2, axis=1))))
     R = cv2.Rodrigues(rvec)[0]
     n = R[:, 2]
     t = tvec.ravel()
     d = float(n @ t)
     if d < 0:
         n, d = -n, -d
-    return BoardPlane(n, d, rms)
+    return BoardPose(rvec, tvec, BoardPlane(n, d, rms), points)
+
+
+def clear_of_line(pose: BoardPose, board: Board, line_xy: np.ndarray, K: np.ndarray,
+                  dist: np.ndarray) -> BoardPose:
+    """The pose again without the target's points the laser line runs near (within half
+    their spacing: a detector's window that takes in the line is pulled towards it), when
+    enough stay; else as it was."""
+    pts = pose.points
+    if len(line_xy) == 0 or len(pts) < 8:
+        return pose
+    spacing = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    np.fill_diagonal(spacing, np.inf)
+    near = np.array([np.min(np.linalg.norm(line_xy - p, axis=1)) for p in pts])
+    keep = near > 0.5 * float(np.median(spacing.min(axis=1)))
+    if keep.all() or keep.sum() < max(6, len(pts) // 2):
+        return pose
+    again = _solved(board.object_points(), pts, K, dist, keep)
+    return pose if again is None else BoardPose(again.rvec, again.tvec, again.plane, pts)
+
+
+def board_plane(image: np.ndarray, board: Board, K: np.ndarray, dist: np.ndarray
+                ) -> BoardPlane | str:
+    """Pose of the board in an image by PnP, as its plane; a reason string when not found."""
+    pose = board_pose(image, board, K, dist)
+    return pose if isinstance(pose, str) else pose.plane
 
 
 def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -68,6 +130,8 @@ class PlaneResult:
     per_pose_rms_mm: list[float] = field(default_factory=list)
     rejected: dict[int, str] = field(default_factory=dict)
     reason: str = ""
+    how: dict[int, str] = field(default_factory=dict)
+    """How each pose's line was found (a pose's index: its pair, or its laser-on image)."""
 
     def __bool__(self) -> bool:
         return self.normal is not None and not self.reason
@@ -85,7 +149,7 @@ def calibrate_plane(pairs: list[tuple[np.ndarray, np.ndarray]], board: Board, K:
     the light plane. Refuses too few poses with a laser line, and poses that do not span a
     plane (stripe lines all parallel and coplanar).
     """
-    pts, counts, rejected = [], [], {}
+    pts, counts, rejected, how = [], [], {}, {}
     for i, (board_img, laser_img) in enumerate(pairs):
         plane = board_plane(board_img, board, K, dist)
         if isinstance(plane, str):
@@ -101,11 +165,54 @@ def calibrate_plane(pairs: list[tuple[np.ndarray, np.ndarray]], board: Board, K:
         if len(stripe) < min_points_per_pose:
             rejected[i] = f"laser line missing or too short ({len(stripe)} points)"
             continue
-        rays = undistort_to_rays(stripe.xy, K, dist)
-        rays3 = np.column_stack([rays, np.ones(len(rays))])
-        s = plane.d / (rays3 @ plane.normal)
-        pts.append(rays3 * s[:, None])
-        counts.append(len(rays))
+        pts.append(on_plane(stripe.xy, plane, K, dist))
+        counts.append(len(stripe.xy))
+        how[i] = "the difference of the laser-off and laser-on images"
+    return _fitted(pts, counts, rejected, how, min_poses)
+
+
+def on_plane(xy: np.ndarray, plane: BoardPlane, K: np.ndarray, dist: np.ndarray
+             ) -> np.ndarray:
+    """Image points (px) met with a board's plane: 3-D points in the camera frame, mm."""
+    rays = undistort_to_rays(xy, K, dist)
+    rays3 = np.column_stack([rays, np.ones(len(rays))])
+    s = plane.d / (rays3 @ plane.normal)
+    return rays3 * s[:, None]
+
+
+def calibrate_plane_laser_on(images: list[np.ndarray], board: Board, K: np.ndarray,
+                             dist: np.ndarray, min_poses: int = 3,
+                             min_points_per_pose: int = 30) -> PlaneResult:
+    """Light plane from laser-on images alone (no laser-off twin): each board's pose from its
+    pattern, the line as the light above the pattern (``laser_line``; by its colour in a
+    colour image). The pairs (``calibrate_plane``) stay the better way."""
+    pts, counts, rejected, how = [], [], {}, {}
+    for i, image in enumerate(images):
+        pose = board_pose(grey_of(image), board, K, dist)
+        if isinstance(pose, str):
+            rejected[i] = pose
+            continue
+        box = pose.box(board, K, dist, image.shape[:2])
+        x0, y0, x1, y1 = box
+        colour = line_colour(image[y0:y1, x0:x1], np.ones((y1 - y0, x1 - x0), bool))
+        if colour is not None:  # the pattern again where the line hardly shows
+            clean = board_pose(pattern_image(image, colour), board, K, dist)
+            pose = pose if isinstance(clean, str) else clean
+        line = line_without_twin(image, board, pose.rvec, pose.tvec, K, dist, box)
+        pose = clear_of_line(pose, board, line.points, K, dist)
+        if len(line.points) < min_points_per_pose:
+            rejected[i] = (f"laser line missing or too short on the board "
+                           f"({len(line.points)} points, looked for in {line.how})")
+            continue
+        pts.append(on_plane(line.points, pose.plane, K, dist))
+        counts.append(len(line.points))
+        how[i] = f"laser on only: {line.how}"
+    return _fitted(pts, counts, rejected, how, min_poses)
+
+
+def _fitted(pts: list[np.ndarray], counts: list[int], rejected: dict[int, str],
+            how: dict[int, str], min_poses: int) -> PlaneResult:
+    """The plane through every pose's points, or why there is none."""
     if len(counts) < min_poses:
         return PlaneResult(None, per_pose_points=counts, rejected=rejected, reason=(
             f"the laser line was measured on {len(counts)} board poses, need {min_poses}: "
@@ -118,4 +225,4 @@ def calibrate_plane(pairs: list[tuple[np.ndarray, np.ndarray]], board: Board, K:
     res = allp @ n - d
     per_pose = [float(np.sqrt(np.mean(r**2))) for r in np.split(res, np.cumsum(counts)[:-1])]
     return PlaneResult(n, d, float(np.sqrt(np.mean(res**2))), float(np.abs(res).max()),
-                       len(allp), counts, per_pose, rejected)
+                       len(allp), counts, per_pose, rejected, how=how)

@@ -71,11 +71,14 @@ def run_step(step: Step, inputs: StepInputs) -> StepResult:
             inputs.board)
     elif step == "plane":
         off, on = imgs.get("plane_off", []), imgs.get("plane_on", [])
-        if len(off) != len(on):
+        if not off and on:  # no laser-off twins: the laser-on images alone
+            figures, _ = commands.plane_step(inputs.intrinsics, [], on)
+        elif len(off) != len(on):
             raise commands.StepError("plane images come two by two: laser off, then laser "
-                                     "on (as many of each)")
-        figures, _ = commands.plane_step(inputs.intrinsics,
-                                         [p for pair in zip(off, on, strict=True) for p in pair])
+                                     "on (as many of each), or laser-on images alone")
+        else:
+            figures, _ = commands.plane_step(
+                inputs.intrinsics, [p for pair in zip(off, on, strict=True) for p in pair])
     elif step == "axis":
         figures, _ = commands.axis_step(inputs.intrinsics, inputs.plane, imgs.get("axis", []))
     else:
