@@ -36,6 +36,10 @@ class Board:
     square_mm: float = 6.0  # the square's side (chess) or the circles' pitch
     margin_squares: float = 1.0
     kind: str = "chess"
+    detector: str = "sb"
+    """How a chessboard's corners are found: ``sb`` OpenCV's sector-based detector (its
+    accuracy mode), ``sb+subpix`` then refined by ``cornerSubPix`` (the intrinsics step
+    keeps the one that fits its images better, and the later steps use it)."""
 
     def object_points(self) -> np.ndarray:
         """Its points in the board frame, mm, in the order OpenCV's detector gives them (row

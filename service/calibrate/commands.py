@@ -4,6 +4,7 @@ result and figures; ``build`` assembles a calibration document and its quality r
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +77,8 @@ def intrinsics_step(images: list[str], board: Board) -> tuple[dict[str, Any], In
     res = calibrate_intrinsics(imgs, board)
     report = assess(res)
     out: dict[str, Any] = {"step": "intrinsics", "ok": bool(res), "reason": res.reason,
-                           "board": board.describe(), "read": how_read(raw),
+                           "board": board.describe(), "detector": res.detector,
+                           "read": how_read(raw),
                            "image_size": [int(imgs[0].shape[1]), int(imgs[0].shape[0])]
                            if imgs else None, "images_used": len(res.used),
                            "rejected": {str(k): v for k, v in res.rejected.items()},
@@ -91,7 +93,8 @@ def _intrinsics(path: str) -> tuple[np.ndarray, np.ndarray, Board, dict[str, Any
     d = _load(path, "intrinsics")
     if not d.get("ok"):
         raise StepError(f"{path}: the intrinsics step failed ({d.get('reason')}): redo it")
-    return (np.array(d["camera_matrix"]), np.array(d["dist_coeffs"]), board_of(d["board"]), d)
+    board_ = replace(board_of(d["board"]), detector=d.get("detector", "sb"))
+    return np.array(d["camera_matrix"]), np.array(d["dist_coeffs"]), board_, d
 
 
 def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | None = None

