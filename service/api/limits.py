@@ -15,8 +15,6 @@ import struct
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
-import cv2
-import numpy as np
 from fastapi import HTTPException
 
 Scope = MutableMapping[str, Any]
@@ -139,11 +137,3 @@ def check_image_size(size: tuple[int, int], expected: tuple[int, int] | None,
     if w * h > max_pixels:
         raise HTTPException(422, f"the image is {w}x{h} pixels, more than "
                             f"{max_pixels} pixels")
-
-
-def decode_gray(data: bytes) -> np.ndarray | None:
-    """An image's pixels as one grey channel (None when damaged); call off the event loop."""
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is not None and image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    return image

@@ -10,7 +10,8 @@ import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request
 
 from service.api.auth import requires
-from service.api.limits import check_image_size, decode_gray, png_size
+from service.api.image_body import decode_image, image_size
+from service.api.limits import check_image_size
 from service.api.sessions import find
 from service.calibrate import commands
 from service.calibrate.session import (
@@ -46,18 +47,18 @@ def router(sessions: CalibrationSessions, comp: CompensationService, pipeline: F
         return {**added, **s.as_dict()}
 
     @r.post("/calibration-sessions/{sid}/images/{kind}", status_code=201,
-            summary="Upload one image (PNG body)")
+            summary="Upload one image (PNG or JPEG body, grey or colour)")
     async def upload(sid: str, kind: ImageKind, request: Request, _: str = technician) -> dict:
         s = find(sessions, sid)
         data = await request.body()  # bounded by api.max_image_bytes before it is read
         if not data:
-            raise HTTPException(422, "send one PNG image as the request body")
+            raise HTTPException(422, "send one PNG or JPEG image as the request body")
         # The header is checked before a pixel is decoded: a small file can declare a
         # gigapixel image.
-        check_image_size(png_size(data), pipeline.image_size(), MAX_PIXELS)
-        image = await asyncio.to_thread(decode_gray, data)
+        check_image_size(image_size(data), pipeline.image_size(), MAX_PIXELS)
+        image = await asyncio.to_thread(decode_image, data)
         if image is None:
-            raise HTTPException(422, "the PNG could not be decoded (damaged data)")
+            raise HTTPException(422, "the image could not be decoded (damaged data)")
         return await store(s, kind, image)
 
     @r.post("/calibration-sessions/{sid}/capture/{kind}", status_code=201,

@@ -101,8 +101,9 @@ async function refresh() {
 
 async function upload(kind, files) {
   for (const f of files) {
+    const type = f.type || "application/octet-stream";  // PNG or JPEG, grey or colour
     const s = await api(`/calibration-sessions/${session.id}/images/${kind}`,
-                        { method: "POST", body: f, headers: { "Content-Type": "image/png" } });
+                        { method: "POST", body: f, headers: { "Content-Type": type } });
     showSession(s);
   }
 }

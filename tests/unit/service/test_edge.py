@@ -12,9 +12,11 @@ import zlib
 import cv2
 import numpy as np
 import pytest
+from fastapi import HTTPException
 from fastapi.testclient import TestClient
 
 from service.api.app import create_app
+from service.api.image_body import JPEG_SOI, image_size, jpeg_size
 from service.api.limits import PNG_SIGNATURE, png_size
 from service.serve import Children, build
 from tests.unit.service.conftest import TECHNICIAN, make_settings
@@ -74,7 +76,7 @@ def test_uploads_are_checked_before_decoding(client) -> None:
                       json={}).json()["id"]
     url = f"/api/v1/calibration-sessions/{sid}/images/view"
     r = client.post(url, headers={H: TECHNICIAN}, content=b"GIF89a" + b"\0" * 100)
-    assert r.status_code == 415 and "PNG" in r.json()["detail"]
+    assert r.status_code == 415 and "PNG nor a JPEG" in r.json()["detail"]
     r = client.post(url, headers={H: TECHNICIAN}, content=png_header(100_000, 100_000))
     assert r.status_code == 422 and "100000x100000" in r.json()["detail"], r.text
     r = client.post(url, headers={H: TECHNICIAN}, content=png_header(640, 480))
@@ -84,6 +86,36 @@ def test_uploads_are_checked_before_decoding(client) -> None:
     big = {H: TECHNICIAN, "content-length": str(33 << 20)}
     assert client.post(url, headers=big, content=b"x").status_code == 413
     assert client.get(f"/api/v1/calibration-sessions/{sid}").json()["images"]["view"] == 0
+
+
+def test_jpeg_size_reads_the_header_only() -> None:
+    ok, enc = cv2.imencode(".jpg", np.zeros((7, 11, 3), np.uint8))
+    assert ok and jpeg_size(enc.tobytes()) == (11, 7)
+    assert image_size(enc.tobytes()) == (11, 7)
+    with pytest.raises(HTTPException) as err:
+        jpeg_size(JPEG_SOI + b"\xff\xe0\x00\x10" + b"\0" * 14 + b"\xff\xda\x00\x02")
+    assert err.value.status_code == 422 and "no frame header" in err.value.detail
+
+
+def test_a_colour_jpeg_upload_is_kept_in_colour(client) -> None:
+    """A phone's photograph: JPEG, colour; its declared size checked before decoding, the
+    colour kept for the steps (a red laser line is found by its colour)."""
+    sid = client.post("/api/v1/calibration-sessions", headers={H: TECHNICIAN},
+                      json={}).json()["id"]
+    url = f"/api/v1/calibration-sessions/{sid}/images/plane_on"
+    _, small = cv2.imencode(".jpg", np.zeros((480, 640, 3), np.uint8))
+    r = client.post(url, headers={H: TECHNICIAN, "content-type": "image/jpeg"},
+                    content=small.tobytes())
+    assert r.status_code == 422 and "640x480" in r.json()["detail"], r.text
+    image = np.zeros((1024, 1376, 3), np.uint8)
+    image[500:504, :, 2] = 250  # a red line
+    _, enc = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    r = client.post(url, headers={H: TECHNICIAN, "content-type": "image/jpeg"},
+                    content=enc.tobytes())
+    assert r.status_code == 201, r.text
+    stored = client.gauge.sessions.get(sid).images["plane_on"][0]
+    kept = cv2.imread(stored, cv2.IMREAD_UNCHANGED)
+    assert kept.shape == (1024, 1376, 3) and kept[502, 700, 2] > 200 > kept[502, 700, 1]
 
 
 def test_sessions_and_images_are_capped(tmp_path) -> None:
