@@ -51,9 +51,9 @@ class BoardRenderer:
         """A board roughly facing the camera, tilted about x and y, centred on the optical
         axis (plus ``shift_mm``) at ``distance_mm``."""
         R = _rotation(180.0 + tilt_x_deg, tilt_y_deg, spin_deg)
-        w, h = self._span()
+        cx, cy = self._middle()
         centre = np.array([shift_mm[0], shift_mm[1], distance_mm])
-        t = centre - R @ np.array([w / 2, h / 2, 0.0])
+        t = centre - R @ np.array([cx, cy, 0.0])
         return BoardPose(R, t)
 
     def pose_on_spindle(self, rotation_deg: float, along_axis_mm: float = 0.0) -> BoardPose:
@@ -71,15 +71,47 @@ class BoardRenderer:
         y = math.cos(th) * y0 + math.sin(th) * z0
         z = np.cross(a, y)
         R = np.column_stack([a, y, z])
-        w, h = self._span()
+        cx, cy = self._middle()
         # The axis runs along the board's middle row; shift along the axis to taste.
-        t = a0 + (along_axis_mm - w / 2) * a - (h / 2) * y
+        t = a0 + (along_axis_mm - cx) * a - cy * y
         return BoardPose(R, t)
 
-    def _span(self) -> tuple[float, float]:
-        """From the target's first point to its last, along x and y, mm."""
+    def _markers(self) -> tuple[np.ndarray, np.ndarray]:
+        """A ChArUco board's markers (a cell a bit) and which square holds which, as OpenCV
+        prints them; blanks for another target."""
+        b = self.board
+        if b.kind != "charuco":
+            return np.zeros((1, 1, 1), np.uint8), np.zeros((1, 1), np.int64)
+        from service.calibrate.intrinsics import aruco_board
+
+        board = aruco_board(b)
+        dictionary = board.getDictionary()
+        ids = np.array(board.getIds()).ravel()
+        marks = np.stack([cv2.aruco.generateImageMarker(dictionary, int(i),
+                                                        dictionary.markerSize + 2)
+                          for i in ids])
+        square_mark = np.full((b.rows, b.cols), -1, np.int64)
+        for k, corners in enumerate(board.getObjPoints()):
+            cx, cy = np.asarray(corners)[:, :2].mean(axis=0) / b.square_mm
+            square_mark[int(cy), int(cx)] = k
+        return marks, square_mark
+
+    def project(self, pose: BoardPose, points_mm: np.ndarray) -> np.ndarray:
+        """Where points of the board (``Board.object_points``' frame, mm) are in the image,
+        px: the truth a detector is checked against."""
+        pts = np.array(points_mm, float).reshape(-1, 3)
+        if self.board.kind == "charuco":  # its print is read the right way: y down the print
+            pts[:, 1] = self.board.rows * self.board.square_mm - pts[:, 1]
+        cam = pts @ pose.R.T + pose.t
+        img, _ = cv2.projectPoints(cam, np.zeros(3), np.zeros(3), self.cfg.camera_matrix(),
+                                   np.array(self.cfg.dist_coeffs))
+        return img.reshape(-1, 2)
+
+    def _middle(self) -> tuple[float, float]:
+        """The middle of the target's points in the board's frame, mm."""
         pts = self.board.object_points()
-        return float(pts[:, 0].max()), float(pts[:, 1].max())
+        return (float(pts[:, 0].min() + pts[:, 0].max()) / 2,
+                float(pts[:, 1].min() + pts[:, 1].max()) / 2)
 
     def _bbox(self, pose: BoardPose) -> tuple[int, int, int, int]:
         """Pixel bounding box of the printed board, with a margin for the blur."""
@@ -148,8 +180,10 @@ class BoardRenderer:
         from ``ss x ss`` samples each, and where the samples of a pixel disagree."""
         offsets = np.array(_offsets(ss)) / [K[0, 0], K[1, 1]]
         b, p = self.board, self._pose
+        marks, square_mark = self._markers()
         board = np.array([b.square_mm, b.cols, b.rows, b.margin_squares,
-                          ("chess", "circles", "acircles").index(b.kind), b.dot_radius], float)
+                          ("chess", "circles", "acircles", "charuco").index(b.kind),
+                          b.dot_radius, b.marker_mm], float)
         sheet = np.array([*p.plane_normal, p.plane_d, self.cfg.sheet_sigma_mm], float)
         shape = rx.shape
         # Imported here: the kernels are numba's (0.2 s to import), and a simulator that
@@ -159,7 +193,7 @@ class BoardRenderer:
         acc, lit, edge = integrate_pixels(
             np.ascontiguousarray(rx, float).ravel(), np.ascontiguousarray(ry, float).ravel(),
             offsets, np.ascontiguousarray(pose.R, float), np.asarray(pose.t, float), board,
-            sheet, laser)
+            sheet, laser, marks, square_mark)
         return acc.reshape(shape), lit.reshape(shape), edge.reshape(shape)
 
 

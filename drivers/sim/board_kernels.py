@@ -27,8 +27,28 @@ def _on_circle(u: float, v: float, cols: float, rows: float, kind: int, dot: flo
 
 
 @numba.njit(cache=True, nogil=True)
+def _charuco_white(x: float, y: float, sq: float, cols: float, rows: float, marker: float,
+                   marks: np.ndarray, square_mark: np.ndarray) -> bool:
+    """Whether the print is white at (x, y), in squares from its top-left corner: exact
+    edges (the squares' and the markers' bits), no texture's grid."""
+    if not (0 <= x < cols and 0 <= y < rows):
+        return True  # the margin
+    i, j = int(x), int(y)  # not negative here: the floor
+    k = square_mark[j, i]
+    if k < 0:
+        return False
+    off = (sq - marker) / 2
+    lx, ly = (x - i) * sq - off, (y - j) * sq - off
+    if not (0 <= lx < marker and 0 <= ly < marker):
+        return True
+    n = marks.shape[1]
+    return marks[k, int(ly / marker * n), int(lx / marker * n)] >= 128
+
+
+@numba.njit(cache=True, nogil=True)
 def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.ndarray,
-                     t: np.ndarray, board: np.ndarray, sheet: np.ndarray, laser: bool
+                     t: np.ndarray, board: np.ndarray, sheet: np.ndarray, laser: bool,
+                     marks: np.ndarray, square_mark: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean reflectance and laser light over pixels from their samples, and whether the
     samples of a pixel disagree (an edge runs through it).
@@ -41,14 +61,20 @@ def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.
         Each sample's offset from the centre ray (already divided by the focal lengths).
     R, t : ndarray, shapes (3, 3) and (3,)
         The board's pose: ``X_cam = R X_board + t`` (mm).
-    board : ndarray, shape (6,)
-        ``square_mm, cols, rows, margin_squares, kind, dot_radius``: kind 0 a chessboard, 1
-        a symmetric circle grid, 2 an asymmetric one (``square_mm`` its pitch, the circles'
-        radius ``dot_radius`` pitches).
+    board : ndarray, shape (7,)
+        ``square_mm, cols, rows, margin_squares, kind, dot_radius, marker_mm``: kind 0 a
+        chessboard, 1 a symmetric circle grid, 2 an asymmetric one (``square_mm`` its pitch,
+        the circles' radius ``dot_radius`` pitches), 3 a ChArUco board (``cols x rows``
+        squares from the board's corner, its top-left one black, markers of ``marker_mm``).
     sheet : ndarray, shape (5,)
         The light plane's normal (3), its offset ``d`` (mm) and the sheet's sigma (mm).
     laser : bool
         Whether the laser is on.
+    marks : ndarray of uint8, shape (K, n, n)
+        Kind 3's markers, a cell a bit (their black border included; black below 128).
+    square_mark : ndarray of int64, shape (rows, cols)
+        Which marker each square of the print holds (-1: a black square), row 0 the print's
+        top (the board's y = ``rows``).
 
     Returns
     -------
@@ -64,7 +90,7 @@ def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.
     n0, n1, n2 = R[0, 2], R[1, 2], R[2, 2]
     nt = n0 * t[0] + n1 * t[1] + n2 * t[2]
     sq, cols, rows, m = board[0], board[1], board[2], board[3]
-    kind, dot = int(board[4]), board[5]
+    kind, dot, marker = int(board[4]), board[5], board[6]
     count = np.float32(offsets.shape[0])
     for i in range(n):
         a = np.float32(0.0)
@@ -85,12 +111,18 @@ def integrate_pixels(rx: np.ndarray, ry: np.ndarray, offsets: np.ndarray, R: np.
                     inside = -1 - m < u < cols + m and -1 - m < v < rows + m
                 elif kind == 1:
                     inside = -m < u < cols - 1 + m and -m < v < rows - 1 + m
+                elif kind == 3:
+                    inside = -m < u < cols + m and -m < v < rows + m
                 else:
                     inside = -m < u < 2 * cols - 1 + m and -m < v < rows - 1 + m
                 if s > 0 and inside:
                     if kind == 0:
                         checker = -1 < u < cols and -1 < v < rows
                         white = (not checker) or (math.floor(u) + math.floor(v)) % 2 == 0
+                    elif kind == 3:
+                        # The board's y runs up the print: the print read the right way.
+                        white = _charuco_white(u, rows - v, sq, cols, rows, marker, marks,
+                                               square_mark)
                     else:
                         white = not _on_circle(u, v, cols, rows, kind, dot)
                     r = 1.0 if white else 0.12

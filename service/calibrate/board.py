@@ -10,7 +10,12 @@ documents all use:
   ``PITCH_MM`` apart;
 - ``acircles:COLSxROWSxPITCH_MM``: an asymmetric grid in OpenCV's convention (``COLS``
   circles a row, every other row shifted by half a period; centre ``j`` of row ``i`` at
-  ``((2 j + i mod 2) PITCH, i PITCH)``).
+  ``((2 j + i mod 2) PITCH, i PITCH)``);
+- ``charuco:COLSxROWSxSQUARE_MMxMARKER_MM[:DICTIONARY]``: a ChArUco board of ``COLS x ROWS``
+  squares (OpenCV's ``CharucoBoard``, its top-left square black), ArUco markers of
+  ``MARKER_MM`` in its white squares from ``DICTIONARY`` (OpenCV's name, ``DICT_5X5_100`` when
+  not given). Its points are the inner corners, each named by its markers: a board partly out
+  of view still gives those in view.
 """
 
 from __future__ import annotations
@@ -22,9 +27,10 @@ import numpy as np
 
 DEFAULT_BOARD = "11x8x8"
 
-KINDS = ("chess", "circles", "acircles")
+KINDS = ("chess", "circles", "acircles", "charuco")
 _NAMES = {"chess": "chessboard", "circles": "symmetric circle grid",
-          "acircles": "asymmetric circle grid"}
+          "acircles": "asymmetric circle grid", "charuco": "ChArUco board"}
+DEFAULT_DICTIONARY = "DICT_5X5_100"
 
 
 @dataclass(frozen=True)
@@ -36,6 +42,8 @@ class Board:
     square_mm: float = 6.0  # the square's side (chess) or the circles' pitch
     margin_squares: float = 1.0
     kind: str = "chess"
+    marker_mm: float = 0.0  # a ChArUco board's markers
+    dictionary: str = ""    # ... and their dictionary (OpenCV's name)
     detector: str = "sb"
     """How a chessboard's corners are found: ``sb`` OpenCV's sector-based detector (its
     accuracy mode), ``sb+subpix`` then refined by ``cornerSubPix`` (the intrinsics step
@@ -44,7 +52,10 @@ class Board:
     def object_points(self) -> np.ndarray:
         """Its points in the board frame, mm, in the order OpenCV's detector gives them (row
         by row)."""
-        xs, ys = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
+        if self.kind == "charuco":  # inner corners, id by id; the board's corner the origin
+            xs, ys = np.meshgrid(np.arange(1, self.cols), np.arange(1, self.rows))
+        else:
+            xs, ys = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
         if self.kind == "acircles":
             xs = 2 * xs + ys % 2
         pts = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
@@ -61,6 +72,8 @@ class Board:
         m = self.margin_squares
         if self.kind == "chess":
             return -1.0 - m, self.cols + m, -1.0 - m, self.rows + m
+        if self.kind == "charuco":
+            return -m, self.cols + m, -m, self.rows + m
         last = self.cols - 1 if self.kind == "circles" else 2 * (self.cols - 1) + 1
         return -m, last + m, -m, self.rows - 1 + m
 
@@ -72,13 +85,17 @@ class Board:
 
     def describe(self) -> str:
         """Its description (``parse_board`` reads it back)."""
-        return f"{self.kind}:{self.cols}x{self.rows}x{self.square_mm:g}"
+        text = f"{self.kind}:{self.cols}x{self.rows}x{self.square_mm:g}"
+        if self.kind == "charuco":
+            text += f"x{self.marker_mm:g}:{self.dictionary}"
+        return text
 
     @property
     def name(self) -> str:
-        """In words, for a reason or a report: ``symmetric circle grid of 7x7``."""
-        what = "inner corners" if self.kind == "chess" else "circles"
-        return f"{_NAMES[self.kind]} of {self.cols}x{self.rows} {what}"
+        """In words, for a reason or a report: ``symmetric circle grid of 7x7 circles``."""
+        what = {"chess": "inner corners", "charuco": "squares"}.get(self.kind, "circles")
+        text = f"{_NAMES[self.kind]} of {self.cols}x{self.rows} {what}"
+        return text + (f" ({self.dictionary})" if self.kind == "charuco" else "")
 
 
 def parse_board(text: str) -> Board:
@@ -90,6 +107,8 @@ def parse_board(text: str) -> Board:
     ValueError
         Naming what to write instead.
     """
+    if text.strip().startswith("charuco:"):
+        return _parse_charuco(text)
     kind, _, dims = text.strip().rpartition(":")
     kind = kind or "chess"
     if kind not in KINDS:
@@ -109,6 +128,26 @@ def parse_board(text: str) -> Board:
     if kind == "acircles" and rows < 3:
         raise ValueError(f"--board {text!r}: an asymmetric grid needs 3 rows or more")
     return Board(cols=cols, rows=rows, square_mm=sq, kind=kind)
+
+
+def _parse_charuco(text: str) -> Board:
+    _, _, rest = text.strip().partition(":")
+    dims, _, dictionary = rest.partition(":")
+    dictionary = dictionary or DEFAULT_DICTIONARY
+    m = re.fullmatch(r"(\d+)x(\d+)x(\d+(?:\.\d+)?)x(\d+(?:\.\d+)?)", dims)
+    if not m:
+        raise ValueError(f"--board {text!r}: write charuco:COLSxROWSxSQUARE_MMxMARKER_MM"
+                         f"[:DICTIONARY] (squares), e.g. charuco:12x9x8x6:{DEFAULT_DICTIONARY}")
+    cols, rows, sq, marker = int(m[1]), int(m[2]), float(m[3]), float(m[4])
+    if cols < 3 or rows < 3 or not 0 < marker < sq:
+        raise ValueError(f"--board {text!r}: at least 3x3 squares, markers smaller than the "
+                         "squares")
+    if not re.fullmatch(r"DICT_(\dX\d_(50|100|250|1000)|ARUCO_ORIGINAL|APRILTAG_\w+)",
+                        dictionary):
+        raise ValueError(f"--board {text!r}: {dictionary!r} is not one of OpenCV's ArUco "
+                         f"dictionaries (e.g. {DEFAULT_DICTIONARY}, DICT_4X4_50, DICT_6X6_250)")
+    return Board(cols=cols, rows=rows, square_mm=sq, kind="charuco", marker_mm=marker,
+                 dictionary=dictionary)
 
 
 def board_of(doc: object) -> Board:

@@ -3,6 +3,7 @@ circle grids (``service.calibrate.board``)."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import threading
@@ -21,10 +22,21 @@ SUBPIX_HALF_WINDOW = 5
 
 @dataclass(frozen=True)
 class Corners:
-    """Inner corners of one image, px (N, 2), or None when the board was not found."""
+    """The target's points in one image, px (N, 2), or None when it was not found; ``ids``
+    the indices of ``Board.object_points`` they are (None: all of them, in order)."""
 
     points: np.ndarray | None
     reason: str = ""
+    ids: np.ndarray | None = None
+
+    def object_points(self, board: Board) -> np.ndarray:
+        """The board-frame points these are, mm (N, 3)."""
+        obj = board.object_points()
+        return obj if self.ids is None else obj[self.ids]
+
+
+MIN_CHARUCO_CORNERS = 8
+"""A ChArUco board partly in view counts with this many inner corners or more."""
 
 
 KEPT_DETECTIONS = 128
@@ -61,6 +73,8 @@ def find_corners(image: np.ndarray, board: Board) -> Corners:
 
 
 def _detect_corners(image: np.ndarray, board: Board) -> Corners:
+    if board.kind == "charuco":
+        return _detect_charuco(image, board)
     if board.kind != "chess":
         return _detect_circles(image, board)
     size = (board.cols, board.rows)
@@ -80,6 +94,43 @@ def _detect_corners(image: np.ndarray, board: Board) -> Corners:
     except cv2.error:  # an image too small or odd for OpenCV's detectors holds no board
         return missing
     return Corners(corners.reshape(-1, 2).astype(np.float64))
+
+
+def aruco_board(board: Board) -> cv2.aruco.CharucoBoard:
+    """OpenCV's ChArUco board for a description."""
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
+    return cv2.aruco.CharucoBoard((board.cols, board.rows), board.square_mm, board.marker_mm,
+                                  dictionary)
+
+
+@functools.lru_cache(maxsize=4)
+def charuco_print(board: Board, texels_per_mm: float) -> np.ndarray:
+    """A ChArUco board's print, ``texels_per_mm`` a mm, its top-left corner the board's
+    origin (uint8: 0 black, 255 white; not to be written to)."""
+    size = (round(board.cols * board.square_mm * texels_per_mm),
+            round(board.rows * board.square_mm * texels_per_mm))
+    image = np.ascontiguousarray(aruco_board(board).generateImage(size, marginSize=0))
+    image.flags.writeable = False
+    return image
+
+
+def _detect_charuco(image: np.ndarray, board: Board) -> Corners:
+    """A ChArUco board's inner corners in view, each by its id (a board partly out of the
+    picture gives the corners it shows)."""
+    grey = image if image.dtype == np.uint8 else cv2.convertScaleAbs(image, alpha=1 / 257)
+    try:
+        detector = cv2.aruco.CharucoDetector(aruco_board(board))
+        corners, ids, _, markers = detector.detectBoard(grey)
+    except (cv2.error, AttributeError) as err:
+        return Corners(None, f"{board.name} not found: {err}")
+    seen = 0 if markers is None else len(markers)
+    found = 0 if ids is None else len(ids)
+    if found < MIN_CHARUCO_CORNERS:
+        return Corners(None, f"{board.name} not found: {seen} of its markers seen, "
+                             f"{found} inner corners (need {MIN_CHARUCO_CORNERS})")
+    order = np.argsort(ids.ravel())
+    return Corners(corners.reshape(-1, 2)[order].astype(np.float64), "",
+                   ids.ravel()[order].astype(np.int64))
 
 
 def _subpix_source(image: np.ndarray) -> np.ndarray:
@@ -201,7 +252,7 @@ def calibrate_intrinsics(images: list[np.ndarray], board: Board, min_images: int
         if c.points is None:
             rejected[i] = c.reason
             continue
-        obj.append(board.object_points().astype(np.float32))
+        obj.append(c.object_points(board).astype(np.float32))
         img.append(c.points.astype(np.float32))
         used.append(i)
     if len(used) < min_images:

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from service.calibrate.board import Board
+from service.calibrate.intrinsics import charuco_print
 from service.measure.stripe import StripeParams, extract_stripe
 
 EDGE_CELLS = 0.12
@@ -111,6 +112,8 @@ def cells(board: Board, u_mm: np.ndarray, v_mm: np.ndarray) -> tuple[np.ndarray,
     u, v = u_mm / board.square_mm, v_mm / board.square_mm
     u0, u1, v0, v1 = board.extent()
     on = (u > u0) & (u < u1) & (v > v0) & (v < v1)
+    if board.kind == "charuco":
+        return _print_cells(board, u, v, on)
     if board.kind == "chess":
         fu, fv = np.floor(u), np.floor(v)
         in_checker = (u > -1) & (u < board.cols) & (v > -1) & (v < board.rows)
@@ -135,6 +138,40 @@ def cells(board: Board, u_mm: np.ndarray, v_mm: np.ndarray) -> tuple[np.ndarray,
     edge_u, edge_v = (u - u0 > EDGE_CELLS) & (u1 - u > EDGE_CELLS), \
         (v - v0 > EDGE_CELLS) & (v1 - v > EDGE_CELLS)
     return np.where(on, label, -1).astype(np.int64), clear & on & edge_u & edge_v
+
+
+PRINT_TEXELS_PER_MM = 20.0
+EDGE_PX = 2.5
+"""Left out around a change of a print's ink, in image pixels."""
+
+
+def _print_cells(board: Board, u: np.ndarray, v: np.ndarray, on: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """``cells`` of a printed pattern (a ChArUco board's squares and markers): a square's
+    black and its white are two cells; clear where the print is one colour for
+    ``EDGE_CELLS`` around."""
+    tpm = PRINT_TEXELS_PER_MM
+    ink = charuco_print(board, tpm) < 128
+    # The markers' bits are a fraction of a square: what is left out around a change of ink
+    # is the blur's reach in the image, EDGE_PX pixels on the board.
+    mm_per_px = float(np.median(np.hypot(np.diff(u, axis=1), np.diff(v, axis=1)))) \
+        * board.square_mm if u.shape[1] > 1 else 0.1
+    reach = max(1, round(EDGE_PX * mm_per_px * tpm))
+    kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    plain = cv2.erode(ink.astype(np.uint8), kernel) | cv2.erode((~ink).astype(np.uint8), kernel)
+    h, w = ink.shape
+    tx = np.clip((u * board.square_mm * tpm).astype(int), 0, w - 1)
+    ty = np.clip((v * board.square_mm * tpm).astype(int), 0, h - 1)
+    inside = (u >= 0) & (u < board.cols) & (v >= 0) & (v < board.rows)
+    square = (np.floor(v) + 2) * (board.cols + 4) + np.floor(u) + 2
+    label = np.where(inside, 2 * square + ink[ty, tx], 0)
+    clear = np.where(inside, plain[ty, tx] > 0,
+                     (np.abs(u - np.clip(u, 0, board.cols)) > EDGE_CELLS)
+                     | (np.abs(v - np.clip(v, 0, board.rows)) > EDGE_CELLS))
+    u0, u1, v0, v1 = board.extent()
+    edge = (u - u0 > EDGE_CELLS) & (u1 - u > EDGE_CELLS) & (v - v0 > EDGE_CELLS) \
+        & (v1 - v > EDGE_CELLS)
+    return np.where(on, label, -1).astype(np.int64), clear & on & edge
 
 
 def line_without_twin(image: np.ndarray, board: Board, rvec: np.ndarray, tvec: np.ndarray,
@@ -172,4 +209,35 @@ def line_without_twin(image: np.ndarray, board: Board, rvec: np.ndarray, tvec: n
     ix = np.clip(np.round(xy[:, 0]).astype(int), 0, inner.shape[1] - 1)
     iy = np.clip(np.round(xy[:, 1]).astype(int), 0, inner.shape[0] - 1)
     ok = inner[iy, ix]
-    return LineOnBoard(xy[ok] + [x0, y0], f"{how}, above the board's own pattern")
+    points = on_one_line(xy[ok] + [x0, y0], K, dist)
+    return LineOnBoard(points, f"{how}, above the board's own pattern")
+
+
+def on_one_line(xy: np.ndarray, K: np.ndarray, dist: np.ndarray, tol_px: float = 2.0,
+                tries: int = 300) -> np.ndarray:
+    """The points that lie on one straight line once the lens's distortion is taken off
+    (the light sheet meets the board's plane in a line), the most of them within ``tol_px``:
+    what the pattern's own detail left above its level elsewhere is dropped."""
+    if len(xy) < 10:
+        return xy
+    rays = cv2.undistortPoints(xy.reshape(-1, 1, 2).astype(np.float64), K, dist).reshape(-1, 2)
+    tol = tol_px / float(K[0, 0])
+    rng = np.random.default_rng(0)  # the same answer for the same images
+    best = np.zeros(len(rays), bool)
+    for _ in range(tries):
+        i, j = rng.choice(len(rays), 2, replace=False)
+        d = rays[j] - rays[i]
+        norm = float(np.hypot(*d))
+        if norm < 20 * tol:
+            continue
+        n = np.array([-d[1], d[0]]) / norm
+        near = np.abs((rays - rays[i]) @ n) < tol
+        if near.sum() > best.sum():
+            best = near
+    if best.sum() < 2:
+        return xy
+    # The line again through all of its points, and the points near it.
+    c = rays[best].mean(axis=0)
+    _, _, vt = np.linalg.svd(rays[best] - c)
+    keep = np.abs((rays - c) @ vt[1]) < tol
+    return xy[keep]

@@ -16,6 +16,7 @@ from service.calibrate.laser_line import (
     grey_of,
     line_colour,
     line_without_twin,
+    on_one_line,
     pattern_image,
 )
 from service.measure.stripe import StripeParams, extract_stripe
@@ -38,7 +39,8 @@ class BoardPose:
     rvec: np.ndarray
     tvec: np.ndarray
     plane: BoardPlane
-    points: np.ndarray  # the target's points it was solved from, px (object_points order)
+    points: np.ndarray   # the target's points it was solved from, px
+    objects: np.ndarray  # ... and where they are on the board, mm
 
     def box(self, board: Board, K: np.ndarray, dist: np.ndarray,
             shape: tuple[int, int]) -> tuple[int, int, int, int]:
@@ -59,7 +61,7 @@ def board_pose(image: np.ndarray, board: Board, K: np.ndarray, dist: np.ndarray
     c = find_corners(image, board)
     if c.points is None:
         return c.reason
-    return _solved(board.object_points(), c.points, K, dist) or \
+    return _solved(c.object_points(board), c.points, K, dist) or \
         "board pose could not be solved"
 
 
@@ -78,7 +80,7 @@ def _solved(obj: np.ndarray, points: np.ndarray, K: np.ndarray, dist: np.ndarray
     d = float(n @ t)
     if d < 0:
         n, d = -n, -d
-    return BoardPose(rvec, tvec, BoardPlane(n, d, rms), points)
+    return BoardPose(rvec, tvec, BoardPlane(n, d, rms), points, obj)
 
 
 def clear_of_line(pose: BoardPose, board: Board, line_xy: np.ndarray, K: np.ndarray,
@@ -95,8 +97,9 @@ def clear_of_line(pose: BoardPose, board: Board, line_xy: np.ndarray, K: np.ndar
     keep = near > 0.5 * float(np.median(spacing.min(axis=1)))
     if keep.all() or keep.sum() < max(6, len(pts) // 2):
         return pose
-    again = _solved(board.object_points(), pts, K, dist, keep)
-    return pose if again is None else BoardPose(again.rvec, again.tvec, again.plane, pts)
+    again = _solved(pose.objects, pts, K, dist, keep)
+    return pose if again is None else BoardPose(again.rvec, again.tvec, again.plane, pts,
+                                                pose.objects)
 
 
 def board_plane(image: np.ndarray, board: Board, K: np.ndarray, dist: np.ndarray
@@ -165,8 +168,14 @@ def calibrate_plane(pairs: list[tuple[np.ndarray, np.ndarray]], board: Board, K:
         if len(stripe) < min_points_per_pose:
             rejected[i] = f"laser line missing or too short ({len(stripe)} points)"
             continue
-        pts.append(on_plane(stripe.xy, plane, K, dist))
-        counts.append(len(stripe.xy))
+        # On one straight line (the sheet meets the board's plane in one): a speck of noise
+        # the difference left elsewhere does not tilt the plane.
+        xy = on_one_line(stripe.xy, K, dist)
+        if len(xy) < min_points_per_pose:
+            rejected[i] = f"laser line missing or too short ({len(xy)} points on one line)"
+            continue
+        pts.append(on_plane(xy, plane, K, dist))
+        counts.append(len(xy))
         how[i] = "the difference of the laser-off and laser-on images"
     return _fitted(pts, counts, rejected, how, min_poses)
 

@@ -1,6 +1,7 @@
-"""The light plane from laser-on images alone (no laser-off twins): on rendered chessboard and
-circle-grid poses, grey and colour (a red laser: its light in the red channel), within 1.5
-times the error of the same poses' pairs; and through the command line from colour JPEGs."""
+"""The light plane from laser-on images alone (no laser-off twins): on rendered chessboard,
+circle-grid and ChArUco poses, grey and colour (a red laser: its light in the red channel),
+within 1.5 times the error of the same poses' pairs; and through the command line from colour
+JPEGs."""
 
 from __future__ import annotations
 
@@ -53,7 +54,7 @@ def error_mm(plane: PlaneResult) -> float:
     return max(abs(float(p @ plane.normal) - plane.d) for p in grid)
 
 
-@pytest.mark.parametrize("target", ["11x8x8", "circles:11x8x8"])
+@pytest.mark.parametrize("target", ["11x8x8", "circles:11x8x8", "charuco:14x10x8x6"])
 def test_laser_on_images_alone_are_within_one_and_a_half_times_the_pairs(target: str) -> None:
     off, on = poses(target)
     K, dist = RIG.config.camera_matrix(), np.array(RIG.config.dist_coeffs)

@@ -1,6 +1,6 @@
-"""Calibrating from rendered circle grids recovers the simulated rig within the chessboard's
-tolerances (tests/integration/test_recover_rig.py): a symmetric and an asymmetric grid, the
-session's views, laser pairs and spindle rotations."""
+"""Calibrating from rendered circle grids and a ChArUco board recovers the simulated rig within
+the chessboard's tolerances (tests/integration/test_recover_rig.py): the session's views,
+laser pairs and spindle rotations; a ChArUco board partly out of view still counts."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from service.measure.geometry import geometry_of
 from service.measure.result import Method
 from tests.integration.test_recover_rig import deg, in_rig_frame, off_axis_mm
 
-TARGETS = ["circles:11x8x8", "acircles:5x7x9"]
+TARGETS = ["circles:11x8x8", "acircles:5x7x9", "charuco:14x10x8x6"]
 
 
 @pytest.fixture(scope="module", params=TARGETS)
@@ -84,7 +84,26 @@ def test_diameters_with_the_recovered_calibration(recovered) -> None:
     assert np.mean(errors) < 0.015, errors
 
 
-@pytest.mark.parametrize("target", TARGETS)
+def test_a_charuco_board_partly_out_of_view_gives_the_corners_in_view() -> None:
+    """Held near the image's corner, a third of the board out of the picture: the corners
+    in view, named, where a chessboard or a grid is lost."""
+    rig = ShaftRenderer(RigConfig(), seed=1)
+    charuco = parse_board("charuco:12x9x7x5")
+    br = BoardRenderer(rig, charuco)
+    pose = br.pose_facing_camera(15, -10, 330, shift_mm=(-45.0, -30.0))
+    seen = find_corners(br.render(pose), charuco)
+    assert seen.points is not None and seen.ids is not None, seen.reason
+    total = len(charuco.object_points())
+    assert 0.3 * total < len(seen.ids) < 0.9 * total, len(seen.ids)
+    truth = br.project(pose, seen.object_points(charuco))
+    assert np.abs(seen.points - truth).max() < 0.5
+    chess = BoardRenderer(rig, parse_board("11x7x7"))
+    lost = find_corners(chess.render(chess.pose_facing_camera(15, -10, 330, (-45.0, -30.0))),
+                        parse_board("11x7x7"))
+    assert lost.points is None
+
+
+@pytest.mark.parametrize("target", TARGETS[:2])
 def test_a_grid_not_found_says_what_was_looked_for_and_seen(target: str) -> None:
     board = parse_board(target)
     blank = np.full((1024, 1376), 90, np.uint8)
