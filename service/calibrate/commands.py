@@ -163,7 +163,8 @@ def build_step(intrinsics: str, plane: str, axis: str) -> tuple[Calibration | No
                        p.get("rms_mm", float("nan")), p.get("worst_mm", float("nan")),
                        p.get("points", 0),
                        p.get("per_pose_points", []), p.get("per_pose_rms_mm", []),
-                       reason=p.get("reason", ""))
+                       reason=p.get("reason", ""),
+                       how={int(k): v for k, v in p.get("how", {}).items()})
     ares = AxisResult(np.array(a["direction"]) if a.get("ok") else None,
                       np.array(a["point"]) if a.get("ok") else None,
                       a.get("rotation_span_deg", 0.0), a.get("plane_residual_mm", float("nan")),

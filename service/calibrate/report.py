@@ -76,7 +76,8 @@ def assess(intr: IntrinsicsResult, plane: PlaneResult | None = None,
             r.figures["light_plane"] = {"rms_mm": plane.rms_mm, "worst_mm": plane.worst_mm,
                                         "points": plane.points,
                                         "per_pose_points": plane.per_pose_points,
-                                        "per_pose_rms_mm": plane.per_pose_rms_mm}
+                                        "per_pose_rms_mm": plane.per_pose_rms_mm,
+                                        "how": {str(k): v for k, v in plane.how.items()}}
             r.judge(plane.rms_mm, 0.03, 0.08, f"light-plane residual {plane.rms_mm * 1000:.0f}"
                     " um RMS", "check the laser line is sharp and the board flat")
             r.judge(len(plane.per_pose_points), 4, 3, f"{len(plane.per_pose_points)} poses "
