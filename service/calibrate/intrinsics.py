@@ -78,7 +78,7 @@ def _detect_corners(image: np.ndarray, board: Board) -> Corners:
     if board.kind != "chess":
         return _detect_circles(image, board)
     size = (board.cols, board.rows)
-    missing = Corners(None, f"{board.name} not found")
+    missing = Corners(None, f"{board.name} not found: {_what_was_seen(image, board)}")
     try:
         ok, corners = cv2.findChessboardCornersSB(image, size, flags=cv2.CALIB_CB_ACCURACY)
         if ok and corners is not None and board.detector == "sb+subpix":
@@ -136,6 +136,16 @@ def _detect_charuco(image: np.ndarray, board: Board) -> Corners:
 def _subpix_source(image: np.ndarray) -> np.ndarray:
     """``cornerSubPix`` takes 8-bit or float images."""
     return image if image.dtype == np.uint8 else image.astype(np.float32)
+
+
+def _what_was_seen(image: np.ndarray, board: Board) -> str:
+    """For a chessboard not found: how little contrast the image has, or what to check."""
+    grey = image if image.dtype == np.uint8 else cv2.convertScaleAbs(image, alpha=1 / 257)
+    low, high = np.percentile(grey, [2, 98])
+    if high - low < 30:
+        return f"the image has little contrast ({high - low:.0f} grey levels): light the board"
+    return (f"is it whole in the picture, and are {board.cols}x{board.rows} its inner corners "
+            "(squares less one, each way)?")
 
 
 def _blob_detector(image: np.ndarray, board: Board, dark: bool) -> cv2.SimpleBlobDetector:

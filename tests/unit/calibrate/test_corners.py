@@ -1,4 +1,5 @@
-"""Chessboard detections kept for the images a session's steps read again."""
+"""Chessboard detections kept for the images a session's steps read again, and what a
+detection that found nothing says."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import numpy as np
 from drivers.sim.board import Board, BoardRenderer
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate import intrinsics
+from service.calibrate.board import parse_board
 
 BOARD = Board(cols=11, rows=8, square_mm=8.0)
 
@@ -40,3 +42,15 @@ def test_the_kept_detections_are_bounded(monkeypatch) -> None:
     for k in range(5):
         intrinsics.find_corners(np.full((40, 60), k, np.uint8), BOARD)
     assert len(intrinsics._kept) == 3
+
+
+def test_a_chessboard_not_found_says_what_to_check() -> None:
+    """Which target was looked for, and what was seen: a blank image's missing contrast, or
+    the two things a technician gets wrong (the board cut by the border, the corners
+    miscounted)."""
+    blank = intrinsics.find_corners(np.full((480, 640), 90, np.uint8), parse_board("13x12x30"))
+    assert "chessboard of 13x12 inner corners not found" in blank.reason
+    assert "little contrast (0 grey levels)" in blank.reason
+    noise = np.random.default_rng(0).integers(0, 255, (480, 640)).astype(np.uint8)
+    miss = intrinsics.find_corners(noise, parse_board("13x12x30"))
+    assert "whole in the picture" in miss.reason and "13x12 its inner corners" in miss.reason
