@@ -13,7 +13,7 @@ way: its difference holds nothing but the line.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -106,11 +106,20 @@ def board_coordinates(shape: tuple[int, int], box: tuple[int, int, int, int],
     return local[:, 0].reshape(h, w), local[:, 1].reshape(h, w)
 
 
+def pattern_extent(board: Board) -> tuple[float, float, float, float]:
+    """The printed pattern without its margin, in pitches: a chessboard's squares, a ChArUco
+    board's, a circle grid's circles with half a pitch around."""
+    return replace(board, margin_squares=0.0 if board.kind in ("chess", "charuco")
+                   else 0.5).extent()
+
+
 def cells(board: Board, u_mm: np.ndarray, v_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each point's cell (an integer label, -1 off the printed pattern) and whether it lies
     clear of the cell's edges (``EDGE_CELLS``)."""
     u, v = u_mm / board.square_mm, v_mm / board.square_mm
-    u0, u1, v0, v1 = board.extent()
+    # The pattern itself, not the margin a print may or may not have: past a real board's
+    # edge lies the bench, and its edge is a straight line as bright as the laser's.
+    u0, u1, v0, v1 = pattern_extent(board)
     on = (u > u0) & (u < u1) & (v > v0) & (v < v1)
     if board.kind == "charuco":
         return _print_cells(board, u, v, on)
@@ -168,7 +177,7 @@ def _print_cells(board: Board, u: np.ndarray, v: np.ndarray, on: np.ndarray
     clear = np.where(inside, plain[ty, tx] > 0,
                      (np.abs(u - np.clip(u, 0, board.cols)) > EDGE_CELLS)
                      | (np.abs(v - np.clip(v, 0, board.rows)) > EDGE_CELLS))
-    u0, u1, v0, v1 = board.extent()
+    u0, u1, v0, v1 = pattern_extent(board)
     edge = (u - u0 > EDGE_CELLS) & (u1 - u > EDGE_CELLS) & (v - v0 > EDGE_CELLS) \
         & (v1 - v > EDGE_CELLS)
     return np.where(on, label, -1).astype(np.int64), clear & on & edge

@@ -17,8 +17,10 @@ import pytest
 
 from drivers.sim.board import BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
+from service.calibrate import commands
 from service.calibrate.board import parse_board
 from service.calibrate.plane import PlaneResult, calibrate_plane, calibrate_plane_laser_on
+from service.calibrate.session import StepInputs, run_step
 from service.measure.geometry import geometry_of
 
 SHAFTGAUGE = str(Path(sys.executable).with_name("shaftgauge"))
@@ -127,9 +129,6 @@ def test_the_command_line_takes_colour_jpegs_with_the_laser_on_alone(tmp_path) -
 def test_the_sessions_laser_on_slot_alone_runs_the_plane_step(tmp_path) -> None:
     """The wizard's "laser on" slot filled and its "laser off" slot left empty: the session
     runs the plane step on the laser-on images alone; a slot of another count is refused."""
-    from service.calibrate import commands
-    from service.calibrate.session import StepInputs, run_step
-
     _, on = poses("11x8x8")
     K, dist = RIG.config.camera_matrix(), np.array(RIG.config.dist_coeffs)
     intr = tmp_path / "i.json"
