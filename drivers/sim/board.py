@@ -22,6 +22,10 @@ import numpy as np
 from drivers.sim.rig import RigConfig, ShaftRenderer, _rotation
 from service.calibrate.board import DEFAULT_BOARD, Board, parse_board
 
+EDGE_SAMPLES = {"charuco": 6}
+"""Samples a side of a pixel an edge runs through (12 unless named): a ChArUco board's
+markers are mostly edges, and its detector's corners are a tenth of a pixel off anyway."""
+
 
 @dataclass(frozen=True)
 class BoardPose:
@@ -161,7 +165,8 @@ class BoardRenderer:
             edge |= step | np.roll(step, -1, axis=1) | np.roll(step, -1, axis=0)
             iy, ix = np.nonzero(edge)
             if iy.size:
-                fa, fl, _ = self._integrate(pose, rays[iy, ix, 0], rays[iy, ix, 1], K, 12,
+                fa, fl, _ = self._integrate(pose, rays[iy, ix, 0], rays[iy, ix, 1], K,
+                                            EDGE_SAMPLES.get(self.board.kind, 12),
                                             laser)
                 a[iy, ix], li[iy, ix] = fa, fl
             acc[y0:y1, x0:x1], lit[y0:y1, x0:x1] = a, li

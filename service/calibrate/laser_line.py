@@ -6,9 +6,10 @@ pixel of the board is mapped to the board's plane (the pose), the pattern's ligh
 median of its kind of cell (a chessboard's square, the ground between a grid's circles) in
 its neighbourhood, and what stands above it is the line. Cell edges, where the pattern's own
 light changes within a pixel, are left out. In a colour image the line is looked for in the
-channel where it stands out most against the others (a red laser: the red channel): a white
-square is as bright in every channel, the laser is not. The laser-off twin stays the better
-way: its difference holds nothing but the line.
+channel where it stands out most against the others (a red laser: the red channel), less the
+board as the other channels show it (a grey print reflects every colour alike, the laser
+does not): the pattern's edges then cancel as in a twin's difference. The laser-off twin
+stays the better way: its difference holds nothing but the line.
 """
 
 from __future__ import annotations
@@ -192,6 +193,9 @@ def line_without_twin(image: np.ndarray, board: Board, rvec: np.ndarray, tvec: n
     u, v = board_coordinates(image.shape[:2], box, rvec, tvec, K, dist)
     label, clear = cells(board, u, v)
     crop = image[y0:y1, x0:x1]
+    colour = line_colour(crop, label >= 0)
+    if colour is not None:
+        return _line_in_colour(crop, colour, label >= 0, (x0, y0), K, dist)
     channel, how = laser_channel(crop, label >= 0)
     values = channel.astype(np.float32)
     flat_label, flat_val, keep = label.ravel(), values.ravel(), clear.ravel()
@@ -220,6 +224,38 @@ def line_without_twin(image: np.ndarray, board: Board, rvec: np.ndarray, tvec: n
     ok = inner[iy, ix]
     points = on_one_line(xy[ok] + [x0, y0], K, dist)
     return LineOnBoard(points, f"{how}, above the board's own pattern")
+
+
+def _line_in_colour(crop: np.ndarray, colour: int, on_board: np.ndarray,
+                    origin: tuple[int, int], K: np.ndarray, dist: np.ndarray) -> LineOnBoard:
+    """The line in the channel it stands out in, less what the other channels show of the
+    board there (a grey print reflects every colour alike: the laser channel's board is a
+    linear function of the others', fitted on the board away from the line): the pattern's
+    edges cancel as in a laser-off twin's difference."""
+    bgr = crop[..., :3].astype(np.float32)
+    line = bgr[..., colour]
+    others = np.delete(bgr, colour, axis=2).mean(axis=2)
+    away = on_board.copy()
+    a, b = 1.0, 0.0
+    for _ in range(3):  # the fit, then again without what stands above it (the line)
+        x, y = others[away], line[away]
+        if len(x) < 100:
+            break
+        a, b = np.polyfit(x, y, 1)
+        rest = line - (a * others + b)
+        away = on_board & (rest < np.percentile(rest[on_board], 95))
+    residual = np.where(on_board, np.clip(line - (a * others + b), 0, None), 0)
+    scale = 255.0 / _full_scale(crop)
+    stripe = extract_stripe((residual * scale).clip(0, 255).astype(np.uint8),
+                            StripeParams(curvature_correction=False))
+    how = f"the {_CHANNELS[colour]} channel less the board the others show"
+    if not len(stripe):
+        return LineOnBoard(np.empty((0, 2)), how)
+    inner = cv2.erode(on_board.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    xy = stripe.xy
+    ix = np.clip(np.round(xy[:, 0]).astype(int), 0, inner.shape[1] - 1)
+    iy = np.clip(np.round(xy[:, 1]).astype(int), 0, inner.shape[0] - 1)
+    return LineOnBoard(on_one_line(xy[inner[iy, ix]] + list(origin), K, dist), how)
 
 
 def on_one_line(xy: np.ndarray, K: np.ndarray, dist: np.ndarray, tol_px: float = 2.0,

@@ -208,7 +208,8 @@ def calibrate_plane_laser_on(images: list[np.ndarray], board: Board, K: np.ndarr
             clean = board_pose(pattern_image(image, colour), board, K, dist)
             pose = pose if isinstance(clean, str) else clean
         line = line_without_twin(image, board, pose.rvec, pose.tvec, K, dist, box)
-        pose = clear_of_line(pose, board, line.points, K, dist)
+        if colour is None:  # the pattern seen through the line: its points by it left out
+            pose = clear_of_line(pose, board, line.points, K, dist)
         if len(line.points) < min_points_per_pose:
             rejected[i] = (f"laser line missing or too short on the board "
                            f"({len(line.points)} points, looked for in {line.how})")

@@ -1,27 +1,23 @@
-"""Calibrating from rendered circle grids and a ChArUco board recovers the simulated rig within
+"""Calibrating from a rendered circle grid and a ChArUco board recovers the simulated rig within
 the chessboard's tolerances (tests/integration/test_recover_rig.py): the session's views,
-laser pairs and spindle rotations; a ChArUco board partly out of view still counts."""
+laser pairs and spindle rotations; an asymmetric grid's centres are found where they are; a
+ChArUco board partly out of view still counts."""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import pytest
 
-from calib_store.model import SCHEMA, parse_calibration
 from drivers.sim.board import BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate.axis import calibrate_axis
 from service.calibrate.board import parse_board
 from service.calibrate.intrinsics import calibrate_intrinsics, find_corners
 from service.calibrate.plane import calibrate_plane
-from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import geometry_of
-from service.measure.result import Method
-from tests.integration.test_recover_rig import deg, in_rig_frame, off_axis_mm
+from tests.integration.test_recover_rig import deg, diameter_errors, in_rig_frame, off_axis_mm
 
-TARGETS = ["circles:11x8x8", "acircles:5x7x9", "charuco:14x10x8x6"]
+TARGETS = ["circles:11x8x8", "charuco:14x10x8x6"]
 
 
 @pytest.fixture(scope="module", params=TARGETS)
@@ -67,21 +63,22 @@ def test_light_plane_and_spindle_axis(recovered) -> None:
 
 def test_diameters_with_the_recovered_calibration(recovered) -> None:
     rig, _, intr, plane, axis = recovered
-    a = axis.direction / np.linalg.norm(axis.direction)
-    cal = geometry_of(parse_calibration({
-        "schema": SCHEMA, "units": "mm", "image_size": list(rig.config.image_size),
-        "camera_matrix": intr.camera_matrix.tolist(),
-        "dist_coeffs": [float(x) for x in intr.dist_coeffs],
-        "light_plane": {"normal": [float(x) for x in plane.normal], "d": float(plane.d)},
-        "axis": {"direction": [float(x) for x in a], "point": [float(x) for x in axis.point]},
-    }))
-    errors = []
-    for i, d in enumerate((20.113, 29.8, 39.76, 47.062)):
-        m = measure_frame(rig.render(d, i), cal, Method.GEOMETRIC,
-                          MeasureParams(max_uncertainty_mm=math.inf))
-        assert m, m.reason
-        errors.append(abs(m.diameter_mm - d))
+    errors = diameter_errors(rig, intr, plane, axis)
     assert np.mean(errors) < 0.015, errors
+
+
+def test_an_asymmetric_grids_centres_are_found_where_they_are() -> None:
+    """The asymmetric grid (its whole session as the symmetric one's, in ``make bench``'s
+    time rather than the suite's): each centre within a fifth of a pixel of its circle's,
+    tilted and on the spindle."""
+    board = parse_board("acircles:5x7x9")
+    br = BoardRenderer(ShaftRenderer(RigConfig(), seed=2), board)
+    for pose in (br.pose_facing_camera(25, -25, 380), br.pose_on_spindle(30.0)):
+        seen = find_corners(br.render(pose), board)
+        assert seen.points is not None, seen.reason
+        truth = br.project(pose, board.object_points())
+        nearest = np.min(np.linalg.norm(seen.points[:, None] - truth[None], axis=-1), axis=1)
+        assert nearest.max() < 0.2, nearest.max()
 
 
 def test_a_charuco_board_partly_out_of_view_gives_the_corners_in_view() -> None:
@@ -103,7 +100,7 @@ def test_a_charuco_board_partly_out_of_view_gives_the_corners_in_view() -> None:
     assert lost.points is None
 
 
-@pytest.mark.parametrize("target", TARGETS[:2])
+@pytest.mark.parametrize("target", ["circles:11x8x8", "acircles:5x7x9"])
 def test_a_grid_not_found_says_what_was_looked_for_and_seen(target: str) -> None:
     board = parse_board(target)
     blank = np.full((1024, 1376), 90, np.uint8)
