@@ -170,6 +170,7 @@ def build_step(intrinsics: str, plane: str, axis: str) -> tuple[Calibration | No
                       a.get("rotation_span_deg", 0.0), a.get("plane_residual_mm", float("nan")),
                       reason=a.get("reason", ""))
     report = assess(ires, pres, ares)
+    report.figures["target"] = {"board": intr.get("board"), "detector": intr.get("detector")}
     report.figures["images"] = {"intrinsics": intr.get("read"), "light_plane": p.get("read")}
     if report.verdict == "refused":
         return None, report

@@ -37,6 +37,11 @@ def test_the_whole_chain(session, tmp_path) -> None:
             "--axis", w / "a.json", "--output", w / "cal.json", "--report", w / "rep.json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["verdict"] in ("good", "marginal")
+    report = json.loads((w / "rep.json").read_text())["figures"]
+    assert report["target"] == {"board": "chess:11x8x8", "detector": "sb"}
+    assert report["images"]["intrinsics"]["conversion"] == "grey as read"
+    assert set(report["light_plane"]["how"].values()) == {
+        "the difference of the laser-off and laser-on images"}
     cal, truth = load_calibration(w / "cal.json"), load_calibration(s / "truth.json")
     assert np.allclose(cal.camera_matrix[0][0], truth.camera_matrix[0][0], rtol=0.002)
     r = run("calibrate", "master", "--calibration", w / "cal.json",
