@@ -214,16 +214,21 @@ def line_without_twin(image: np.ndarray, board: Board, rvec: np.ndarray, tvec: n
     scale = 255.0 / _full_scale(image)
     stripe = extract_stripe((residual * scale).clip(0, 255).astype(np.uint8),
                             StripeParams(curvature_correction=False))
-    if not len(stripe):
-        return LineOnBoard(np.empty((0, 2)), how)
     # Away from where cells were left out: a gap's border is no line's side.
+    return LineOnBoard(_kept(stripe.xy, usable, (x0, y0), K, dist),
+                       f"{how}, above the board's own pattern")
+
+
+def _kept(xy: np.ndarray, usable: np.ndarray, origin: tuple[int, int], K: np.ndarray,
+          dist: np.ndarray) -> np.ndarray:
+    """A crop's line centres (px of the image) a few pixels inside ``usable`` and on one
+    straight line."""
+    if not len(xy):
+        return np.empty((0, 2))
     inner = cv2.erode(usable.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
-    xy = stripe.xy
     ix = np.clip(np.round(xy[:, 0]).astype(int), 0, inner.shape[1] - 1)
     iy = np.clip(np.round(xy[:, 1]).astype(int), 0, inner.shape[0] - 1)
-    ok = inner[iy, ix]
-    points = on_one_line(xy[ok] + [x0, y0], K, dist)
-    return LineOnBoard(points, f"{how}, above the board's own pattern")
+    return on_one_line(xy[inner[iy, ix]] + list(origin), K, dist)
 
 
 def _line_in_colour(crop: np.ndarray, colour: int, on_board: np.ndarray,
@@ -248,14 +253,8 @@ def _line_in_colour(crop: np.ndarray, colour: int, on_board: np.ndarray,
     scale = 255.0 / _full_scale(crop)
     stripe = extract_stripe((residual * scale).clip(0, 255).astype(np.uint8),
                             StripeParams(curvature_correction=False))
-    how = f"the {_CHANNELS[colour]} channel less the board the others show"
-    if not len(stripe):
-        return LineOnBoard(np.empty((0, 2)), how)
-    inner = cv2.erode(on_board.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
-    xy = stripe.xy
-    ix = np.clip(np.round(xy[:, 0]).astype(int), 0, inner.shape[1] - 1)
-    iy = np.clip(np.round(xy[:, 1]).astype(int), 0, inner.shape[0] - 1)
-    return LineOnBoard(on_one_line(xy[inner[iy, ix]] + list(origin), K, dist), how)
+    return LineOnBoard(_kept(stripe.xy, on_board, origin, K, dist),
+                       f"the {_CHANNELS[colour]} channel less the board the others show")
 
 
 def on_one_line(xy: np.ndarray, K: np.ndarray, dist: np.ndarray, tol_px: float = 2.0,

@@ -76,7 +76,7 @@ def test_two_tools_each_corrected_through_its_own_requests(tmp_path) -> None:
         try:
             for tool in (1, 2):  # the first calls: each tool's total, before any offset
                 cnc.call(tool)
-            for _ in range(14):  # parts: the journal by tool 1, then the seat by tool 2
+            for _ in range(10):  # parts: the journal by tool 1, then the seat by tool 2
                 for feature in JOB["features"]:
                     t = feature["tool"]
                     gauge.camera.diameter_mm = feature["nominal_mm"] + cnc.cut_mm(t)
