@@ -36,6 +36,10 @@ REST = 2.0
 of a core."""
 JUMP_MM = 1e-3
 """A change of the diameter larger than this is a jump, not a drift's step."""
+PART_CHANGE_MM = 0.05
+"""A jump larger than this is another part under the laser (a master put in, the next
+segment of a stepped part): no frame sent may show the one before. Smaller ones (an offset
+applied) are rendered again in the background, as a drift's step is, at full speed."""
 
 
 def min_frame_period_us(height: int) -> int:
@@ -148,14 +152,14 @@ class FrameRing:
 
     def take(self) -> tuple[np.ndarray, int]:
         """The next frame to send (not to be written to) and its slot. A slot still showing
-        the diameter before a jump (or the renderer before a change) is rendered now: a
+        another part (``PART_CHANGE_MM``, or the renderer before a change) is rendered now: a
         camera never shows the part that was in the lathe before, however slowly the ring
         is rendered again (the frame rate dips instead)."""
         d = self._diameter()
         with self._lock:
             slot = self._next
             self._next = (self._next + 1) % self.size
-            if not abs(self._shown[slot] - d) > JUMP_MM:
+            if not abs(self._shown[slot] - d) > PART_CHANGE_MM:
                 return self._frames[slot], slot
         image = self._render(d, slot)
         with self._lock:

@@ -31,8 +31,8 @@ def test_the_ring_sends_its_frames_in_turn_and_renders_again_only_on_a_new_diame
 
 def test_after_a_jump_no_frame_shows_the_part_before() -> None:
     """A master put in: the frames sent next show it before the ring is rendered again (a
-    frame of the part before would be measured as the master); a drift's step does not hold
-    the frames up."""
+    frame of the part before would be measured as the master); an offset's few micrometres
+    do not hold the frames up."""
     diameter = [30.0]
     renderer = ShaftRenderer(RigConfig(image_size=(320, 240)), seed=1)
     shown: list[float] = []
@@ -40,7 +40,7 @@ def test_after_a_jump_no_frame_shows_the_part_before() -> None:
     renderer.render = lambda d, i=0: shown.append(d) or real(d, i)  # type: ignore[method-assign]
     ring = FrameRing(renderer, 4, lambda: diameter[0])
     ring.fill()
-    diameter[0] = 30.0002  # within a step and below a jump: the ring's frames go out
+    diameter[0] = 30.004  # an offset applied: rendered again in the background
     shown.clear()
     [ring.take() for _ in range(4)]
     assert shown == []
