@@ -82,7 +82,17 @@ def test_two_tools_each_corrected_through_its_own_requests(tmp_path) -> None:
                     gauge.camera.diameter_mm = feature["nominal_mm"] + cnc.cut_mm(t)
                     time.sleep(0.8)
                     cnc.call(t)
-            status = client.get("/api/v1/status").json()["compensation"]
+            # Once every offset is settled (the CNC reports, the settlers read it) the log's
+            # applied offsets add up to each tool's total.
+            deadline = time.monotonic() + 20
+            while True:
+                for t in (1, 2):
+                    cnc.call(t)
+                status = client.get("/api/v1/status").json()["compensation"]
+                if all(t["pending_seq"] is None and t["state"] == "active"
+                       for t in status["tools"]) or time.monotonic() > deadline:
+                    break
+                time.sleep(0.5)
             log = client.get("/api/v1/compensation/log", params={"limit": 2000}).json()
         finally:
             cnc.client.close()
