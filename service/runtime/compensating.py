@@ -102,8 +102,9 @@ class CompensationService:
     store_error : str
         Why there is no log (changes are then refused: they could not be kept).
     tool_transport : callable or None
-        Tool number -> its transport, where the handshake names the tool (``PullCnc.tool``):
-        a job of several tools then has a channel per tool (``ToolChannels``).
+        Tool number -> its transport, where the handshake names the tool (``PullCnc.tool``,
+        ``OffsetWriter.tool`` with ``plc.tool_stride``): a job of several tools then has a
+        channel per tool (``ToolChannels``).
     """
 
     def __init__(self, from_file: RuntimeSettings, writer: OffsetTransport | None,

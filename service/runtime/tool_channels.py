@@ -49,8 +49,8 @@ class ToolChannels:
     Parameters
     ----------
     transport : callable or None
-        Tool number -> its transport (``PullCnc.tool``); None: no handshake here names a
-        tool.
+        Tool number -> its transport (``PullCnc.tool``, ``OffsetWriter.tool``); None: no
+        handshake here names a tool.
     log_ : CompensationLog or None
         Decisions and each tool's state.
     on_decision : callable
