@@ -48,17 +48,6 @@ def grey_of(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(image, code)
 
 
-def laser_channel(image: np.ndarray, on_board: np.ndarray) -> tuple[np.ndarray, str]:
-    """The channel to look for the line in, and its name: in colour, the one standing out
-    most against the other two on the board (grey when none stands out)."""
-    if image.ndim == 2:
-        return image, "grey"
-    c = line_colour(image, on_board)
-    if c is None:
-        return grey_of(image), "grey (no colour stands out on the board)"
-    return image[..., c], f"the {_CHANNELS[c]} channel"
-
-
 def line_colour(image: np.ndarray, on_board: np.ndarray) -> int | None:
     """The channel (BGR index) a coloured line stands out in on the board, or None: the one
     above both others by ``MIN_COLOUR_EXCESS`` on the most pixels, at least
@@ -196,8 +185,8 @@ def line_without_twin(image: np.ndarray, board: Board, rvec: np.ndarray, tvec: n
     colour = line_colour(crop, label >= 0)
     if colour is not None:
         return _line_in_colour(crop, colour, label >= 0, (x0, y0), K, dist)
-    channel, how = laser_channel(crop, label >= 0)
-    values = channel.astype(np.float32)
+    how = "grey" if crop.ndim == 2 else "grey (no colour stands out on the board)"
+    values = grey_of(crop).astype(np.float32)
     flat_label, flat_val, keep = label.ravel(), values.ravel(), clear.ravel()
     # The pattern's light a cell: the median of its clear pixels (a line covers a few).
     order = np.argsort(flat_label[keep], kind="stable")
