@@ -10,7 +10,7 @@ STAMP := $(VENV)/.shaftgauge-installed
 # pytest process rewrites every test module's asserts (10 s, 5 with it).
 export PYTHONDONTWRITEBYTECODE :=
 
-.PHONY: setup run test check docs bench soak lint clean linuxcnc-demo lock wheel wheel-test
+.PHONY: setup run test speed check docs bench soak lint clean linuxcnc-demo lock wheel wheel-test
 
 setup: $(STAMP)
 
@@ -28,33 +28,35 @@ linuxcnc-demo: setup
 	$(PY) -m service.measure.compiled
 	bash deploy/linuxcnc/demo.sh
 
-## make test: lint, then the whole suite (short fault runs included, long soak runs left out):
-## first the tests timed against a rate or a baseline, alone; then the rest on six workers
-## (many tests wait on a service, LinuxCNC or a lathe they started: five kept both cores
-## busier than four once the processes they start load their bytecode; six, since LinuxCNC's
-## group holds one worker for its 200 s of mostly waiting; see the CHANGELOG).
-## xdist's own order (the files with most tests first) mixes unit files with the services;
-## the long service files first made them meet, and a streaming service's CPU grows with its
-## wall (598 s against 469 s for this phase). Only the files of a test or two that mostly wait
-## (the short soak, the lathe loop, a backup, the plant) go first (tests/conftest.py EARLY;
+## make test: lint, then the whole suite (short fault runs included; long soak runs and the
+## speed guard left out) on six workers: many tests wait on a service, LinuxCNC or a lathe
+## they started (six, since LinuxCNC's group holds one worker for its 200 s of mostly
+## waiting; see the CHANGELOG). No test times anything: it passes on any two-core machine,
+## loaded or not (a slower one takes longer). The files of a test or two that mostly wait (the
+## short soak, the lathe loop, a backup, the plant) go first (tests/conftest.py EARLY;
 ## --no-loadscope-reorder keeps that order): last, they left the phase's end on half the
 ## machine. Beside each other, the workers and the services they start each use one thread
-## for BLAS, OpenCV and numba: more threads than cores only wait for each other (the
-## calibration tests: 74 s of CPU with them, 69 s without).
+## for BLAS, OpenCV and numba: more threads than cores only wait for each other.
 ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OPENCV_FOR_THREADS_NUM=1
 test: setup docs
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
-	$(PY) -m pytest -m "alone and not slow" -q; alone=$$?; \
-	$(ONE_THREAD) $(PY) -m pytest -m "not slow and not wheel and not alone" -q -n 6 --dist loadgroup \
-		--no-loadscope-reorder --durations=20; rest=$$?; exit $$((alone || rest))
+	$(ONE_THREAD) $(PY) -m pytest -m "not slow and not wheel and not timed" -q -n 6 \
+		--dist loadgroup --no-loadscope-reorder --durations=20
+
+## make speed: the speed guard, alone (the core's and the service's speed ratios against the
+## committed baseline, bench-results/guard.json): before closing a change to measure/,
+## runtime/ or drivers/sim/.
+speed: setup
+	$(PY) -m service.measure.compiled
+	$(PY) -m pytest -m timed -q
 
 ## make check: the fast layer for a developer's loop (lint, unit and property tests, on both
 ## cores): under two minutes.
 check: setup
 	$(VENV)/bin/ruff check .
 	$(PY) -m service.measure.compiled
-	$(PY) -m pytest -m "not slow and not wheel" -q -n 2 tests/unit tests/fuzz
+	$(PY) -m pytest -m "not slow and not wheel and not timed" -q -n 2 tests/unit tests/fuzz
 
 ## make lock: renew the lock files from pyproject.toml (pip-tools, in a venv of its own):
 ## deploy/requirements-test.lock (the service and its test tools: development and CI) and

@@ -7,7 +7,8 @@ Requests, one JSON object per line: ``{"set": {"diameter_mm": 30.0, "drift_um_pe
 off the spindle axis, ``lobes`` for one out of round: ``drivers.sim.rig.Turning``),
 ``{"set": {"cnc_total_mm": -0.004}}`` (a camera with a virtual lathe: the CNC's total wear
 offset, which the lathe's cut follows), ``{"do": "new_insert"}`` (its tool gets a new
-insert now),
+insert now), ``{"do": "advance_lathe", "s": 0.5}`` (the lathe's time driven: half a second
+on from where it is, and no longer on the wall clock),
 ``{"get": "stats"}``, or ``{"show": ...}`` for what the camera looks at: ``"shaft"``, a shot
 of the simulated calibration session by name (``{"show": {"shot": "view_00"}}``;
 ``{"get": "shots"}`` lists them), or a board set up by hand
@@ -123,12 +124,17 @@ def apply_request(camera: SimGigECamera, request: Any) -> dict[str, Any]:
                 raise ValueError("no virtual lathe: start the camera with one (--lathe) to "
                                  "change its insert")
             camera.lathe.new_insert()
+        elif request.get("do") == "advance_lathe":
+            if camera.lathe is None:
+                raise ValueError("no virtual lathe to advance")
+            camera.lathe.advance(float(request.get("s", 0.0)))
         elif "show" in request:
             camera.show_board(*parse_show(request["show"]))
         elif request.get("get") == "shots":
             return {"ok": True, "shots": [s.name for s in session_shots()]}
         elif request.get("get") != "stats":
             raise ValueError("use {'set': {...}}, {'show': ...}, {'do': 'new_insert'}, "
+                             "{'do': 'advance_lathe', 's': S}, "
                              "{'get': 'stats'} or "
                              "{'get': 'shots'}")
         return {"ok": True, "stats": camera.stats()}

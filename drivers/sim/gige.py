@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import math
 import threading
 import time
 import zlib
@@ -120,19 +121,35 @@ class SimCameraSettings:
 
 class CameraLathe:
     """The virtual lathe behind a simulated camera (continuous turning, ``LaserView``): what
-    it cuts is what the camera shows; thread-safe, time from its start."""
+    it cuts is what the camera shows; thread-safe. Its time runs from its start on the wall
+    clock until ``advance`` drives it: then only as a test moves it (in step with the gauge's
+    measurements, so that a slow or loaded machine slows the lathe with the gauge)."""
 
     def __init__(self, config: LatheConfig, seed: int = 0) -> None:
         self._view = LaserView(VirtualLathe(config, seed=seed))
         self._lock = threading.Lock()
         self._t0 = time.monotonic()
+        self._driven: float | None = None
         self.cnc_error = ""
+
+    def _now(self) -> float:
+        """The lathe's time, s (the caller holds the lock)."""
+        return time.monotonic() - self._t0 if self._driven is None else self._driven
+
+    def advance(self, seconds: float) -> float:
+        """Drive the lathe's time: ``seconds`` on from where it is (the first call stops its
+        wall clock there); the lathe's time now."""
+        if not (math.isfinite(seconds) and 0 <= seconds <= 3600):
+            raise ValueError("advance the lathe by 0 to 3600 s")
+        with self._lock:
+            self._driven = self._now() + float(seconds)
+            return self._driven
 
     def set_total(self, total_mm: float) -> None:
         """The CNC holds a total wear offset of ``total_mm`` (mm of diameter) from now on:
         what is cut from now on, and seen a dead time later, moves by it."""
         with self._lock:
-            self._view.cnc_total(time.monotonic() - self._t0, float(total_mm))
+            self._view.cnc_total(self._now(), float(total_mm))
 
     def follow(self, read_total_mm: Callable[[], float], stop: threading.Event,
                period_s: float = 0.2) -> None:
@@ -152,20 +169,21 @@ class CameraLathe:
         """A new insert goes in now: what is cut from now on (seen a dead time later) starts
         its wear again. The CNC's wear offset is whoever zeroes it."""
         with self._lock:
-            self._view.lathe.change_insert_at((time.monotonic() - self._t0) / 60.0)
+            self._view.lathe.change_insert_at(self._now() / 60.0)
 
     def diameter_mm(self) -> float:
         """The diameter under the laser now, mm."""
         with self._lock:
-            return self._view.diameter_mm(time.monotonic() - self._t0)
+            return self._view.diameter_mm(self._now())
 
     def stats(self) -> dict[str, float | str]:
         """The sample under the laser now, and the CNC's total it knows."""
         with self._lock:
-            now = time.monotonic() - self._t0
+            now = self._now()
             cut = self._view.cut_under_laser(now)
             total = self._view.total_at(now)
-        return {"cut_diameter_mm": round(cut.diameter_mm, 7), "wear_mm": round(cut.wear_mm, 7),
+        return {"time_s": round(now, 4), "driven": self._driven is not None,
+                "cut_diameter_mm": round(cut.diameter_mm, 7), "wear_mm": round(cut.wear_mm, 7),
                 "offset_in_cut_mm": round(cut.offset_mm, 7), "cnc_total_mm": round(total, 7),
                 "dead_time_s": self._view.dead_time_s, "cnc_error": self.cnc_error}
 

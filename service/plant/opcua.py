@@ -187,6 +187,8 @@ class OpcUaServer:
         self.server: Server | None = None
         self.port: int | None = None
         self.problem = ""
+        self.started = asyncio.Event()
+        """Set once ``start`` has ended: serving (``server``) or not (``problem`` says why)."""
         self.trusted_dir = settings.trusted_dir or self.certificate_dir / "trusted"
         self.users = Technicians(settings.technicians)
         self.refused_certificates = 0
@@ -260,9 +262,11 @@ class OpcUaServer:
         except (OSError, ValueError, ua.UaError) as err:
             self.problem = f"OPC UA server on {s.host}:{s.port} did not start: {err}"
             log.error("%s", self.problem)
-            return
-        self.server, self.port = server, s.port
-        log.info("OPC UA server on %s", self.endpoint)
+        else:
+            self.server, self.port = server, s.port
+            log.info("OPC UA server on %s", self.endpoint)
+        finally:
+            self.started.set()
 
     async def _build(self, server: Server) -> None:
         idx = await server.register_namespace(NAMESPACE)

@@ -1,6 +1,12 @@
 """The loop closed through the whole service: ``shaftgauge serve`` measures what its simulated
 camera shows, and the camera shows what a virtual lathe cuts with the simulated CNC's applied
 total (read over Modbus); the offsets the gauge writes change what it sees a dead time later.
+
+The lathe's time is driven by the test in step with the gauge: a tenth of a second for each
+frame the gauge has measured (``LathePacer``). On a slow or loaded machine the gauge measures
+fewer frames a second and the lathe wears as much slower; its dead time, the camera's lag and
+the law's dead time (in measurements) keep their proportions, so the outcome is the machine's
+no more than the physics'.
 """
 
 from __future__ import annotations
@@ -11,7 +17,6 @@ import threading
 import time
 
 import httpx
-import pytest
 
 from drivers.plc.registers import UM_PER_UNIT
 from drivers.plc.sim import SimPlc
@@ -21,16 +26,24 @@ from tests.integration.conftest import free_port
 
 WEAR_UM_PER_MIN = 60.0   # 1 um a second: out of +-20 um in 20 s uncompensated
 TOLERANCE_MM = 0.020
+FPS = 10.0               # the tests' camera (spawn_service)
 
-CAMERA = f"""sim_lathe = true
-sim_drift_um_per_min = {WEAR_UM_PER_MIN}
+
+def camera(wear_um_per_min: float = WEAR_UM_PER_MIN, thermal_um: float = 0.0,
+           thermal_tau_s: float = 1200.0) -> str:
+    return f"""sim_lathe = true
+sim_drift_um_per_min = {wear_um_per_min}
 sim_drift_period_min = 0
 sim_lathe_dead_time_s = 1.0
+sim_lathe_thermal_um = {thermal_um}
+sim_lathe_thermal_tau_s = {thermal_tau_s}
 sim_replay_frames = 8
 """
+
+
 # The window law (the default until the predictive one held on varied lathes): its dead time
-# covers the lathe's (1 s), the camera's ring (8 frames rendered again after a change) and the
-# window (5 measurements at 10/s).
+# covers the lathe's (1 s: 10 frames), the camera's ring (8 frames rendered again after a
+# change) and the window (5 measurements).
 COMPENSATION = f"""[compensation]
 law = "window"
 gain = 0.7
@@ -57,24 +70,61 @@ shadow = true
 """
 
 
+class LathePacer:
+    """Drives the camera's lathe: a frame's time (1 / FPS) for each frame the service has
+    measured, read five times a second, until closed."""
+
+    def __init__(self, svc) -> None:
+        self.svc = svc
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _measured(self) -> int:
+        return int(self.svc.get("/api/v1/status").json()["pipeline"]["measured"])
+
+    def _run(self) -> None:
+        last = self._measured()
+        control(self.svc.control_port, {"do": "advance_lathe", "s": 0.0})
+        while not self._stop.wait(0.2):
+            with contextlib.suppress(httpx.HTTPError, OSError):
+                now = self._measured()
+                if now > last:
+                    control(self.svc.control_port,
+                            {"do": "advance_lathe", "s": (now - last) / FPS})
+                    last = now
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+
 def lathe(svc) -> dict:
     """The virtual lathe's sample under the laser now (the truth the gauge should see)."""
     return control(svc.control_port, {"get": "stats"})["stats"]["lathe"]
 
 
-def follow(svc, seconds: float) -> list[dict]:
-    """The lathe's truth, twice a second for ``seconds``."""
-    out, deadline = [], time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        out.append({**lathe(svc), "t": time.monotonic()})
-        time.sleep(0.5)
+def follow(svc, lathe_seconds: float, every_s: float = 0.5) -> list[dict]:
+    """The lathe's truth every ``every_s`` of the lathe's time, for ``lathe_seconds`` of it
+    (however long that takes the machine)."""
+    out = []
+    first = lathe(svc)["time_s"]
+    deadline = time.monotonic() + 20 * lathe_seconds + 60  # ends a loop that stopped
+    while len(out) * every_s < lathe_seconds:
+        s = lathe(svc)
+        if s["time_s"] >= first + len(out) * every_s:
+            out.append(s)
+        assert time.monotonic() < deadline, f"the lathe stood at {s['time_s']} s"
+        time.sleep(0.05)
     return out
 
 
 def test_offsets_written_by_the_service_hold_the_cut_in_tolerance(tmp_path) -> None:
-    svc = start_service(tmp_path, camera_toml=CAMERA, compensation_toml=COMPENSATION)
+    svc = start_service(tmp_path, camera_toml=camera(), compensation_toml=COMPENSATION)
+    pacer = None
     try:
         assert wait_ready(svc)
+        pacer = LathePacer(svc)
         r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": False},
                       headers={"X-API-Key": TECH_KEY}, timeout=10)
         assert r.status_code == 200, r.text
@@ -88,7 +138,7 @@ def test_offsets_written_by_the_service_hold_the_cut_in_tolerance(tmp_path) -> N
         r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": True},
                       headers={"X-API-Key": TECH_KEY}, timeout=10)
         assert r.status_code == 200, r.text
-        time.sleep(1.0)
+        follow(svc, 1.0)  # the last offset settled
         applied = svc.get("/api/v1/compensation/log", params={"kinds": "applied",
                                                               "limit": 1000}).json()["items"]
         assert applied and len({d["offset_seq"] for d in applied}) == len(applied)
@@ -108,6 +158,8 @@ def test_offsets_written_by_the_service_hold_the_cut_in_tolerance(tmp_path) -> N
         assert svc.get("/api/v1/compensation/log",
                        params={"kinds": "proposed"}).json()["items"], "nothing proposed"
     finally:
+        if pacer is not None:
+            pacer.close()
         stop_service(svc)
 
 
@@ -141,24 +193,18 @@ class HandCnc:
         self.loop.call_soon_threadsafe(self.loop.stop)
 
 
-# Alone: the lathe wears and grows in wall-clock seconds; on a host the parallel phase
-# starves (five workers on two cores) what the camera shows lags the cut by more than the
-# law's 1.5 s dead time, which the predictive law needs as it is (docs/integrating.md).
-@pytest.mark.alone
 def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -> None:
     """The machine has grown 30 um and the tool worn 10 um when the operator changes the
     insert and zeroes its wear offset: the parts jump out by the growth the offset carried.
     Nobody acknowledges anything: the gauge sees the CNC's total changed by hand, takes the
     parts cut after it as a new insert's, and brings the cut back into the tolerance."""
     cnc = HandCnc()
-    svc = None
+    svc = pacer = None
     try:
-        camera = CAMERA.replace(f"sim_drift_um_per_min = {WEAR_UM_PER_MIN}",
-                                "sim_drift_um_per_min = 20.0") + \
-            "sim_lathe_thermal_um = 30.0\nsim_lathe_thermal_tau_s = 6.0\n"
-        svc = start_service(tmp_path, camera_toml=camera, compensation_toml=PREDICTIVE,
-                            plc_port=cnc.port)
+        svc = start_service(tmp_path, camera_toml=camera(20.0, 30.0, 6.0),
+                            compensation_toml=PREDICTIVE, plc_port=cnc.port)
         assert wait_ready(svc)
+        pacer = LathePacer(svc)
         cnc.follow(svc.control_port)
         r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": False},
                       headers={"X-API-Key": TECH_KEY}, timeout=10)
@@ -182,6 +228,8 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
         assert svc.get("/api/v1/status").json()["compensation"]["state"] in ("active",
                                                                               "pending")
     finally:
+        if pacer is not None:
+            pacer.close()
         if svc is not None:
             stop_service(svc)
         cnc.close()

@@ -2,21 +2,21 @@
 
 from __future__ import annotations
 
-import time
-
 from tests.unit.service.conftest import OPERATOR, TECHNICIAN
+from tests.waiting import until
 
 H = {"X-API-Key": TECHNICIAN}
+STEP_DEADLINE_S = 600.0
+"""A step of 25 views takes half a minute of CPU; six workers share two cores in the suite."""
 
 
-def wait_done(client, sid, step, timeout_s=120):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+def wait_done(client, sid, step, timeout_s=STEP_DEADLINE_S):
+    """The session once ``step`` has ended (done or failed)."""
+    def ended():
         s = client.get(f"/api/v1/calibration-sessions/{sid}").json()
-        if s["progress"]["step"] == step and s["progress"]["state"] in ("done", "failed"):
-            return s
-        time.sleep(0.2)
-    raise AssertionError(f"{step} did not finish")
+        return s if (s["progress"]["step"] == step
+                     and s["progress"]["state"] in ("done", "failed")) else None
+    return until(ended, f"step {step} ended", timeout_s, step_s=0.2)
 
 
 def upload(client, sid, kind, path):

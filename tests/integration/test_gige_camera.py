@@ -19,6 +19,7 @@ from drivers.sim.gige import check_stamp
 from service.measure.diameter import measure_frame
 from service.measure.geometry import geometry_of
 from tests.integration.conftest import SHAFTGAUGE, take_frames
+from tests.waiting import DEADLINE_S
 
 
 def wait_for(predicate, timeout_s: float, step_s: float = 0.1) -> bool:
@@ -164,7 +165,7 @@ def test_a_client_killed_while_streaming_leaves_the_camera_usable(sim_camera_fac
                                                                    tmp_path) -> None:
     """A service killed (-9) while it streams leaves the camera acquiring towards its dead
     address: the next client stops that acquisition before setting its own, and streams
-    within seconds, with no reconnect (it used to wait forever on a silent stream)."""
+    with no reconnect (it used to wait forever on a silent stream, then reconnect)."""
     cam = sim_camera_factory("KILLED1")
     grab = subprocess.Popen([SHAFTGAUGE, "camera", "grab", cam.device_id, "--count", "100000",
                              "--output", str(tmp_path / "frames"), "--timeout", "60"],
@@ -177,10 +178,8 @@ def test_a_client_killed_while_streaming_leaves_the_camera_usable(sim_camera_fac
     camera = AravisCamera(cam.device_id, CameraConfig(frame_rate_hz=10.0))
     camera.start()
     try:
-        t0 = time.monotonic()
-        frames = take_frames(camera, 3, timeout_s=15.0)
+        frames = take_frames(camera, 3, timeout_s=DEADLINE_S)
         assert len(frames) == 3, camera.status()
-        assert time.monotonic() - t0 < 8.0
         assert camera.status().counters.reconnects == 0, camera.status()
     finally:
         camera.stop()

@@ -1,13 +1,13 @@
 """The camera's region of interest on the simulated GigE camera (real GVCP/GVSP on loopback):
-the region follows the stripe, measures what the whole frame measures, reads more frames per
-second, widens when the stripe is lost and narrows again when it is back."""
+the region follows the stripe, measures what the whole frame measures, shortens the sensor's
+frame period (the rate that arrives is a bench's: ``tests.bench.service_throughput --roi on``),
+widens when the stripe is lost and narrows again when it is back."""
 
 from __future__ import annotations
 
 import time
 
 import numpy as np
-import pytest
 
 from calib_store.model import load_calibration
 from drivers.camera.aravis import AravisCamera
@@ -19,14 +19,9 @@ from service.measure.geometry import geometry_of
 from service.measure.result import Status
 from service.runtime.roi import KEEP, RegionFollower
 from tests.integration.conftest import take_frames
+from tests.waiting import DEADLINE_S
 
 DIAMETER = 34.5
-
-
-def delivered_per_s(cam: AravisCamera, seconds: float = 1.5) -> float:
-    before = cam.status().counters.completed
-    time.sleep(seconds)
-    return (cam.status().counters.completed - before) / seconds
 
 
 # Frame by frame as the service measures between its reflection checks (a few a second): a
@@ -57,9 +52,6 @@ def follow(cam: AravisCamera, follower: RegionFollower, geometry, until, timeout
     return seen
 
 
-# It compares frame rates delivered on loopback: beside four workers of the suite the
-# region's rate rose to only 1.09 times the whole frame's (1.25 asked), so it runs alone.
-@pytest.mark.alone
 def test_region_follows_the_stripe_and_comes_back_after_a_loss(sim_camera_factory) -> None:
     sim = sim_camera_factory("ROI001", diameter=DIAMETER, fps=250.0,
                              extra=("--replay", "8"))
@@ -71,13 +63,12 @@ def test_region_follows_the_stripe_and_comes_back_after_a_loss(sim_camera_factor
     try:
         whole = [f for f in take_frames(cam, 8) if f.origin is None]
         assert len(whole) == 8 and all(f.image.shape == (1024, 1376) for f in whole)
-        full_rate = delivered_per_s(cam)
         full_period_us = control(sim.control_port, {"get": "stats"})["stats"]["frame_period_us"]
         full = [measure_frame(f.image, geometry, params=AS_THE_SERVICE) for f in whole]
         assert all(m.status is Status.OK for m in full)
 
         # The region narrows to the stripe and its margin.
-        seen = follow(cam, follower, geometry, lambda f, m: f.origin is not None, 10.0)
+        seen = follow(cam, follower, geometry, lambda f, m: f.origin is not None, DEADLINE_S)
         frame, m = seen[-1]
         assert frame.origin is not None, "the region never narrowed"
         assert cam.status().region is not None
@@ -93,31 +84,34 @@ def test_region_follows_the_stripe_and_comes_back_after_a_loss(sim_camera_factor
                                                                                strict=True)}
         assert len(by_slot) == 8
         diffs: dict[int, list[float]] = {}
-        for f, m in follow(cam, follower, geometry, lambda f, m: False, 3.0):
+
+        def every_slot_thrice(f, m) -> bool:
             if f.origin is not None and m.status is Status.OK:
                 slot = check_stamp(f.image)[0] % 8
                 diffs.setdefault(slot, []).append((m.diameter_mm - by_slot[slot]) * 1000.0)
+            return len(diffs) == 8 and min(map(len, diffs.values())) >= 3
+
+        follow(cam, follower, geometry, every_slot_thrice, DEADLINE_S)
         assert len(diffs) == 8, sorted(diffs)
         per_slot = [float(np.mean(v)) for v in diffs.values()]
         assert abs(np.mean(per_slot)) < 1.0, per_slot   # um
         assert max(abs(v) for v in per_slot) < 2.0, per_slot
         # Fewer rows, more frames per second: the sensor's readout limits the whole frame (6 us
-        # a row: 6344 us) and no longer the region (the 250 fps asked for: 4000 us); what
-        # arrives follows, less what two shared cores lose on loopback.
+        # a row: 6344 us) and no longer the region (the 250 fps asked for: 4000 us). What
+        # arrives on loopback follows the machine's load: ``tests.bench.camera_throughput``.
         roi_period_us = control(sim.control_port, {"get": "stats"})["stats"]["frame_period_us"]
         assert full_period_us == 6 * 1024 + 200 and roi_period_us == 4000, (full_period_us,
                                                                            roi_period_us)
-        roi_rate = delivered_per_s(cam)
-        assert roi_rate > 1.25 * full_rate, (roi_rate, full_rate)
 
         # The laser is blocked (the camera sees a board without the stripe): back to the
         # whole sensor, and to the stripe's region once it is back.
         assert control(sim.control_port, {"show": {"tilt_x_deg": 10, "laser": False}})["ok"]
-        seen = follow(cam, follower, geometry, lambda f, m: f.origin is None, 10.0)
+        seen = follow(cam, follower, geometry, lambda f, m: f.origin is None, DEADLINE_S)
         assert seen and seen[-1][0].origin is None, "a lost stripe did not widen the region"
         assert control(sim.control_port, {"show": "shaft"})["ok"]
         seen = follow(cam, follower, geometry,
-                      lambda f, m: f.origin is not None and m.status is Status.OK, 10.0)
+                      lambda f, m: f.origin is not None and m.status is Status.OK,
+                      DEADLINE_S)
         frame, m = seen[-1]
         assert frame.origin is not None and m.status is Status.OK
         assert abs(m.diameter_mm - DIAMETER) < 0.03

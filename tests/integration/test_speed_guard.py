@@ -1,9 +1,9 @@
 """The speed guard (``tests.bench.guard``): the core's and the service's speed ratios, measured
 now, held against the last committed ones (``bench-results/guard.json``, ``make bench``).
 
-It times, so it runs alone (marked ``alone``: ``make test`` runs it before the rest of the
-suite, which on two workers slowed the core against the plain Steger to 0.69 of the baseline
-in one CI run, a machine busy with other tests, not a change).
+It times, so it runs alone and outside ``make test`` (marked ``timed``: ``make speed``; the suite
+beside it slowed the core against the plain Steger to 0.69 of the baseline in one CI run, a
+machine busy with other tests, not a change). Run it before closing a change to the core.
 
 The margin: five runs of the quick core bench in a row on this machine gave each ratio
 within 9-13 % of their median (the lowest run at 0.82 of it); a ratio below 0.7 of its
@@ -27,7 +27,7 @@ from tests.bench import guard
 
 MARGIN = 0.7
 AGAIN_S = 10.0
-pytestmark = pytest.mark.alone
+pytestmark = pytest.mark.timed
 
 
 @pytest.fixture(scope="module")

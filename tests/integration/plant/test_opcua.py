@@ -14,6 +14,7 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from service.config import OpcUaSettings
 from service.plant.opcua import LOGIN_FAILURES, GaugeView, OpcUaServer
 from tests.integration.conftest import free_port
+from tests.waiting import DEADLINE_S, until_async
 
 
 class FakeGauge:
@@ -42,10 +43,7 @@ async def _running(tmp_path: Path, none_security: bool):
                          GaugeView(lambda: gauge.values, gauge.measure_now, gauge.reset,
                                    serial_number="sim-1"), tmp_path / "opcua")
     task = asyncio.create_task(server.run())
-    for _ in range(200):
-        if server.server is not None or server.problem:
-            break
-        await asyncio.sleep(0.05)
+    await asyncio.wait_for(server.started.wait(), DEADLINE_S)
     assert server.server is not None, server.problem
     yield server, gauge, f"opc.tcp://127.0.0.1:{port}/"
     task.cancel()
@@ -84,11 +82,7 @@ async def test_an_anonymous_client_reads_and_subscribes_but_cannot_call(served) 
         sub = await client.create_subscription(50, Handler())
         await sub.subscribe_data_change(diameter)
         gauge.values["Diameter"] = 36.512
-        for _ in range(100):
-            if 36.512 in seen:
-                break
-            await asyncio.sleep(0.05)
-        assert 36.512 in seen, seen
+        await until_async(lambda: 36.512 in seen, f"the new diameter notified ({seen})")
 
         gauge_obj = await _node(client, "Shaftgauge")
         idx = await client.get_namespace_index("urn:shaftgauge")
@@ -261,12 +255,13 @@ async def test_each_feature_of_the_job_is_a_characteristic(served) -> None:
             "LowerTolerance": -0.01, "UpperTolerance": 0.01, "ResultValue": None,
             "ResultEvaluation": "NotMeasured"}}
     async with Client(url) as client:
-        for _ in range(100):
+        async def seat_node():
             try:
-                seat = await _node(client, "Shaftgauge", "Characteristics", "Characteristic2")
-                break
+                return await _node(client, "Shaftgauge", "Characteristics", "Characteristic2")
             except ua.UaStatusCodeError:
-                await asyncio.sleep(0.05)
+                return None
+
+        seat = await until_async(seat_node, "Characteristic2 made")
         value = await (await _node(client, "Shaftgauge", "Characteristics",
                                    "Characteristic1", "ResultValue")).read_value()
         assert value == pytest.approx(30.004)
@@ -276,8 +271,8 @@ async def test_each_feature_of_the_job_is_a_characteristic(served) -> None:
         assert await (await seat.get_child(f"{idx}:InJob")).read_value() is True
         del gauge.values["Characteristics"][2]  # another job
         in_job = await seat.get_child(f"{idx}:InJob")
-        for _ in range(100):
-            if await in_job.read_value() is False:
-                break
-            await asyncio.sleep(0.05)
-        assert await in_job.read_value() is False
+
+        async def out_of_the_job() -> bool:
+            return await in_job.read_value() is False
+
+        await until_async(out_of_the_job, "Characteristic2 marked not in the job")

@@ -21,11 +21,15 @@ def test_drops_oldest_and_counts() -> None:
 
 
 def test_get_waits_for_a_producer() -> None:
+    # A consumer waiting without a timeout is woken by the put: without the wake-up it would
+    # wait for ever (the join's deadline is only there to end a broken test).
     q: DropOldestQueue[str] = DropOldestQueue(1)
+    out: list[str | None] = []
+    th = threading.Thread(target=lambda: out.append(q.get(None)), daemon=True)
+    th.start()
     threading.Timer(0.05, q.put, ("late",)).start()
-    t0 = time.monotonic()
-    assert q.get(2.0) == "late"
-    assert time.monotonic() - t0 < 1.0
+    th.join(60.0)
+    assert out == ["late"] and not th.is_alive()
 
 
 def test_close_wakes_waiters_and_reopen_restores() -> None:
@@ -43,13 +47,31 @@ def test_close_wakes_waiters_and_reopen_restores() -> None:
 
 
 def test_a_fast_producer_is_never_blocked_by_a_slow_consumer() -> None:
+    # The consumer takes one frame and then stalls until the producer is done: a put that
+    # waited for room would never return (the join's deadline only ends a broken test).
     q: DropOldestQueue[int] = DropOldestQueue(4)
-    t0 = time.monotonic()
-    for i in range(100_000):
-        q.put(i)
-    assert time.monotonic() - t0 < 2.0
+    taken, producer_done = [], threading.Event()
+
+    def consume() -> None:
+        taken.append(q.get(None))
+        producer_done.wait(120.0)
+
+    def produce() -> None:
+        for i in range(1, 100_001):
+            q.put(i)
+        producer_done.set()
+
+    consumer = threading.Thread(target=consume, daemon=True)
+    consumer.start()
+    q.put(0)
+    while not taken:
+        time.sleep(0.001)
+    producer = threading.Thread(target=produce, daemon=True)
+    producer.start()
+    producer.join(60.0)
+    assert not producer.is_alive(), f"put blocked: {len(q)} queued, {q.dropped} dropped"
     assert len(q) == 4 and q.dropped == 100_000 - 4
-    assert q.get(0) == 100_000 - 4
+    assert q.get(0) == 100_000 - 3
 
 
 @pytest.mark.parametrize("kw", [{"pixel_format": "RGB8"}, {"trigger": "sometimes"},
