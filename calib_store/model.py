@@ -32,9 +32,10 @@ MIN_PLANE_OFFSET_MM = 1e-3
 MIN_PLANE_AXIS_ANGLE_DEG = 5.0
 DIST_COEFF_COUNTS = (4, 5, 8, 12, 14)
 MIN_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX = 16, 65536
-MAX_WORKING_DISTANCE_MM = 10_000.0
-"""The plane and the axis are in front of the camera and nearer than this (a gauge at a
-lathe works within a metre or two)."""
+MIN_WORKING_DISTANCE_MM, MAX_WORKING_DISTANCE_MM = 20.0, 10_000.0
+"""The axis is in front of the camera, farther than the least and nearer than the most (a
+gauge at a lathe works 100 mm to a metre or two from the shaft; an axis 4 um from the camera
+is a board described a thousand times too small)."""
 EDGE_DISTORTION = (0.25, 4.0)
 """At the image's farthest corner the radial model may scale the radius within this (a
 lens's barrel or pincushion is tens of per cent; a factor of 0 or 1e300 is a typing error)."""
@@ -148,10 +149,12 @@ class Calibration(_Strict):
             raise ValueError(f"light_plane: d = {self.light_plane.d:g} mm puts the plane "
                              f"beyond {MAX_WORKING_DISTANCE_MM:g} mm of the camera")
         point = self.axis.point
-        if point is not None and not (0 < point[2] <= MAX_WORKING_DISTANCE_MM and max(
-                abs(point[0]), abs(point[1])) <= MAX_WORKING_DISTANCE_MM):
-            raise ValueError(f"axis.point: {point} mm is not in front of the camera within "
-                             f"{MAX_WORKING_DISTANCE_MM:g} mm")
+        if point is not None and not (
+                MIN_WORKING_DISTANCE_MM <= point[2] <= MAX_WORKING_DISTANCE_MM
+                and max(abs(point[0]), abs(point[1])) <= MAX_WORKING_DISTANCE_MM):
+            raise ValueError(f"axis.point: {point} mm is not in front of the camera "
+                             f"{MIN_WORKING_DISTANCE_MM:g} to {MAX_WORKING_DISTANCE_MM:g} mm "
+                             "away (is the board's square size right?)")
         return self
 
     @model_validator(mode="after")

@@ -545,6 +545,28 @@ def cmd_store(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_job(args: argparse.Namespace) -> int:
+    """The job in force, or none: ``deactivate`` takes a stored job out of force (the
+    service back on its settings' single feature), also while the service is stopped."""
+    from calib_store.jobs import JobStore
+    from calib_store.store import StoreError
+
+    try:
+        store = JobStore(args.store, create_if_missing=False)
+    except StoreError as err:
+        return _fail(str(err))
+    try:
+        active = store.active()
+        if args.action == "deactivate" and active is not None:
+            store.deactivate("cli")
+    finally:
+        store.close()
+    print(json.dumps({"store": args.store, "active": None if active is None else {
+        "id": active.id, "part_number": active.part_number, "version": active.version},
+        "deactivated": args.action == "deactivate" and active is not None}))
+    return EXIT_OK
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     """Write the store's archived measurements as a Q-DAS AQDEF transfer file."""
     from calib_store.compensation_log import CompensationLog
@@ -822,6 +844,16 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "restore":
             p.add_argument("backup", metavar="BACKUP.db")
         p.set_defaults(func=cmd_store)
+
+    jb = sub.add_parser("job", help="the stored job in force")
+    jb_sub = jb.add_subparsers(dest="action", required=True, metavar="ACTION")
+    for name, text in (("show", "which stored job is in force (JSON)"),
+                       ("deactivate", "take the stored job out of force: the settings' single "
+                        "feature, at the service's next start or at once over REST")):
+        p = jb_sub.add_parser(name, help=text)
+        p.add_argument("--store", default="shaftgauge-data/shaftgauge.db", metavar="DB",
+                       help=store_help)
+        p.set_defaults(func=cmd_job)
 
     exp = sub.add_parser("export", help="export the store's measurements")
     exp_sub = exp.add_subparsers(dest="format", required=True, metavar="FORMAT")

@@ -482,6 +482,18 @@ class OpcUaSettings(_Section):
     authorities that issued them, that may open a secure channel; any other client
     certificate is refused, logged with its name. Read again at every connection. None:
     ``trusted`` in the certificate directory."""
+    max_connections: int = Field(10, ge=1, le=1000)
+    """Clients connected at once (an HMI, an aggregator, an engineer's browser: a few); one
+    more is refused at connection."""
+    max_subscriptions: int = Field(20, ge=1, le=1000)
+    """Subscriptions in the whole server (BadTooManySubscriptions past it), at most 5 a
+    session."""
+    max_monitored_items: int = Field(1000, ge=1, le=100_000)
+    """Monitored items in the whole server (BadTooManyMonitoredItems past it): the address
+    space has a few hundred variables."""
+    min_interval_ms: float = Field(100.0, ge=10.0, le=60_000.0)
+    """The shortest sampling and publishing interval granted (a shorter one asked for is
+    revised to it): the variables change every 100 ms at most."""
 
 
 # The compensation settings are the controller's own dataclass, validated here at the edge

@@ -17,6 +17,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -429,14 +430,29 @@ def _stop_raises() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def api_listener(host: str, port: int) -> socket.socket:
+    """The API's listening socket, bound before anything else starts: a port in use ends the
+    start at once (RuntimeError naming it), with nothing started and nothing left listening
+    (uvicorn binds after the application's start-up, and its shutdown then waited for a
+    start that had the CNC's Modbus port open)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    try:
+        return socket.create_server((host, port), family=family, backlog=2048)
+    except OSError as err:
+        raise RuntimeError(f"the API cannot listen on {host}:{port} (api.port: is another "
+                           f"program using it?): {err.strerror or err}") from None
+
+
 async def serve(settings: Settings) -> int:
     """Run until SIGINT or SIGTERM."""
     tls = https_files(settings.api, settings.store.path.parent)
+    listener = api_listener(settings.api.host, settings.api.port)
     children = Children()
     try:
         gauge, extras = build(settings, children)
     except BaseException:
         children.stop()
+        listener.close()
         raise
     app = create_app(gauge)
 
@@ -483,9 +499,10 @@ async def serve(settings: Settings) -> int:
 
     try:
         task = asyncio.get_running_loop().create_task(announce())
-        await server.serve()
+        await server.serve(sockets=[listener])
         task.cancel()
     finally:
+        listener.close()
         children.stop()
     return 130 if server.stopped_by == signal.SIGINT else 0
 

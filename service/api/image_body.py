@@ -10,6 +10,13 @@ from fastapi import HTTPException
 from service.api.limits import PNG_SIGNATURE, png_size
 
 JPEG_SOI = b"\xff\xd8"
+JPEG_SOS = b"\xff\xda"
+MAX_JPEG_SCANS = 64
+"""A progressive JPEG is sent in about ten scans (libjpeg's default script: 10 in colour, 6 in
+grey), a baseline one in one. Each scan costs a pass over the whole image when decoded: a
+2 MB file of 12-byte scans took 49 s to decode, so more scans than this are refused before
+a pixel is decoded. A 0xFF in the coded data is always followed by 0x00 or a restart
+marker, so every 0xFF 0xDA is a scan's header (an embedded thumbnail's count too)."""
 # Start-of-frame markers: every C0-CF but DHT (C4), JPG (C8) and DAC (CC).
 _SOF = {m for m in range(0xC0, 0xD0)} - {0xC4, 0xC8, 0xCC}
 
@@ -48,7 +55,13 @@ def image_size(data: bytes) -> tuple[int, int]:
     if data[:8] == PNG_SIGNATURE:
         return png_size(data)
     if data[:2] == JPEG_SOI:
-        return jpeg_size(data)
+        size = jpeg_size(data)
+        scans = data.count(JPEG_SOS)
+        if scans > MAX_JPEG_SCANS:
+            raise HTTPException(422, f"the JPEG is sent in {scans} scans, more than "
+                                f"{MAX_JPEG_SCANS} (a progressive JPEG has about ten): save it "
+                                "again as a baseline or an ordinary progressive JPEG")
+        return size
     raise HTTPException(415, "the body is neither a PNG nor a JPEG image; send the image as "
                         "PNG or JPEG")
 

@@ -56,6 +56,12 @@ def router(spc: SpcService, studies: GaugeStudies, compensation: CompensationSer
             summary="Measure the master n times (offsets held meanwhile) and compute Cg, Cgk")
     async def start(body: GaugeStudyIn, caller: Caller = technician) -> dict:
         f = compensation.feature()
+        job = jobs.job if jobs is not None else None
+        if body.feature is None and job is not None and len(job.features) > 1:
+            raise HTTPException(422, f"feature: job {job.part_number!r} has "
+                                f"{len(job.features)} features: name the one whose master "
+                                f"is in the lathe (its features: "
+                                f"{', '.join(str(x.number) for x in job.features)})")
         if body.feature is not None:
             try:
                 if jobs is None or jobs.job is None:

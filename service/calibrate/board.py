@@ -20,6 +20,7 @@ documents all use:
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -31,6 +32,13 @@ KINDS = ("chess", "circles", "acircles", "charuco")
 _NAMES = {"chess": "chessboard", "circles": "symmetric circle grid",
           "acircles": "asymmetric circle grid", "charuco": "ChArUco board"}
 DEFAULT_DICTIONARY = "DICT_5X5_100"
+MAX_A_SIDE = 60
+"""The most corners, circles or squares a side: a printed or certified board a camera at a
+lathe resolves has a few dozen (the simulated session's 11x8, a large ChArUco 14x10); each
+point is searched for and refined, so a board of thousands a side would take hours."""
+SIZE_MM = (0.5, 200.0)
+"""A square's or a pitch's size, mm: what a camera 100-1000 mm from the board resolves (a
+board of 0.1 um squares put the axis 4 um from the camera and was graded good)."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +115,8 @@ def parse_board(text: str) -> Board:
     ValueError
         Naming what to write instead.
     """
+    if len(text) > 80:
+        raise ValueError(f"--board: a description of at most 80 characters, not {len(text)}")
     if text.strip().startswith("charuco:"):
         return _parse_charuco(text)
     kind, _, dims = text.strip().rpartition(":")
@@ -121,10 +131,10 @@ def parse_board(text: str) -> Board:
                          f"{'11x8x8' if kind == 'chess' else kind + ':7x7x37.5'}")
     cols, rows, sq = int(m[1]), int(m[2]), float(m[3])
     least = 3 if kind == "chess" else 2
-    if cols < least or rows < least or sq <= 0:
-        raise ValueError(f"--board {text!r}: at least {least}x{least} "
-                         f"{'inner corners' if kind == 'chess' else 'circles'} and a positive "
-                         "size")
+    what = "inner corners" if kind == "chess" else "circles"
+    if cols < least or rows < least:
+        raise ValueError(f"--board {text!r}: at least {least}x{least} {what}")
+    _check_size(text, cols, rows, what, **{"square" if kind == "chess" else "pitch": sq})
     if kind == "acircles" and rows < 3:
         raise ValueError(f"--board {text!r}: an asymmetric grid needs 3 rows or more")
     return Board(cols=cols, rows=rows, square_mm=sq, kind=kind)
@@ -142,12 +152,31 @@ def _parse_charuco(text: str) -> Board:
     if cols < 3 or rows < 3 or not 0 < marker < sq:
         raise ValueError(f"--board {text!r}: at least 3x3 squares, markers smaller than the "
                          "squares")
+    _check_size(text, cols, rows, "squares", square=sq, marker=marker)
     if not re.fullmatch(r"DICT_(\dX\d_(50|100|250|1000)|ARUCO_ORIGINAL|APRILTAG_\w+)",
                         dictionary):
         raise ValueError(f"--board {text!r}: {dictionary!r} is not one of OpenCV's ArUco "
                          f"dictionaries (e.g. {DEFAULT_DICTIONARY}, DICT_4X4_50, DICT_6X6_250)")
+    size = re.search(r"_(50|100|250|1000)$", dictionary)
+    markers = cols * rows // 2
+    if size and markers > int(size[1]):
+        raise ValueError(f"--board {text!r}: {cols}x{rows} squares hold {markers} markers, "
+                         f"more than {dictionary}'s {size[1]}")
     return Board(cols=cols, rows=rows, square_mm=sq, kind="charuco", marker_mm=marker,
                  dictionary=dictionary)
+
+
+def _check_size(text: str, cols: int, rows: int, what: str, **sizes_mm: float) -> None:
+    """ValueError unless the board is one a camera at a lathe could use (``MAX_A_SIDE``,
+    ``SIZE_MM``)."""
+    if cols > MAX_A_SIDE or rows > MAX_A_SIDE:
+        raise ValueError(f"--board {text!r}: at most {MAX_A_SIDE} {what} a side, not "
+                         f"{cols}x{rows}")
+    lo, hi = SIZE_MM
+    for name, mm in sizes_mm.items():
+        if not (math.isfinite(mm) and lo <= mm <= hi):
+            raise ValueError(f"--board {text!r}: the {name} must be {lo:g} to {hi:g} mm, "
+                             f"not {mm:.6g}")
 
 
 def board_of(doc: object) -> Board:

@@ -16,12 +16,17 @@ import math
 from dataclasses import MISSING, asdict, dataclass, fields, replace
 from typing import Any
 
-from service.compensation.settings import BOUNDS, CompensationSettings
+from service.compensation.settings import BOUNDS, CompensationSettings, law_problems
 
 MAX_FEATURES = 32
 MAX_TOOLS = 16
 MAX_TOOL_NUMBER = 9999
 """T numbers as a lathe's tool table holds them (LinuxCNC's wear entries are 10000 + n)."""
+MAX_TEXT = 80
+"""The longest part number or name, characters (what a drawing's title block holds; the
+exports cut them further to their own fields)."""
+SINGLE_FEATURE = "single feature"
+"""The part number and name of the settings' own feature as a job (``Job.single``)."""
 RECOGNITION_WINDOW_MM = 0.5
 """A diameter within this of exactly one feature's nominal is that feature (when the CNC does
 not name it)."""
@@ -203,14 +208,15 @@ class Job:
             where = f"tools[{i}]"
             if listed.count(t.number) > 1:
                 p.append(f"{where}.number: tool {t.number} is listed twice")
-            if t.number not in numbers and t.number not in self.tool_numbers():
+            if t.number not in self.tool_numbers():
                 p.append(f"{where}.number: tool {t.number} finishes no feature")
             if t.wear_entry is not None and not 1 <= t.wear_entry <= 99_999:
                 p.append(f"{where}.wear_entry: 1 to 99999, not {t.wear_entry}")
-            if t.gain is not None and not 0 < t.gain <= 1:
-                p.append(f"{where}.gain: within (0, 1]")
-            if t.trend_gain is not None and not 0 <= t.trend_gain <= 1:
-                p.append(f"{where}.trend_gain: within [0, 1]")
+            own = {"gain": t.gain, "trend_gain": t.trend_gain}
+            law = law_problems(base.gain if t.gain is None else t.gain,
+                               base.trend_gain if t.trend_gain is None else t.trend_gain)
+            p += [f"{where}.{name}: {bound}" for name, bound in law.items()
+                  if own[name] is not None]
             if t.max_disagreement_mm is not None and not (
                     math.isfinite(t.max_disagreement_mm)
                     and 0 < t.max_disagreement_mm <= BOUNDS["tol_upper_mm"]):
@@ -225,8 +231,19 @@ class Job:
         """JSON-ready (``job_from_doc`` reads it back)."""
         return asdict(self)
 
+    @property
+    def is_single(self) -> bool:
+        """Whether this is the settings' own single feature (``single``), not a stored job."""
+        return self.part_number == SINGLE_FEATURE and self.name == SINGLE_FEATURE
+
+    def tuning_problems(self, base: CompensationSettings) -> list[str]:
+        """What ``base`` (new tuning: bands, law, limits) would make wrong for a feature of
+        this job, each naming the feature (empty when the job holds with it)."""
+        return [f"feature {f.number} ({f.name}) of job {self.part_number!r}: {q}"
+                for f in self.features for q in self.settings_for(f, base).problems()]
+
     @classmethod
-    def single(cls, settings: CompensationSettings, part_number: str = "single feature",
+    def single(cls, settings: CompensationSettings, part_number: str = SINGLE_FEATURE,
                tool: int = 1) -> Job:
         """Today's one feature (the settings' nominal and tolerance) as a job of one feature
         finished by one tool."""
@@ -251,10 +268,19 @@ def _make(kind: type, doc: Any, where: str) -> Any:
     values = {}
     for name, value in doc.items():
         if not _fits(known[name].type, value):
-            raise JobError(f"{where}.{name}: {value!r} is not {known[name].type}")
+            raise JobError(f"{where}.{name}: {_shown(value)} is not {known[name].type}")
+        why = _text_problem(value) if isinstance(value, str) else ""
+        if why:
+            raise JobError(f"{where}.{name}: {why}")
         floating = "float" in str(known[name].type) and isinstance(value, int)
         values[name] = float(value) if floating else value
     return kind(**values)
+
+
+def _shown(value: Any) -> str:
+    """A value as a refusal quotes it: its repr, cut short (a refusal echoes no megabyte)."""
+    text = ascii(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _required(f: Any) -> bool:
@@ -272,8 +298,20 @@ def _fits(declared: Any, value: Any) -> bool:
     if "float" in text:
         return isinstance(value, int | float) and math.isfinite(float(value))
     if "str" in text:
-        return isinstance(value, str) and len(value) <= 200
+        return isinstance(value, str)
     return True
+
+
+def _text_problem(value: str) -> str:
+    """Why a name cannot be taken ("" when it can): printable text of at most ``MAX_TEXT``
+    characters. A control character would break a line of /metrics or a Q-DAS file (0x0F
+    and 0x14 are Q-DAS' own separators); a lone surrogate cannot be stored or sent."""
+    if len(value) > MAX_TEXT:
+        return f"at most {MAX_TEXT} characters, not {len(value)}"
+    bad = next((c for c in value if not c.isprintable()), None)
+    if bad is not None:
+        return f"printable text only, not U+{ord(bad):04X} at {value.index(bad)}"
+    return ""
 
 
 def job_from_doc(doc: Any, base: CompensationSettings | None = None) -> Job:

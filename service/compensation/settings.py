@@ -155,8 +155,8 @@ class CompensationSettings:
                 self.tol_upper_mm == self.tol_lower_mm:
             p.append("tolerance must satisfy tol_lower_mm <= 0 <= tol_upper_mm, not both 0")
         wider = max(self.tol_upper_mm, -self.tol_lower_mm)
-        if not 0 < self.gain <= 1:
-            p.append("gain must be within (0, 1]")
+        p += [f"{name} must be {bound}"
+              for name, bound in law_problems(self.gain, self.trend_gain).items()]
         if self.window < 1:
             p.append("window must be at least 1")
         if self.filter not in ("median", "mean"):
@@ -187,6 +187,16 @@ class CompensationSettings:
             p.append("offset_sign must be +1 or -1")
         if self.law not in ("window", "predictive"):
             p.append("law must be 'window' or 'predictive'")
-        if not 0 <= self.trend_gain < 1:
-            p.append("trend_gain must be within [0, 1)")
         return p
+
+
+def law_problems(gain: float, trend_gain: float) -> dict[str, str]:
+    """A law's gains out of the bounds the laws take, as {field: the bound}: the one check of
+    the settings and of a job's tools (a trend gain of 1 would make the trend a copy of the
+    last step, and the predictor refuses it)."""
+    p = {}
+    if not (math.isfinite(gain) and 0 < gain <= 1):
+        p["gain"] = "within (0, 1]"
+    if not (math.isfinite(trend_gain) and 0 <= trend_gain < 1):
+        p["trend_gain"] = "within [0, 1)"
+    return p

@@ -77,6 +77,49 @@ _WRITE = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
 _READ_ONLY = frozenset(ua.NodeId(t) for t in USER_TYPES) - {_CALL, _WRITE}
 
 
+SUBSCRIPTIONS_A_SESSION = 5
+
+
+def limit_clients(server: Server, s: OpcUaSettings) -> None:
+    """What anonymous clients may ask of the server, so that no client starves the gauge's
+    event loop (the CNC's Modbus link shares it): connections, subscriptions (in all and a
+    session), monitored items, and the shortest sampling and publishing intervals (a
+    shorter one is revised up, as the specification lets a server do). asyncua caps the
+    first two in all; the rest are checked here, before its own services run."""
+    iserver = server.iserver
+    iserver.max_connections = s.max_connections
+    iserver.max_subscriptions = s.max_subscriptions
+    service = iserver.subscription_service
+    create_subscription = service.create_subscription
+    create_items = service.create_monitored_items
+
+    async def limited_subscription(params: ua.CreateSubscriptionParameters, callback: Any,
+                                   session_id: ua.NodeId, request_callback: Any = None) -> Any:
+        own = sum(1 for sub in service.subscriptions.values() if sub.session_id == session_id)
+        if own >= SUBSCRIPTIONS_A_SESSION:
+            raise ServiceError(ua.StatusCodes.BadTooManySubscriptions)
+        params.RequestedPublishingInterval = max(params.RequestedPublishingInterval,
+                                                 s.min_interval_ms)
+        return await create_subscription(params, callback, session_id, request_callback)
+
+    async def limited_items(params: ua.CreateMonitoredItemsParameters) -> list:
+        held = sum(len(sub.monitored_item_srv._monitored_items)  # asyncua keeps no count
+                   for sub in service.subscriptions.values())
+        room = max(0, s.max_monitored_items - held)
+        asked = list(params.ItemsToCreate)
+        for item in asked:
+            item.RequestedParameters.SamplingInterval = max(
+                item.RequestedParameters.SamplingInterval, s.min_interval_ms)
+        params.ItemsToCreate = asked[:room]
+        results = await create_items(params) if params.ItemsToCreate else []
+        refused = ua.MonitoredItemCreateResult()
+        refused.StatusCode = ua.StatusCode(ua.StatusCodes.BadTooManyMonitoredItems)
+        return list(results) + [refused] * (len(asked) - len(params.ItemsToCreate))
+
+    service.create_subscription = limited_subscription
+    service.create_monitored_items = limited_items
+
+
 def _same(a: Any, b: Any) -> bool:
     nan = isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b)
     return nan or (type(a) is type(b) and a == b)
@@ -245,6 +288,7 @@ class OpcUaServer:
         try:
             server = Server(user_manager=self.users)
             await server.init()
+            limit_clients(server, s)
             server.set_server_name("shaftgauge")
             await server.set_application_uri(NAMESPACE)
             key, cert = await self._certificate()

@@ -120,6 +120,7 @@ class CompensationService:
         state = ControllerState.from_dict(log_.load_state() if log_ else None)
         self.channel = OffsetChannel(CompensationController(current.compensation, state),
                                      writer, log_, on_decision=self._decided)
+        self._job: Job | None = None  # the job in force (set_job): tuning is checked against it
         self.tools = ToolChannels(tool_transport, log_, self._decided, blocked=""
                                   if tool_transport is not None or writer is None
                                   else NO_TOOL_IN_HANDSHAKE)
@@ -196,6 +197,7 @@ class CompensationService:
         single feature, as before."""
         tools = job.tool_numbers() if job is not None else ()
         self.tools.set_job(job, self.settings, self.channel.controller.calibration_id)
+        self._job = job
         if job is None or len(job.features) < 2 or len(tools) != 1:
             self.channel.tool = None
             return
@@ -273,7 +275,14 @@ class CompensationService:
     async def update_settings(self, settings: CompensationSettings, who: str) -> Decision:
         """New compensation settings (ValueError naming the bad one), stored before they are
         in force (NotStoredError, nothing changed, when they cannot be), and logged with who
-        changed what."""
+        changed what. Tuning that a feature of the stored job in force could not hold (a null
+        band wider than its tolerance) is refused naming the feature: the job is checked with
+        the same rules when it is stored."""
+        job = self._job
+        problems = job.tuning_problems(settings) if job is not None and not job.is_single \
+            else []
+        if problems:
+            raise ValueError("; ".join(problems))
         d = await self.channel.update_settings(settings, who, lambda: self._save(RuntimeSettings(
             settings, self.part_temp_c, self.alpha_per_k)))
         if self.channel.tool is not None:

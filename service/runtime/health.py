@@ -90,6 +90,8 @@ class HealthReport:
         elif watch is not None and not (verdict := watch.verdict()).concentric:
             out.append(Problem("not_concentric", verdict.reason + ": its diameters are "
                                "refused and no offset is written from them"))
+        if self.jobs is not None and self.jobs.store_error:
+            out.append(Problem("job", self.jobs.store_error))
         comp = self.compensation
         if comp.channel.log_problem:
             out.append(Problem("log_unwritable", comp.channel.log_problem

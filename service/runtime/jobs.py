@@ -94,23 +94,38 @@ class JobService:
         way ends with the job it belonged to."""
         if self.parts is not None:
             self._record(self.parts.finish())
-        job = None
-        if self.stored is not None:
-            try:
-                job = job_from_doc(self.stored.document, self.compensation.settings)
-            except JobError as err:
-                self.store_error = f"stored job {self.stored.id} is damaged: {err}"
+        job = self._stored_job()
         if job is None and self.compensation.settings.nominal_mm is not None:
             job = Job.single(self.compensation.settings)
+        self.compensation.set_job(job)
         self._job = job
         self._feature_set = self.compensation.feature()
         self.selected = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
-        self.compensation.set_job(job)
         for listener in self._job_listeners:
             listener()
         self._changed()
+
+    def _stored_job(self) -> Job | None:
+        """The stored job marked active, if the runtime can take it; else None, and
+        ``store_error`` and the log say why (a start then goes on with the settings' single
+        feature rather than not at all)."""
+        if self.stored is None:
+            return None
+        try:
+            job = job_from_doc(self.stored.document, self.compensation.settings)
+            self.compensation.set_job(job)
+        except (JobError, ValueError) as err:  # a job an older release took, say
+            self.store_error = (
+                f"stored job {self.stored.id} ({self.stored.part_number} version "
+                f"{self.stored.version}) cannot be put in force: {err}; the settings' single "
+                "feature is in force instead (DELETE /api/v1/jobs/active or `shaftgauge job "
+                "deactivate` takes it out of force)")
+            log.error("%s", self.store_error)
+            self.stored = None  # not the job in force; the store still marks it active
+            return None
+        return job
 
     def settings_changed(self) -> None:
         """The compensation settings changed (a listener): the single feature follows; a
@@ -145,9 +160,16 @@ class JobService:
         return self._store().get(jid)
 
     async def activate(self, job_id: int, by: str) -> JobInfo:
-        """Make a stored job the one in force (KeyError when there is none of that id)."""
+        """Make a stored job the one in force (KeyError when there is none of that id;
+        JobError naming what the runtime refused, the job in force left as it was). The
+        runtime takes the job before the store marks it active: one transaction."""
         info = self._store().get(job_id)
         job = job_from_doc(info.document, self.compensation.settings)
+        try:
+            self.compensation.set_job(job)
+        except ValueError as err:
+            self.compensation.set_job(self._job)
+            raise JobError(f"job {job_id}: {err}") from None
         if len(job.features) == 1:  # the compensation judges its feature
             f = job.features[0]
             await self.compensation.update_feature(
@@ -160,12 +182,15 @@ class JobService:
         return self.stored
 
     def deactivate(self, by: str) -> None:
-        """Back to the single feature of the compensation settings."""
-        if self.stored is not None:
-            log.info("job %s no longer in force (%s)", self.stored.part_number, by)
+        """Back to the single feature of the compensation settings (also when the job the
+        store marks active could not be put in force)."""
+        if self.stored is not None or self.store_error.startswith("stored job"):
+            log.info("job %s no longer in force (%s)",
+                     self.stored.part_number if self.stored else "refused at the start", by)
             if self.store is not None:
                 try:
                     self.store.deactivate(by)
+                    self.store_error = ""
                 except sqlite3.Error as err:  # in force now; a restart brings it back
                     log.error("the job's end not stored: %s", err)
         self.stored = None

@@ -19,7 +19,11 @@ from service.runtime.feed import MeasurementFeed
 log = logging.getLogger("shaftgauge.studies")
 
 VALUE_TIMEOUT_S = 30.0
-"""A study fails when no good measurement comes for this long."""
+"""A study fails when no good measurement of the master comes for this long."""
+FAR_FROM_MASTER = 1.0
+"""A value farther than this many tolerances (T) from the certified size is not the master's
+(another surface under the laser, a feature of the part): refused and counted, never kept.
+A capable gauge's values lie within a few hundredths of T of it."""
 
 
 @dataclass(frozen=True)
@@ -82,7 +86,7 @@ class GaugeStudies:
                                tolerance_mm, n, feature)
         self.running = {"id": sid, "n": n, "values": [], "certified_mm": certified_mm,
                         "tolerance_mm": tolerance_mm, "by": by, "started": time.time(),
-                        "feature": feature}
+                        "feature": feature, "refused": 0}
         self._task = asyncio.get_running_loop().create_task(self._run(sid), name="study")
         return sid
 
@@ -94,22 +98,37 @@ class GaugeStudies:
         queue = self.feed.subscribers.add()
         state, reason, result = "failed", "", None
         try:
+            kept_at = time.monotonic()
             while len(values) < run["n"]:
                 self.compensation.hold_offsets(VALUE_TIMEOUT_S * 2, f"gauge study {sid} "
                                                "running: the master is in the lathe",
                                                owner, code="gauge_study")
-                values.append(await self._next_value(queue, run["started"]))
+                value = await self._next_value(queue, run["started"])
+                if abs(value - run["certified_mm"]) <= FAR_FROM_MASTER * run["tolerance_mm"]:
+                    values.append(value)
+                    kept_at = time.monotonic()
+                    continue
+                run["refused"] += 1
+                run["last_refused_mm"] = value
+                if time.monotonic() - kept_at > VALUE_TIMEOUT_S:
+                    raise TimeoutError
             study = type1_study(values, run["certified_mm"], run["tolerance_mm"],
                                 resolution=self.policy.resolution_mm,
                                 min_index=self.policy.min_index)
             state, result = "done", study.as_dict()
         except TimeoutError:
-            reason = (f"no good measurement for {VALUE_TIMEOUT_S:g} s after "
+            reason = (f"no good measurement of the master for {VALUE_TIMEOUT_S:g} s after "
                       f"{len(values)} of {run['n']} values")
         except asyncio.CancelledError:
             reason = "the service stopped during the study"
             raise
         finally:
+            if run["refused"]:
+                reason = "; ".join(r for r in (reason, (
+                    f"{run['refused']} values refused as not the master's (farther than "
+                    f"{FAR_FROM_MASTER * run['tolerance_mm']:g} mm, one T, from "
+                    f"{run['certified_mm']:g} mm; the last {run['last_refused_mm']:.4f} mm)"))
+                    if r)
             self.feed.subscribers.remove(queue)
             self.compensation.release_hold(owner)
             await asyncio.shield(asyncio.to_thread(
@@ -157,7 +176,7 @@ class GaugeStudies:
         return {"running": None if run is None else {
             "id": run["id"], "n": run["n"], "done": len(run["values"]),
             "values_mm": list(run["values"]), "certified_mm": run["certified_mm"],
-            "tolerance_mm": run["tolerance_mm"]},
+            "tolerance_mm": run["tolerance_mm"], "refused": run["refused"]},
             "latest": self._latest, "blocking": self.blocking()}
 
     async def stop(self) -> None:

@@ -173,6 +173,12 @@ function guarded(el, fn) {
 
 export function wireTechnician() {
   $("key").addEventListener("change", (e) => setKey(e.target.value.trim()));
+  // Enter in the key field takes the key; the page stays (no inline handler: the CSP
+  // allows the gauge's own scripts only, and an inline one was refused on every load).
+  $("key-form").addEventListener("submit", (e) => {
+    e.preventDefault();
+    setKey($("key").value.trim());
+  });
   $("new-session").addEventListener("click", guarded($("progress"), async () => {
     showSession(await api("/calibration-sessions", { method: "POST",
                                                      json: { board: $("board").value } }));

@@ -88,8 +88,8 @@ def spawn_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
                   opcua_port: int | None = None, embedded: bool = False,
                   processes: bool = False, camera_toml: str = "", modbus_toml: str = "",
                   compensation_toml: str | None = None, executable: str = SHAFTGAUGE,
-                  api_toml: str = "", modbus_port: int | None = None
-                  ) -> tuple[subprocess.Popen, Path, int]:
+                  api_toml: str = "", modbus_port: int | None = None,
+                  api_port: int | None = None) -> tuple[subprocess.Popen, Path, int]:
     """``shaftgauge serve`` with the simulated camera and PLC as its children, or with an
     external camera (``camera_device``) and PLC (``plc_port``) that a test controls;
     ``nominal`` None leaves the feature unset; the OPC UA server only on ``opcua_port`` or
@@ -101,9 +101,9 @@ def spawn_service(tmp_path: Path, diameter: float = 30.0, extra_toml: str = "",
     ``camera_toml``, ``modbus_toml`` and ``api_toml`` more lines of those tables,
     ``compensation_toml`` the whole ``[compensation]`` table in place of the tests' own;
     ``executable`` another installed ``shaftgauge`` (an installed wheel's); ``modbus_port``
-    the gauge's Modbus port (a free one by default). Not waited for: returns the process (in
-    a session of its own), its log and the PLC's port."""
-    api, modbus = free_port(), modbus_port or free_port()
+    the gauge's Modbus port and ``api_port`` its API's (free ones by default). Not waited for:
+    returns the process (in a session of its own), its log and the PLC's port."""
+    api, modbus = api_port or free_port(), modbus_port or free_port()
     # The embedded default's OPC UA port (4840) is one a run's other services, or a gauge a
     # developer left running, could hold: a port of the test's own.
     opcua_port = opcua_port or (free_port() if embedded else None)

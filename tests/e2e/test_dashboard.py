@@ -369,3 +369,20 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
     expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=15000)
     shot(page, "compensation-tools")
     assert not page.errors  # type: ignore[attr-defined]
+
+
+def test_the_key_form_works_under_the_gauges_own_policy(service, browser) -> None:
+    """The second outside probe: the policy blocked the key form's inline ``onsubmit`` on
+    every load, and Enter in the key field reloaded the page. Enter now takes the key."""
+    page = browser.new_page()
+    console: list[str] = []
+    page.on("console", lambda m: console.append(m.text) if m.type == "error" else None)
+    page.goto(service.url + "/ui/#technician")
+    expect(page.locator("#history tr")).not_to_have_count(0, timeout=10000)
+    page.evaluate("window.stayed = true")
+    page.fill("#key", TECH_KEY)
+    page.press("#key", "Enter")
+    page.wait_for_function("sessionStorage.getItem('shaftgauge-key') !== null")
+    assert page.evaluate("sessionStorage.getItem('shaftgauge-key')") == TECH_KEY
+    assert page.evaluate("window.stayed === true"), "Enter reloaded the page"
+    assert not [c for c in console if "Content Security Policy" in c], console

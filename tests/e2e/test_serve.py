@@ -27,6 +27,7 @@ from tests.e2e.conftest import (
     stop_service,
     wait_ready,
 )
+from tests.integration.conftest import free_port
 from tests.waiting import DEADLINE_S, until
 
 
@@ -205,6 +206,30 @@ def test_a_failed_start_ends_by_itself_and_says_why(tmp_path) -> None:
             err = log.read_text()
             assert f"cannot listen on 127.0.0.1:{taken.getsockname()[1]} (modbus.port" in err
             assert ": stopped (stopped)" in err  # the camera it had started
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_a_start_on_a_taken_api_port_exits_at_once_with_nothing_listening(tmp_path) -> None:
+    """The second outside probe: with the API's port taken, the start logged Errno 98 and then
+    waited in uvicorn's shutdown for over 90 s while its Modbus server took the CNC's writes;
+    it never exited, so systemd never restarted it. The API's port is bound first."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        modbus = free_port()
+        proc, log, _ = spawn_service(tmp_path, api_port=taken.getsockname()[1],
+                                     modbus_port=modbus)
+        try:
+            assert proc.stdout.readline() == ""  # never ready
+            gone(proc)
+            assert proc.returncode not in (0, None)
+            err = log.read_text()
+            assert f"cannot listen on 127.0.0.1:{taken.getsockname()[1]} (api.port" in err, err
+            assert "sim-camera" not in err and "Waiting for application" not in err, err
+            with socket.socket() as probe:  # nothing of it listens
+                assert probe.connect_ex(("127.0.0.1", modbus)) != 0
         finally:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(proc.pid, signal.SIGKILL)

@@ -276,3 +276,40 @@ async def test_each_feature_of_the_job_is_a_characteristic(served) -> None:
             return await in_job.read_value() is False
 
         await until_async(out_of_the_job, "Characteristic2 marked not in the job")
+
+
+async def test_what_anonymous_clients_may_ask_is_bounded(tmp_path: Path) -> None:
+    """The second outside probe: three anonymous clients of ten subscriptions of a thousand
+    items at 1 ms slowed the CNC's Modbus reads to 430 ms, and 200 sessions were taken. Past
+    the limits a client is refused (connections, subscriptions, items); a shorter interval
+    than the least is revised up."""
+    gauge = FakeGauge()
+    port = free_port()
+    server = OpcUaServer(OpcUaSettings(port=port, none_security=True, max_connections=2,
+                                       max_subscriptions=6, max_monitored_items=8,
+                                       min_interval_ms=200.0),
+                         GaugeView(lambda: gauge.values, gauge.measure_now, gauge.reset),
+                         tmp_path / "opcua")
+    task = asyncio.create_task(server.run())
+    await asyncio.wait_for(server.started.wait(), DEADLINE_S)
+    url = f"opc.tcp://127.0.0.1:{port}/"
+    try:
+        async with Client(url) as client:
+            diameter = await _node(client, "Shaftgauge", "Monitoring", "Diameter")
+            subs = [await client.create_subscription(1, None) for _ in range(5)]
+            with pytest.raises(ua.UaStatusCodeError, match="BadTooManySubscriptions"):
+                await client.create_subscription(1, None)  # a sixth in one session
+            granted = server.server.iserver.subscription_service.subscriptions
+            assert {s.data.RevisedPublishingInterval for s in granted.values()} == {200.0}
+            made = await subs[0].subscribe_data_change([diameter] * 12, sampling_interval=1)
+            refused = [h for h in made if isinstance(h, ua.StatusCode)]
+            assert len(made) - len(refused) == 8 and len(refused) == 4, made
+            assert all(r.value == ua.StatusCodes.BadTooManyMonitoredItems for r in refused)
+            async with Client(url):
+                with pytest.raises((OSError, ua.UaError, asyncio.TimeoutError)):
+                    async with Client(url, timeout=5):  # a third client
+                        pass
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await server.close()

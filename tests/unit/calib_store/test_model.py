@@ -92,6 +92,9 @@ def test_geometry_conversion() -> None:
         ("light_plane.d", 0.0005, "light_plane.d", "camera centre"),
         ("axis.direction", [2.0, 0.0, 0.0], "axis.direction", "unit vector"),
         ("axis.point", [1.0, 2.0], "axis.point", "at least 3"),
+        # A board described 80000 times too small (the second outside probe): the axis
+        # 0.0037 mm from the camera, its diameters 0.0004 mm, graded good.
+        ("axis.point", [0.0, 0.0, 0.0037], "axis.point", "is the board's square size right"),
         ("axis.direction", [0.05 / math.hypot(0.05, 0.93), 0.93 / math.hypot(0.05, 0.93), 0.0],
          "light_plane", "parallel"),
         ("extra", 1, "extra", "not permitted"),

@@ -36,7 +36,16 @@ def test_object_points_follow_opencvs_conventions() -> None:
     ("acircles:4x2x20", "3 rows or more"),
     ("charuco:12x9x8", "charuco:COLSxROWSxSQUARE_MMxMARKER_MM"),
     ("charuco:12x9x8x9", "markers smaller than the squares"),
-    ("charuco:12x9x8x6:DICT_9X9_7", "not one of OpenCV's ArUco dictionaries")])
+    ("charuco:12x9x8x6:DICT_9X9_7", "not one of OpenCV's ArUco dictionaries"),
+    # The second outside probe: a board no camera at a lathe resolves took gigabytes or
+    # hours, or graded an absurd calibration good; a square of 400 digits is infinite.
+    ("charuco:1000000x1000000x8x6", "at most 60 squares a side"),
+    ("charuco:1400x1000x8x6", "at most 60 squares a side"),
+    ("charuco:16x14x8x6", "hold 112 markers, more than DICT_5X5_100's 100"),
+    ("11x8x0.0001", "the square must be 0.5 to 200 mm"),
+    ("circles:11x8x900", "the pitch must be 0.5 to 200 mm"),
+    ("11x8x" + "9" * 60, "the square must be 0.5 to 200 mm, not 1e"),
+    ("11x8x" + "9" * 400, "a description of at most 80 characters")])
 def test_a_bad_description_says_what_to_write(text: str, says: str) -> None:
     with pytest.raises(ValueError, match=says):
         parse_board(text)

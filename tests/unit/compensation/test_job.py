@@ -4,6 +4,7 @@ diameters recognised only when exactly one feature fits."""
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -58,13 +59,23 @@ def test_settings_for_a_feature_take_its_bands_and_its_tools_law() -> None:
     (lambda d: d["features"][0].pop("tool"), "features[0].tool: missing"),
     (lambda d: d["tools"].append({"number": 7}), "tools[2].number: tool 7 finishes no"),
     (lambda d: d["tools"][0].update(gain=1.5), "tools[0].gain"),
+    # The controller's own bound (a trend gain of 1 stopped the gauge from starting).
+    (lambda d: d["tools"][1].update(trend_gain=1.0), "tools[1].trend_gain: within [0, 1)"),
+    # Tool 3 finishes no feature (feature 3 does exist: the check looked at features).
+    (lambda d: d["tools"].append({"number": 3}), "tools[2].number: tool 3 finishes no"),
+    (lambda d: d.update(part_number="SH\r4711"), "part_number: printable text only, not U+000D"),
+    (lambda d: d.update(part_number="\ud800"), "part_number: printable text only, not U+D800"),
+    (lambda d: d["features"][0].update(name="a\x00b"), "features[0].name: printable text"),
+    (lambda d: d["features"][0].update(name="a\x0fb"), "features[0].name: printable text"),
+    (lambda d: d["features"][0].update(name="a\x14b"), "features[0].name: printable text"),
+    (lambda d: d.update(name="x" * 81), "name: at most 80 characters, not 81"),
     (lambda d: d.update(part_number=" "), "part_number: must not be empty"),
     (lambda d: d.update(features=[]), "features: 1 to 32"),
 ])
 def test_a_bad_document_is_refused_naming_the_field(change, named: str) -> None:
     doc = json.loads(json.dumps(SHAFT))
     change(doc)
-    with pytest.raises(JobError, match=named.replace("[", r"\[").replace("]", r"\]")):
+    with pytest.raises(JobError, match=re.escape(named)):
         job_from_doc(doc)
 
 

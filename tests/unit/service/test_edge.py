@@ -97,6 +97,21 @@ def test_jpeg_size_reads_the_header_only() -> None:
     assert err.value.status_code == 422 and "no frame header" in err.value.detail
 
 
+def test_a_progressive_jpeg_of_too_many_scans_is_refused_before_it_is_decoded() -> None:
+    """The second outside probe's "scan bomb": a header of 1376x1024, scans of 12 bytes each,
+    49 s to decode. An ordinary progressive JPEG is taken; one of hundreds of scans is not."""
+    image = np.random.default_rng(1).integers(0, 255, (1024, 1376), np.uint8)
+    ok, enc = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    data = enc.tobytes()
+    assert ok and 2 <= data.count(b"\xff\xda") <= 12
+    assert image_size(data) == (1376, 1024)
+    last = data.rindex(b"\xff\xda")
+    bomb = data[:-2] + data[last:-2] * 500 + data[-2:]  # its last scan again and again
+    with pytest.raises(HTTPException) as err:
+        image_size(bomb)
+    assert err.value.status_code == 422 and "scans" in err.value.detail
+
+
 def test_a_colour_jpeg_upload_is_kept_in_colour(client) -> None:
     """A phone's photograph: JPEG, colour; its declared size checked before decoding, the
     colour kept for the steps (a red laser line is found by its colour)."""

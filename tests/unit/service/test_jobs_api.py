@@ -4,6 +4,7 @@ feature refused with a reason."""
 
 from __future__ import annotations
 
+import json
 import time
 
 from pymodbus.client import ModbusTcpClient
@@ -233,3 +234,70 @@ def test_another_setting_leaves_the_job_and_its_spc_as_they_were(client) -> None
     client.put("/api/v1/feature", headers=H, json={"nominal_mm": 30.001, "tol_upper_mm": 0.02,
                                                    "tol_lower_mm": -0.02})
     assert jobs.job is not job and jobs.job.features[0].nominal_mm == 30.001
+
+
+def test_a_job_the_controller_cannot_take_is_refused_whole_and_the_last_stays(client) -> None:
+    """The second outside probe: a tool's trend gain of 1 passed the job's check and not the
+    controller's, so the store marked the job active, the request answered 500 and the
+    gauge could no longer start. One bound now, checked before anything is stored."""
+    first = client.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True})
+    assert first.status_code == 201, first.text
+    bad = {**TWO, "tools": [{"number": 2, "trend_gain": 1.0}]}
+    r = client.post("/api/v1/jobs", headers=H, json={"document": bad, "activate": True})
+    assert r.status_code == 422 and "tools[0].trend_gain" in r.json()["detail"], r.text
+    st = client.get("/api/v1/status").json()
+    assert st["job"]["job"]["id"] == first.json()["id"]
+    assert [t["tool"] for t in st["compensation"]["tools"]] == [1, 2]
+    assert [j["active"] for j in client.get("/api/v1/jobs").json()["items"]] == [True]
+    for text in ("SH\r1", "SH\x001", "\ud800"):  # JSON escapes it: a lone surrogate too
+        body = json.dumps({"document": {**TWO, "part_number": text}})
+        r = client.post("/api/v1/jobs", headers={**H, "Content-Type": "application/json"},
+                        content=body)
+        assert r.status_code == 422 and "part_number" in r.json()["detail"], r.text
+
+
+def test_a_start_on_a_stored_job_it_cannot_take_falls_back_and_says_so(tmp_path) -> None:
+    """A job an older release stored and put in force, which this one refuses: the gauge
+    starts on the settings' single feature, says why, and a technician ends the job."""
+    import sqlite3
+
+    from fastapi.testclient import TestClient
+
+    from service.api.app import create_app
+    from service.serve import Children, build
+    from tests.unit.service.conftest import make_settings
+
+    settings = make_settings(tmp_path)
+    gauge, _ = build(settings, Children())
+    with TestClient(create_app(gauge)) as c:
+        jid = c.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True}
+                     ).json()["id"]
+    bad = {**TWO, "tools": [{"number": 2, "trend_gain": 1.0}]}
+    with sqlite3.connect(settings.store.path) as db:  # as the older release stored it
+        db.execute("UPDATE jobs SET document = ? WHERE id = ?", (json.dumps(bad), jid))
+    gauge, _ = build(settings, Children())
+    with TestClient(create_app(gauge)) as c:
+        st = c.get("/api/v1/status").json()
+        assert st["job"]["job"]["part_number"] == "single feature", st["job"]
+        assert any("trend_gain" in p["text"] for p in st["problems"]), st["problems"]
+        assert c.delete("/api/v1/jobs/active", headers=H).status_code == 200
+        assert not any(j["active"] for j in c.get("/api/v1/jobs").json()["items"])
+
+
+def test_tuning_the_job_in_force_cannot_hold_is_refused_naming_the_feature(client) -> None:
+    """A null band of 15 um against a feature of +-12 um was taken, and after a restart the
+    job read as damaged and compensation stopped (the second outside probe)."""
+    from tests.unit.service.conftest import ADMIN
+
+    tight = {**TWO, "features": [TWO["features"][0],
+                                 dict(TWO["features"][1], tol_upper_mm=0.012,
+                                      tol_lower_mm=-0.012)]}
+    assert client.post("/api/v1/jobs", headers=H,
+                       json={"document": tight, "activate": True}).status_code == 201
+    r = client.put("/api/v1/compensation", headers={"X-API-Key": ADMIN},
+                   json={"deadband_mm": 0.015})
+    assert r.status_code == 422 and "feature 2 (seat)" in r.json()["detail"], r.text
+    assert client.get("/api/v1/compensation").json()["settings"]["deadband_mm"] != 0.015
+    r = client.put("/api/v1/compensation", headers={"X-API-Key": ADMIN},
+                   json={"deadband_mm": 0.005})
+    assert r.status_code == 200, r.text

@@ -99,3 +99,32 @@ def test_the_rule_violation_bit_follows_the_spc(quality) -> None:
     snap = g.health.snapshot()
     status, _, _ = status_words(snap)
     assert (StatusBit.RULE_VIOLATION in status) == g.spc.rule_violation
+
+
+def test_a_study_names_its_feature_and_keeps_only_its_masters_values(quality) -> None:
+    """The second outside probe: on a job of four features a study named none and took all
+    four features' values (26 to 34 mm) as the 30 mm master's, and ended capable of nothing
+    true. A job of several features needs the feature; values far from the master are
+    refused and counted, never kept."""
+    c, key = quality, {"X-API-Key": TECHNICIAN}
+    job = {"part_number": "TWO", "name": "two", "features": [
+        {"number": 1, "name": "journal", "nominal_mm": 30.0, "tol_upper_mm": 0.05,
+         "tol_lower_mm": -0.05, "tool": 1},
+        {"number": 2, "name": "collar", "nominal_mm": 34.0, "tol_upper_mm": 0.05,
+         "tol_lower_mm": -0.05, "tool": 1}]}
+    assert c.post("/api/v1/jobs", headers=key,
+                  json={"document": job, "activate": True}).status_code == 201
+    r = c.post("/api/v1/gauge-studies", json={"certified_mm": 30.0, "n": 25}, headers=key)
+    assert r.status_code == 422 and "name the one" in r.json()["detail"], r.text
+    c.gauge.camera.diameter_mm = 34.0  # the collar under the laser, not the master
+    r = c.post("/api/v1/gauge-studies", json={"certified_mm": 30.0, "n": 25, "feature": 1},
+               headers=key)
+    assert r.status_code == 202, r.text
+    assert wait_for(lambda: (c.get("/api/v1/gauge-studies").json()["running"] or {})
+                    .get("refused", 0) >= 2)
+    c.gauge.camera.diameter_mm = 30.0  # the master clamped
+    assert wait_for(lambda: c.get("/api/v1/gauge-studies").json()["running"] is None, 120)
+    study = c.get("/api/v1/gauge-studies").json()["items"][0]
+    assert study["state"] == "done" and len(study["values"]) == 25
+    assert all(abs(v - 30.0) < 0.05 for v in study["values"]), study["values"]
+    assert "values refused as not the master's" in study["reason"], study
