@@ -571,7 +571,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     """Write the store's archived measurements as a Q-DAS AQDEF transfer file."""
     from calib_store.compensation_log import CompensationLog
     from calib_store.store import StoreError
-    from service.plant.aqdef import from_archive
+    from service.plant.aqdef import archive_part, archive_values, as_text, header_lines, value_lines
 
     if args.start is not None and args.end is not None and args.start > args.end:
         return _fail("--from is after --to")
@@ -579,19 +579,25 @@ def cmd_export(args: argparse.Namespace) -> int:
         log_ = CompensationLog(args.store, create_if_missing=False)
     except StoreError as err:
         return _fail(str(err))
-    try:
-        rows = log_.measurements(args.start, args.end)
-    finally:
-        log_.close()
-    text = from_archive(rows, args.gauge_id, args.part, args.characteristic,
-                        None if args.max_tir_um is None else args.max_tir_um / 1000.0)
     out = Path(args.output)
     try:
-        out.write_bytes(text.encode("latin-1", "replace"))
+        # A page of rows at a time, as the API streams it: a year of archive fits in memory.
+        summary = log_.measurement_summary(args.start, args.end, 2**62)
+        part = archive_part(summary, args.gauge_id, args.part, args.characteristic,
+                            None if args.max_tir_um is None else args.max_tir_um / 1000.0)
+        rows = 0
+        with out.open("wb") as f:
+            f.write(as_text(header_lines(part)).encode("latin-1", "replace"))
+            for page in log_.measurement_pages(args.start, args.end, 2**62,
+                                               last_seq=summary["last_seq"]):
+                rows += len(page)
+                f.write(as_text(value_lines(part, archive_values(part, page)))
+                        .encode("latin-1", "replace"))
     except OSError as err:
         return _fail(f"{out}: cannot write ({err.strerror})")
-    values = sum(1 for line in text.splitlines() if line.startswith("K0001"))
-    print(json.dumps({"output": str(out), "values": values, "rows": len(rows)}))
+    finally:
+        log_.close()
+    print(json.dumps({"output": str(out), "values": summary["good"], "rows": rows}))
     return EXIT_OK
 
 

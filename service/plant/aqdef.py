@@ -84,15 +84,23 @@ def _text(s: str) -> str:
     return " ".join(str(s).split())  # one line, no tabs
 
 
-def aqdef_lines(part: AqdefPart, values: Iterable[AqdefValue]) -> list[str]:
-    """The transfer file's lines (without line ends).
+def _characteristics(part: AqdefPart) -> list[AqdefCharacteristic]:
+    return [AqdefCharacteristic(part.characteristic_number, part.characteristic_description,
+                                part.nominal_mm, part.lower_limit_mm, part.upper_limit_mm),
+            *part.more]
 
-    A value that is not finite is left out (a transfer file has no "not a number").
-    """
+
+def aqdef_lines(part: AqdefPart, values: Iterable[AqdefValue]) -> list[str]:
+    """The transfer file's lines (without line ends): ``header_lines`` then
+    ``value_lines``. A value that is not finite is left out (a transfer file has no "not a
+    number")."""
+    return header_lines(part) + value_lines(part, values)
+
+
+def header_lines(part: AqdefPart) -> list[str]:
+    """The part's and its characteristics' lines."""
     fmt = f"{{:.{part.decimals}f}}"
-    chars = [AqdefCharacteristic(part.characteristic_number, part.characteristic_description,
-                                 part.nominal_mm, part.lower_limit_mm, part.upper_limit_mm),
-             *part.more]
+    chars = _characteristics(part)
     out = [f"K0100 {len(chars)}", f"K1001 {_text(part.part_number)}",
            f"K1002 {_text(part.part_description)}"]
     for i, c in enumerate(chars, 1):
@@ -103,7 +111,15 @@ def aqdef_lines(part: AqdefPart, values: Iterable[AqdefValue]) -> list[str]:
             if v is not None and math.isfinite(v):
                 out.append(f"{key}/{i} {fmt.format(v)}")
         out.append(f"K2142/{i} mm")
+    return out
+
+
+def value_lines(part: AqdefPart, values: Iterable[AqdefValue]) -> list[str]:
+    """The values' lines (a file may be written a page of values at a time)."""
+    fmt = f"{{:.{part.decimals}f}}"
+    chars = _characteristics(part)
     gauge = _text(part.gauge_id)
+    out: list[str] = []
     for v in values:
         stamp = time.strftime("%d.%m.%Y/%H:%M:%S", time.localtime(v.time_s))
         for i, x in enumerate((v.value_mm, *v.more[:len(chars) - 1]), 1):
@@ -119,7 +135,12 @@ def aqdef_lines(part: AqdefPart, values: Iterable[AqdefValue]) -> list[str]:
 
 def aqdef_text(part: AqdefPart, values: Iterable[AqdefValue]) -> str:
     """The transfer file as text (CR LF line ends, as Q-DAS tools write them)."""
-    return "\r\n".join(aqdef_lines(part, values)) + "\r\n"
+    return as_text(aqdef_lines(part, values))
+
+
+def as_text(lines: list[str]) -> str:
+    """Lines of a transfer file as its text (CR LF after each, as Q-DAS tools write them)."""
+    return "".join(line + "\r\n" for line in lines)
 
 
 RUNOUT = AqdefCharacteristic("2", "run-out TIR", nominal_mm=0.0)
@@ -136,16 +157,31 @@ def from_archive(rows: list[dict], gauge_id: str, part_number: str = "shaft",
     run-out (``tir_mm``) or roundness (``ront_mm``), those are characteristics 2 and 3, the
     run-out with ``max_tir_mm`` as its upper limit.
     """
-    good = [r for r in rows if r["status"] == "ok" and (
-        r["fused_diameter_mm"] is not None or r["diameter_mm"] is not None)]
+    good = [r for r in rows if _good(r)]
     judged = [r for r in rows if r.get("nominal_mm") is not None]
-    last = judged[-1] if judged else None
+    summary = {"judged": judged[-1] if judged else None,
+               "tir": any(r.get("tir_mm") is not None for r in good),
+               "ront": any(r.get("ront_mm") is not None for r in good)}
+    part = archive_part(summary, gauge_id, part_number, characteristic, max_tir_mm)
+    return aqdef_text(part, archive_values(part, good))
+
+
+def _good(r: dict) -> bool:
+    return r["status"] == "ok" and (r["fused_diameter_mm"] is not None
+                                    or r["diameter_mm"] is not None)
+
+
+def archive_part(summary: dict, gauge_id: str, part_number: str = "shaft",
+                 characteristic: str = "diameter", max_tir_mm: float | None = None
+                 ) -> AqdefPart:
+    """The header of an archive's file from what its rows hold (``judged``: the latest row
+    with a nominal, or None; ``tir``, ``ront``: whether any good row knew them;
+    ``CompensationLog.measurement_summary``)."""
+    last = summary["judged"]
     nominal = None if last is None else last["nominal_mm"]
-    more = [c for c, key in ((replace(RUNOUT, upper_limit_mm=max_tir_mm), "tir_mm"),
-                             (ROUNDNESS, "ront_mm"))
-            if any(r.get(key) is not None for r in good)]
-    keys = ["tir_mm" if c.number == RUNOUT.number else "ront_mm" for c in more]
-    part = AqdefPart(
+    more = [c for c, key in ((replace(RUNOUT, upper_limit_mm=max_tir_mm), "tir"),
+                             (ROUNDNESS, "ront")) if summary[key]]
+    return AqdefPart(
         part_number=part_number, part_description=f"{part_number} measured by {gauge_id}",
         characteristic_number="1", characteristic_description=characteristic,
         nominal_mm=nominal,
@@ -153,13 +189,17 @@ def from_archive(rows: list[dict], gauge_id: str, part_number: str = "shaft",
         upper_limit_mm=None if last is None else nominal + last["tol_upper_mm"],
         gauge_id=gauge_id, more=tuple(replace(c, number=str(i))
                                       for i, c in enumerate(more, 2)))
-    values = [AqdefValue(
+
+
+def archive_values(part: AqdefPart, rows: Iterable[dict]) -> list[AqdefValue]:
+    """The values of archived rows (the good ones) for a file with ``part``'s header."""
+    keys = ["tir_mm" if c.description == RUNOUT.description else "ront_mm" for c in part.more]
+    return [AqdefValue(
         r["fused_diameter_mm"] if r["fused_diameter_mm"] is not None else r["diameter_mm"],
         r["wall_time"], str(r["seq"]),
         "" if r.get("calibration_id") is None else f"cal{r['calibration_id']}",
         tuple(r.get(k) for k in keys))
-        for r in good]
-    return aqdef_text(part, values)
+        for r in rows if _good(r)]
 
 
 def from_parts(parts: list[dict], job: dict, gauge_id: str) -> str:
