@@ -33,9 +33,9 @@ linuxcnc-demo: setup
 ## they started (six, since LinuxCNC's group holds one worker for its 200 s of mostly
 ## waiting; see the CHANGELOG). No test times anything: it passes on any two-core machine,
 ## loaded or not (a slower one takes longer). The files of a test or two that mostly wait (the
-## short soak, the lathe loop, a backup, the plant) go first (tests/conftest.py EARLY;
-## --no-loadscope-reorder keeps that order): last, they left the phase's end on half the
-## machine. Beside each other, the workers and the services they start each use one thread
+## short soak, the lathe loop, a backup, the plant) go first, then the files of a minute or
+## more (tests/conftest.py EARLY, LONG; --no-loadscope-reorder keeps that order): last, they
+## left the phase's end on half the machine. Beside each other, the workers and the services they start each use one thread
 ## for BLAS, OpenCV and numba: more threads than cores only wait for each other.
 ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OPENCV_FOR_THREADS_NUM=1
 test: setup docs

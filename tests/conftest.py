@@ -69,19 +69,36 @@ in one group, a tenth): in xdist's own order (the groups with most tests first) 
 late, and the suite's last half minute or minute ran on half the machine."""
 
 
+LONG = ("tests/e2e/test_dashboard.py", "tests/faults/test_service_faults.py",
+        "tests/integration/test_plane_laser_on.py", "tests/faults/test_cnc_trust.py",
+        "tests/integration/test_recover_rig_targets.py", "tests/e2e/test_serve.py",
+        "tests/integration/test_recover_rig.py", "tests/integration/test_calibration_session.py",
+        "tests/integration/plant/test_opcua.py", "tests/integration/test_cli_calibrate.py",
+        "tests/e2e/test_quality.py", "tests/integration/test_camera_contract.py",
+        "tests/integration/test_cli_study.py", "tests/faults/test_runout.py",
+        "tests/integration/test_gige_camera.py")
+"""The files whose tests take longest on a worker (a minute or more of wall time in the
+suite), longest first: after EARLY's, before the rest. In xdist's order (most tests first)
+the long files of a test or two came last, and the phase ended on one or two of them."""
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    # xdist's order (its --loadscope-reorder: the groups with most tests first), with EARLY's
-    # groups before the rest; make test runs xdist with --no-loadscope-reorder to keep it.
+    # EARLY's groups, then LONG's, then xdist's order (its --loadscope-reorder: the groups
+    # with most tests first); make test runs xdist with --no-loadscope-reorder to keep it.
     # Only xdist's workers collect for a schedule: a run on one process keeps its order.
     if os.environ.get("PYTEST_XDIST_WORKER") is None:
         return
     root = Path(__file__).resolve().parents[1]
     group = {id(i): _group_of(Path(i.fspath)) for i in items}
     size = Counter(group.values())
-    early = {group[id(i)] for i in items
-             if Path(i.fspath).relative_to(root).as_posix() in EARLY}
+    rank: dict[str, int] = {}
+    for i in items:
+        rel = Path(i.fspath).relative_to(root).as_posix()
+        g = group[id(i)]
+        if rel in EARLY or rel in LONG:
+            rank[g] = min(rank.get(g, len(LONG)), -1 if rel in EARLY else LONG.index(rel))
     first = {g: n for n, g in enumerate(dict.fromkeys(group.values()))}
-    items.sort(key=lambda i: (group[id(i)] not in early, -size[group[id(i)]],
+    items.sort(key=lambda i: (rank.get(group[id(i)], len(LONG)), -size[group[id(i)]],
                               first[group[id(i)]]))
 
 

@@ -62,6 +62,7 @@ export function wireStudy() {
   $("study-run").addEventListener("click", async () => {
     try {
       const body = { certified_mm: Number($("study-mm").value), n: Number($("study-n").value) };
+      if ($("study-feature").value) body.feature = Number($("study-feature").value);
       const r = await api("/gauge-studies", { method: "POST", json: body });
       say($("study-msg"), `study ${r.id} started: ${r.n} values, T = ${r.tolerance_mm} mm`, "ok");
       shownRunning = true;

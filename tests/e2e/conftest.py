@@ -20,6 +20,9 @@ import pytest
 from tests.integration.conftest import SHAFTGAUGE, free_port
 
 TECH_KEY = "e2e-technician-key-0123456789"
+UI_WAIT_MS = 60_000
+"""How long a browser test waits for what the page should come to show: a deadline for a
+broken page, generous for a slow and loaded machine, never the pass mark."""
 ADMIN_KEY = "e2e-admin-key-0123456789abcdef"
 
 
@@ -234,7 +237,7 @@ def watched(tmp_path_factory) -> Iterator[Service]:
         stop_service(svc)
 
 
-def wait_for_js(page, expression: str, timeout_s: float = 10.0) -> None:
+def wait_for_js(page, expression: str, timeout_s: float = UI_WAIT_MS / 1000) -> None:
     """Until ``expression`` is true in the page. Polled from here with ``page.evaluate``:
     Playwright's own ``wait_for_function`` polls by evaluating a string in the page, which
     the dashboard's Content-Security-Policy (no eval) rightly refuses."""

@@ -19,7 +19,14 @@ import pytest
 from playwright.sync_api import Page, expect, sync_playwright
 
 from drivers.sim.control import control
-from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_for_js, wait_ready
+from tests.e2e.conftest import (
+    TECH_KEY,
+    UI_WAIT_MS,
+    start_service,
+    stop_service,
+    wait_for_js,
+    wait_ready,
+)
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -52,7 +59,7 @@ def enter_key(page: Page) -> None:
     """Type the technician key once the page's scripts are wired (the history table filled
     proves it), and check that the page kept it: typed earlier, the change event found no
     listener and the first request went out without a key."""
-    expect(page.locator("#history tr")).not_to_have_count(0, timeout=10000)
+    expect(page.locator("#history tr")).not_to_have_count(0, timeout=UI_WAIT_MS)
     page.fill("#key", TECH_KEY)
     page.locator("#key").dispatch_event("change")
     assert page.evaluate("sessionStorage.getItem('shaftgauge-key')") == TECH_KEY
@@ -79,23 +86,23 @@ class TestWatching:
 
     def test_operator_view_is_live(self, watched, browser) -> None:
         page = open_page(browser, watched.url + "/ui/#operator")
-        expect(page.locator("#link")).to_have_text("live", timeout=15000)
+        expect(page.locator("#link")).to_have_text("live", timeout=UI_WAIT_MS)
         first = page.locator("#status").inner_text()
-        expect(page.locator("#status")).not_to_have_text(first, timeout=10000)  # it moves
+        expect(page.locator("#status")).not_to_have_text(first, timeout=UI_WAIT_MS)  # it moves
         expect(page.locator("#diameter")).to_contain_text("mm")
         d = float(page.locator("#diameter").inner_text().split()[0])
         assert abs(d - 30.0) < 0.02
         expect(page.locator("#verdict")).to_have_text("in tolerance")
         expect(page.locator("#nominal")).to_have_text("30.0000 mm")
         expect(page.locator("#camera")).to_contain_text("streaming")
-        expect(page.locator("#plc")).to_contain_text("connected", timeout=15000)
+        expect(page.locator("#plc")).to_contain_text("connected", timeout=UI_WAIT_MS)
         wait_for_js(page, "document.getElementById('frame').naturalWidth > 0")
         page.wait_for_timeout(1500)  # a few points on the trend
         shot(page, "operator-1280x800")
         assert page.evaluate("document.documentElement.scrollHeight") <= 800 + 40
         assert not page.errors  # type: ignore[attr-defined]
         phone = open_page(browser, watched.url + "/ui/#operator", 390, 844)
-        expect(phone.locator("#link")).to_have_text("live", timeout=15000)
+        expect(phone.locator("#link")).to_have_text("live", timeout=UI_WAIT_MS)
         phone.wait_for_timeout(1000)
         shot(phone, "operator-phone")
         assert phone.evaluate("document.documentElement.scrollWidth") <= 391
@@ -180,11 +187,11 @@ def test_the_operator_sees_the_run_out_and_the_form(tmp_path, browser) -> None:
         assert wait_ready(svc)
         assert control(svc.control_port, {"set": {"turning": TURNING_36}})["ok"]
         page = open_page(browser, svc.url + "/ui/#operator")
-        expect(page.locator("#form-card")).to_be_visible(timeout=15000)
-        expect(page.locator("#tir")).to_contain_text("offsets held", timeout=20000)
+        expect(page.locator("#form-card")).to_be_visible(timeout=UI_WAIT_MS)
+        expect(page.locator("#tir")).to_contain_text("offsets held", timeout=UI_WAIT_MS)
         tir = float(page.locator("#tir").inner_text().split()[0])
         assert abs(tir - 100.0) < 8.0, tir
-        expect(page.locator("#lobes")).to_have_text("none above the noise", timeout=20000)
+        expect(page.locator("#lobes")).to_have_text("none above the noise", timeout=UI_WAIT_MS)
         expect(page.locator("#ront")).to_contain_text("µm")
         # The profile is drawn: pixels of its blue on the canvas.
         wait_for_js(page, """(() => { const c = document.getElementById('polar');
@@ -200,11 +207,11 @@ def test_the_operator_sees_the_run_out_and_the_form(tmp_path, browser) -> None:
 
 def test_compensation_view_and_shadow_switch(service, browser) -> None:
     page = open_page(browser, service.url + "/ui/#compensation")
-    expect(page.locator("#decisions tr").first).to_be_visible(timeout=15000)
+    expect(page.locator("#decisions tr").first).to_be_visible(timeout=UI_WAIT_MS)
     expect(page.locator("#comp-cumulative")).to_contain_text("µm")
     # The CNC's side of the loop: its acknowledged total (read from the simulated PLC at
     # start) and where the offset exchange stands.
-    expect(page.locator("#comp-cnc-total")).to_contain_text("µm", timeout=10000)
+    expect(page.locator("#comp-cnc-total")).to_contain_text("µm", timeout=UI_WAIT_MS)
     expect(page.locator("#comp-handshake")).to_have_text(
         re.compile(r"no offset sent yet|settled: offset #\d+|offset #\d+ sent"))
     box = page.locator("#shadow")
@@ -238,7 +245,7 @@ def test_the_dashboard_and_api_over_https(tmp_path, browser) -> None:
                       headers={"X-API-Key": TECH_KEY}, verify=svc.verify, timeout=10)
         assert r.status_code == 200  # the key crossed encrypted, checked against the file
         page = open_page(browser, svc.url + "/ui/#operator", ignore_https_errors=True)
-        expect(page.locator("#link")).to_have_text("live", timeout=15000)
+        expect(page.locator("#link")).to_have_text("live", timeout=UI_WAIT_MS)
         expect(page.locator("#diameter")).to_contain_text("mm")
         shadow_on_with_the_key(page, svc)
         assert not page.errors  # type: ignore[attr-defined]
@@ -293,20 +300,20 @@ def test_calibration_wizard_from_rendered_images(service, browser, calibration_i
 
 def test_lost_connection_is_said_and_recovers(service, browser) -> None:
     page = open_page(browser, service.url + "/ui/#operator")
-    expect(page.locator("#link")).to_have_text("live", timeout=15000)
+    expect(page.locator("#link")).to_have_text("live", timeout=UI_WAIT_MS)
     expect(page.locator("#lost")).to_be_hidden()
     os.kill(service.proc.pid, signal.SIGSTOP)  # the service hangs (or the network is cut)
     try:
-        expect(page.locator("#lost")).to_be_visible(timeout=15000)
+        expect(page.locator("#lost")).to_be_visible(timeout=UI_WAIT_MS)
         expect(page.locator("#link")).to_contain_text("offline")
         shot(page, "connection-lost")
     finally:
         os.kill(service.proc.pid, signal.SIGCONT)
-    expect(page.locator("#lost")).to_be_hidden(timeout=20000)
+    expect(page.locator("#lost")).to_be_hidden(timeout=UI_WAIT_MS)
     expect(page.locator("#link")).to_have_text("live")
     seq = page.locator("#status").inner_text()
     time.sleep(1.0)
-    expect(page.locator("#status")).not_to_have_text(seq, timeout=10000)
+    expect(page.locator("#status")).not_to_have_text(seq, timeout=UI_WAIT_MS)
 
 
 def test_the_api_reference_page_works_offline_under_the_gauges_policy(service, browser) -> None:
@@ -341,32 +348,32 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
     assert r.status_code == 201, r.text
     page = open_page(browser, service.url + "/ui/#parts")
     expect(page.locator("#job-name")).to_contain_text("SH-4711 v1: 2 features, 2 tools")
-    expect(page.locator("#feature-now")).to_have_text("feature 1", timeout=15000)
+    expect(page.locator("#feature-now")).to_have_text("feature 1", timeout=UI_WAIT_MS)
     # The seat, cut 10 um large for its +-4 um, then the next part's journal.
     for diameter, feature in ((25.010, "feature 2"), (30.0, "feature 1")):
         assert control(service.control_port, {"set": {"diameter_mm": diameter}})["ok"]
-        expect(page.locator("#feature-now")).to_have_text(feature, timeout=15000)
+        expect(page.locator("#feature-now")).to_have_text(feature, timeout=UI_WAIT_MS)
     row = page.locator("#parts-body tr").first  # the newest
-    expect(row).to_contain_text("SH-4711-g", timeout=15000)
+    expect(row).to_contain_text("SH-4711-g", timeout=UI_WAIT_MS)
     expect(page.locator("#parts-head")).to_contain_text("2 seat")
     expect(row.locator("td.out").first).to_be_visible()  # the seat's cell, and the verdict
     expect(row).to_contain_text("out")
     expect(page.locator("#feature-trends canvas")).to_have_count(2)  # a trend a feature
     assert control(service.control_port, {"set": {"diameter_mm": 35.0}})["ok"]
-    expect(page.locator("#feature-now")).to_have_text("no feature fits", timeout=15000)
+    expect(page.locator("#feature-now")).to_have_text("no feature fits", timeout=UI_WAIT_MS)
     expect(page.locator("#job-refused")).to_contain_text("fits no feature")
     shot(page, "parts")
     # SPC a feature: both have a chart, and one is chosen.
     page.goto(service.url + "/ui/#spc")
-    expect(page.locator("#spc-feature option")).to_have_count(3, timeout=15000)
+    expect(page.locator("#spc-feature option")).to_have_count(3, timeout=UI_WAIT_MS)
     page.select_option("#spc-feature", "2")
-    expect(page.locator("#spc-n")).to_contain_text("values", timeout=10000)
+    expect(page.locator("#spc-n")).to_contain_text("values", timeout=UI_WAIT_MS)
     assert httpx.get(service.url + "/api/v1/spc?feature=2", timeout=10).json()["feature"] == 2
     # Compensation a tool: a row each, and each decision named by its tool.
     page.goto(service.url + "/ui/#compensation")
-    expect(page.locator("#comp-tools tr")).to_have_count(2, timeout=15000)
+    expect(page.locator("#comp-tools tr")).to_have_count(2, timeout=UI_WAIT_MS)
     expect(page.locator("#comp-tools tr").nth(1)).to_contain_text("T2")
-    expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=15000)
+    expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=UI_WAIT_MS)
     shot(page, "compensation-tools")
     assert not page.errors  # type: ignore[attr-defined]
 
@@ -378,11 +385,11 @@ def test_the_key_form_works_under_the_gauges_own_policy(service, browser) -> Non
     console: list[str] = []
     page.on("console", lambda m: console.append(m.text) if m.type == "error" else None)
     page.goto(service.url + "/ui/#technician")
-    expect(page.locator("#history tr")).not_to_have_count(0, timeout=10000)
+    expect(page.locator("#history tr")).not_to_have_count(0, timeout=UI_WAIT_MS)
     page.evaluate("window.stayed = true")
     page.fill("#key", TECH_KEY)
     page.press("#key", "Enter")
-    page.wait_for_function("sessionStorage.getItem('shaftgauge-key') !== null")
+    wait_for_js(page, "sessionStorage.getItem('shaftgauge-key') !== null")
     assert page.evaluate("sessionStorage.getItem('shaftgauge-key')") == TECH_KEY
     assert page.evaluate("window.stayed === true"), "Enter reloaded the page"
     assert not [c for c in console if "Content Security Policy" in c], console

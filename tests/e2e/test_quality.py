@@ -13,7 +13,14 @@ from playwright.sync_api import expect
 
 from drivers.plc.registers import FaultBit
 from drivers.sim.control import control
-from tests.e2e.conftest import TECH_KEY, start_service, stop_service, wait_for_js, wait_ready
+from tests.e2e.conftest import (
+    TECH_KEY,
+    UI_WAIT_MS,
+    start_service,
+    stop_service,
+    wait_for_js,
+    wait_ready,
+)
 from tests.e2e.test_dashboard import browser, enter_key, open_page, shot  # noqa: F401
 from tests.faults.test_cnc_trust import read_register
 
@@ -48,6 +55,10 @@ def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None
         assert control(svc.control_port, {"set": {"diameter_mm": 30.0}})["ok"]
         r = httpx.post(svc.url + "/api/v1/gauge-studies", timeout=10,
                        json={"certified_mm": 30.0, "n": 25}, headers={"X-API-Key": TECH_KEY})
+        assert r.status_code == 422 and "name the one" in r.text, r.text  # four features
+        r = httpx.post(svc.url + "/api/v1/gauge-studies", timeout=10,
+                       json={"certified_mm": 30.0, "n": 25, "feature": 1},
+                       headers={"X-API-Key": TECH_KEY})
         assert r.status_code == 202, r.text
         deadline, st = time.monotonic() + 90, {}
         while time.monotonic() < deadline:
@@ -70,9 +81,9 @@ def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) 
     try:
         assert wait_ready(svc)
         page = open_page(browser, svc.url + "/ui/#spc")
-        expect(page.locator("#link")).to_have_text("live", timeout=15000)
+        expect(page.locator("#link")).to_have_text("live", timeout=UI_WAIT_MS)
         expect(page.locator("#spc-baseline")).to_have_text("limits set", timeout=30000)
-        expect(page.locator("#spc-cpk-pill")).to_contain_text("Cpk ", timeout=10000)
+        expect(page.locator("#spc-cpk-pill")).to_contain_text("Cpk ", timeout=UI_WAIT_MS)
         assert page.locator("#spc-cpk-pill").inner_text() != "Cpk \u2013"  # a number
         expect(page.locator("#spc-cpk")).to_contain_text("95 %")
         page.wait_for_timeout(1500)
@@ -84,7 +95,7 @@ def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) 
         page.fill("#study-mm", "30.0")
         page.fill("#study-n", "25")
         page.click("#study-run")
-        expect(page.locator("#study-msg")).to_contain_text("values", timeout=10000)
+        expect(page.locator("#study-msg")).to_contain_text("values", timeout=UI_WAIT_MS)
         expect(page.locator("#study-msg")).to_have_text(re.compile(r"Cgk [\d.]+: capable"),
                                                         timeout=60000)
         expect(page.locator("#studies tr").first.locator("td").last).to_have_text("capable")
@@ -100,7 +111,7 @@ def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) 
             "not capable: Cgk")
         assert read_register(svc.modbus_port, "faults") & FaultBit.GAUGE_STUDY_FAILED
         page.goto(svc.url + "/ui/#operator")
-        expect(page.locator("#problems")).to_contain_text("gauge study", timeout=10000)
+        expect(page.locator("#problems")).to_contain_text("gauge study", timeout=UI_WAIT_MS)
         expect(page.locator("#problems")).to_contain_text("only proposed")
         wait_for_js(page, "document.getElementById('frame').naturalWidth > 0")
         page.evaluate("window.scrollTo(0, 0)")
