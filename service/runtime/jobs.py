@@ -46,6 +46,8 @@ class JobService:
                  store_error: str = "") -> None:
         self.store, self.compensation, self.store_error = store, compensation, store_error
         self.stored: JobInfo | None = None
+        self.not_taken: JobInfo | None = None
+        """The job the store marks active that the compensation could not take (a start)."""
         self.selected: int | None = None
         self._feature_set = compensation.feature()  # as the job in force left it
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
@@ -94,10 +96,11 @@ class JobService:
         way ends with the job it belonged to."""
         if self.parts is not None:
             self._record(self.parts.finish())
-        job = self._stored_job()
-        if job is None and self.compensation.settings.nominal_mm is not None:
-            job = Job.single(self.compensation.settings)
-        self.compensation.set_job(job)
+        job = self._stored_job()  # taken by the compensation already
+        if job is None:
+            if self.compensation.settings.nominal_mm is not None:
+                job = Job.single(self.compensation.settings)
+            self.compensation.set_job(job)
         self._job = job
         self._feature_set = self.compensation.feature()
         self.selected = None
@@ -108,9 +111,9 @@ class JobService:
         self._changed()
 
     def _stored_job(self) -> Job | None:
-        """The stored job marked active, if the runtime can take it; else None, and
+        """The stored job marked active, once the compensation has taken it; else None, and
         ``store_error`` and the log say why (a start then goes on with the settings' single
-        feature rather than not at all)."""
+        feature rather than not at all; ``not_taken`` keeps the job refused)."""
         if self.stored is None:
             return None
         try:
@@ -123,7 +126,7 @@ class JobService:
                 "feature is in force instead (DELETE /api/v1/jobs/active or `shaftgauge job "
                 "deactivate` takes it out of force)")
             log.error("%s", self.store_error)
-            self.stored = None  # not the job in force; the store still marks it active
+            self.not_taken, self.stored = self.stored, None  # the store still marks it
             return None
         return job
 
@@ -176,6 +179,8 @@ class JobService:
                 by, nominal_mm=f.nominal_mm, tol_upper_mm=f.tol_upper_mm,
                 tol_lower_mm=f.tol_lower_mm)
         self._store().activate(job_id, by)
+        if self.not_taken is not None:  # another job in its place: what was said is past
+            self.not_taken, self.store_error = None, ""
         self.stored = self._store().get(job_id)
         self._rebuild()
         log.info("job %s version %d in force (%s)", info.part_number, info.version, by)
@@ -184,13 +189,14 @@ class JobService:
     def deactivate(self, by: str) -> None:
         """Back to the single feature of the compensation settings (also when the job the
         store marks active could not be put in force)."""
-        if self.stored is not None or self.store_error.startswith("stored job"):
-            log.info("job %s no longer in force (%s)",
-                     self.stored.part_number if self.stored else "refused at the start", by)
+        ending = self.stored or self.not_taken
+        if ending is not None:
+            log.info("job %s no longer in force (%s)", ending.part_number, by)
             if self.store is not None:
                 try:
                     self.store.deactivate(by)
-                    self.store_error = ""
+                    if self.not_taken is not None:
+                        self.not_taken, self.store_error = None, ""
                 except sqlite3.Error as err:  # in force now; a restart brings it back
                     log.error("the job's end not stored: %s", err)
         self.stored = None
