@@ -20,24 +20,19 @@ import concurrent.futures
 import contextlib
 import json
 import logging
-import math
 import queue
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from calib_store.archive_reading import MEASUREMENT_COLUMNS, ArchiveReading
 from calib_store.store import open_database, transaction
 
 log = logging.getLogger("shaftgauge.compensation_log")
 
-MEASUREMENT_COLUMNS = ("seq", "wall_time", "status", "diameter_mm", "uncertainty_mm",
-                       "fused_diameter_mm", "deviation_mm", "in_tolerance", "calibration_id",
-                       "nominal_mm", "tol_lower_mm", "tol_upper_mm", "tir_mm", "ront_mm",
-                       "feature")
 _COLUMNS = ("id", "wall_time", "last_time", "count", "kind", "code", "reason", "who",
             "measurement_seq", "last_measurement_seq", "deviation_mm", "filtered_mm",
             "offset_mm", "offset_seq", "before_mm", "after_mm", "shadow", "tool")
@@ -66,7 +61,7 @@ class _Item:
     future: concurrent.futures.Future | None
 
 
-class CompensationLog:
+class CompensationLog(ArchiveReading):
     """The decision log, the controller's state and the service's durable values.
 
     Parameters
@@ -136,67 +131,6 @@ class CompensationLog:
     def submit_measurement(self, row: dict[str, Any]) -> None:
         """Queue one measurement for the archive (a dict with ``MEASUREMENT_COLUMNS``)."""
         self._put(_Item("measurement", tuple(row.get(c) for c in MEASUREMENT_COLUMNS), None))
-
-    def measurements(self, from_time: float | None = None, to_time: float | None = None,
-                     limit: int = 1_000_000) -> list[dict[str, Any]]:
-        """Archived measurements between two wall-clock times (Unix s, inclusive), oldest
-        first."""
-        lo = -math.inf if from_time is None else from_time
-        hi = math.inf if to_time is None else to_time
-        with self._read_lock:
-            rows = self._read.execute(
-                f"SELECT {', '.join(MEASUREMENT_COLUMNS)} FROM measurements WHERE wall_time "
-                "BETWEEN ? AND ? ORDER BY seq LIMIT ?", (lo, hi, limit)).fetchall()
-        return [dict(zip(MEASUREMENT_COLUMNS, r, strict=True)) for r in rows]
-
-    def measurement_pages(self, from_time: float | None = None, to_time: float | None = None,
-                          limit: int = 1_000_000, page: int = 5_000,
-                          last_seq: int | None = None) -> Iterator[list[dict[str, Any]]]:
-        """``measurements`` a page at a time (the first ``limit`` rows, oldest first, up to
-        ``last_seq``: what a ``measurement_summary`` saw): the reader's lock is held for one
-        page, never for the whole export, and no more than a page is in memory."""
-        lo = -math.inf if from_time is None else from_time
-        hi = math.inf if to_time is None else to_time
-        top = 2**63 - 1 if last_seq is None else last_seq
-        after, left = -1, limit
-        while left > 0:
-            with self._read_lock:
-                rows = self._read.execute(
-                    f"SELECT {', '.join(MEASUREMENT_COLUMNS)} FROM measurements WHERE "
-                    "wall_time BETWEEN ? AND ? AND seq > ? AND seq <= ? ORDER BY seq LIMIT ?",
-                    (lo, hi, after, top, min(page, left))).fetchall()
-            if not rows:
-                return
-            yield [dict(zip(MEASUREMENT_COLUMNS, r, strict=True)) for r in rows]
-            after, left = rows[-1][0], left - len(rows)
-
-    def measurement_summary(self, from_time: float | None = None,
-                            to_time: float | None = None, limit: int = 1_000_000
-                            ) -> dict[str, Any]:
-        """What a file's header needs of the first ``limit`` archived rows between two times,
-        without reading them into memory: how many are good values (``good``), the last row
-        with a nominal (``judged``: its nominal and tolerance, or None), whether any good one
-        knew the run-out (``tir``) or the roundness (``ront``), and the last row's number
-        (``last_seq``: the rows archived later are not the file's)."""
-        lo = -math.inf if from_time is None else from_time
-        hi = math.inf if to_time is None else to_time
-        rows = ("SELECT * FROM measurements WHERE wall_time BETWEEN ? AND ? ORDER BY seq "
-                "LIMIT ?")
-        good = "status = 'ok' AND (fused_diameter_mm IS NOT NULL OR diameter_mm IS NOT NULL)"
-        with self._read_lock:
-            (last_seq,) = self._read.execute(f"SELECT MAX(seq) FROM ({rows})",
-                                             (lo, hi, limit)).fetchone()
-            last_seq = -1 if last_seq is None else int(last_seq)
-            count, tir, ront = self._read.execute(
-                f"SELECT COUNT(*), COUNT(tir_mm), COUNT(ront_mm) FROM ({rows}) WHERE {good} "
-                "AND seq <= ?", (lo, hi, limit, last_seq)).fetchone()
-            judged = self._read.execute(
-                f"SELECT nominal_mm, tol_lower_mm, tol_upper_mm FROM ({rows}) WHERE "
-                "nominal_mm IS NOT NULL AND seq <= ? ORDER BY seq DESC LIMIT 1",
-                (lo, hi, limit, last_seq)).fetchone()
-        return {"good": int(count), "tir": tir > 0, "ront": ront > 0, "last_seq": last_seq,
-                "judged": None if judged is None else dict(zip(
-                    ("nominal_mm", "tol_lower_mm", "tol_upper_mm"), judged, strict=True))}
 
     def flush(self, timeout_s: float = 2.0) -> bool:
         """Wait until everything submitted so far is written (False: not within the time)."""
