@@ -38,6 +38,10 @@ class FleetResult:
     rounds_fed: int = 0
     rounds_superseded: int = 0
     longest_stall_s: float = 0.0
+    latest_received: int = 0
+    """Gauges whose last measurement received is the last round fed (each keeps only its
+    latest and sends it when its rate allows: the newest always goes out)."""
+    measurements_out_of_order: int = 0
 
     @property
     def delivered_per_s(self) -> float:
@@ -127,14 +131,18 @@ async def run_fleet(port: int, folder: Path, gauges: int = 50, seconds: float = 
     sent_m = sum(p.counters["measurements"] for p in pubs)
     gaps = [b - a for a, b in itertools.pairwise(fed_at)]
     min_interval_s = 1.0 / (2 * measurement_hz)  # the publishers are given twice the rate
-    order_breaks = 0
+    order_breaks = measurement_breaks = latest = 0
     for i in range(gauges):
         ds = [s for g, s in got["decision"] if g == f"g{i:03d}"]
         order_breaks += sum(1 for a, b in itertools.pairwise(ds) if b != a + 1)
+        ms = [s for g, s in got["measurement"] if g == f"g{i:03d}"]
+        measurement_breaks += sum(1 for a, b in itertools.pairwise(ms) if b <= a)
+        latest += bool(ms) and ms[-1] == seq
     return FleetResult(
         gauges=gauges, seconds=seconds, measurements_sent=sent_m,
         measurements_received=len(got["measurement"]), decisions_sent=decisions * gauges,
         decisions_received=len(got["decision"]), decisions_out_of_order=order_breaks,
         cpu_s=(cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime),
         rounds_fed=seq, rounds_superseded=sum(g < min_interval_s for g in gaps),
-        longest_stall_s=max((g - period for g in gaps), default=0.0))
+        longest_stall_s=max((g - period for g in gaps), default=0.0),
+        latest_received=latest, measurements_out_of_order=measurement_breaks)

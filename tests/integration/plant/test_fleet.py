@@ -24,9 +24,12 @@ async def _run(mosquitto: Mosquitto, tmp_path: Path, seconds: float) -> None:
     assert r.decisions_sent > 0
     assert r.decisions_sent == r.decisions_received and r.decisions_out_of_order == 0
     # How many a second is the plant bench's (tests.bench.plant_publish): a count in a fixed
-    # time says how busy the machine was. What holds on any machine: each gauge sent every
-    # round it was fed with room before the next, and QoS 0 lost next to nothing on loopback.
-    assert r.measurements_sent >= 0.99 * 50 * (r.rounds_fed - r.rounds_superseded), r.as_dict()
+    # time says how busy the machine was (and which rounds a gauge's rate cap superseded,
+    # when this process fed them in a burst). What holds on any machine: each gauge's
+    # measurements arrive in order, its latest always goes out, and QoS 0 lost next to
+    # nothing on loopback.
+    assert r.measurements_out_of_order == 0, r.as_dict()
+    assert r.latest_received == 50, r.as_dict()
     assert r.measurements_lost <= 0.01 * r.measurements_sent, r.as_dict()
 
 
