@@ -88,6 +88,7 @@ class CompensationLog(ArchiveReading):
         self._last_prune = 0.0
         self.problem = ""                 # why the log cannot be written now ("" when it can)
         self.dropped = 0                  # quiet decisions dropped past MAX_BACKLOG
+        self.lost_measurements = 0        # archived measurements dropped past it
         self.rows_written = 0
         self._closed = False
         self._thread = threading.Thread(target=self._run, name="compensation-log", daemon=True)
@@ -271,11 +272,14 @@ class CompensationLog(ArchiveReading):
                     item.future.set_exception(err)
                 if item.kind not in ("barrier", "value_once"):
                     keep.append(_Item(item.kind, item.payload, None))
-            if len(keep) > MAX_BACKLOG:  # keep the significant ones, drop the oldest quiet
-                quiet = [i for i in keep if i.kind == "measurement"
-                         or (i.kind == "decision" and i.payload[3])]
-                excess = quiet[:len(keep) - MAX_BACKLOG]
-                self.dropped += len(excess)
+            if len(keep) > MAX_BACKLOG:  # keep the significant ones: the oldest quiet
+                # decisions go first, then the oldest archived measurements (counted)
+                quiet = [i for i in keep if i.kind == "decision" and i.payload[3]]
+                rows = [i for i in keep if i.kind == "measurement"]
+                excess = (quiet + rows)[:len(keep) - MAX_BACKLOG]
+                lost = sum(1 for i in excess if i.kind == "measurement")
+                self.dropped += len(excess) - lost
+                self.lost_measurements += lost
                 drop = {id(i) for i in excess}
                 keep = [i for i in keep if id(i) not in drop]
             self._backlog = keep

@@ -115,9 +115,10 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     def healthz() -> dict:
         return {"alive": True}
 
-    @app.get("/readyz", tags=["system"], summary="Measuring: 200, otherwise 503 with reasons")
+    @app.get("/readyz", tags=["system"],
+             summary="Measuring and keeping what it decides: 200, otherwise 503 with reasons")
     def readyz() -> JSONResponse:
-        ok = g.health.healthy()
+        ok = g.health.ready()
         return JSONResponse({"ready": ok, "problems": [p.as_dict()
                                                         for p in g.health.problems()]},
                             status_code=200 if ok else 503)

@@ -216,6 +216,8 @@ class CompensationService:
             self._queue.get_nowait()
             self.dropped += 1
         hold = self._hold.code if self.offset_hold() and self._hold else held
+        if self.channel.log_problem:  # an offset that cannot be logged is not written, nor
+            hold = "log_unwritable"   # proposed anew with each measurement meanwhile
         self._queue.put_nowait((MeasurementIn(
             record.seq, received_s, ("held_for_" + hold) if hold else record.status,
             record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id),

@@ -59,6 +59,11 @@ class HealthReport:
                     and self.context.geometry is not None and latest is not None
                     and latest.status == "ok" and self._fresh())
 
+    def ready(self) -> bool:
+        """Healthy, and what it decides can be kept: a store it cannot write (a full disk)
+        makes the gauge unready (``/readyz``), while it goes on measuring (the heartbeat)."""
+        return self.healthy() and not self.compensation.channel.log_problem
+
     def problems(self) -> list[Problem]:
         """What is wrong now (empty when all is well)."""
         out = []
@@ -94,8 +99,10 @@ class HealthReport:
             out.append(Problem("job", self.jobs.store_error))
         comp = self.compensation
         if comp.channel.log_problem:
+            lost = comp.channel.store.lost_measurements if comp.channel.store else 0
             out.append(Problem("log_unwritable", comp.channel.log_problem
-                               + ": offsets are not written meanwhile"))
+                               + ": offsets are neither proposed nor written meanwhile"
+                               + (f"; {lost} archived measurements lost" if lost else "")))
         hold = comp.offset_hold()
         if hold:
             out.append(Problem("offsets_held", f"offsets held: {hold}"))
@@ -198,7 +205,8 @@ class HealthReport:
         counters = feed.counters
         m = self.settings.modbus
         return {
-            "healthy": self.healthy(), "problems": [p.as_dict() for p in self.problems()],
+            "healthy": self.healthy(), "ready": self.ready(),
+            "problems": [p.as_dict() for p in self.problems()],
             "uptime_s": time.time() - self.started,
             "camera": {"device_id": cam.device_id, "state": cam.state.value,
                        "message": cam.message, "counters": asdict(cam.counters),

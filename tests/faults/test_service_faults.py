@@ -245,8 +245,14 @@ def test_full_disk_under_the_store(tmp_path, sim_plc_factory, small_disk) -> Non
         control(r.camera.control_port, {"set": {"diameter_mm": 30.012}})
         until(lambda: "log_unwritable" in r.problems(), 30,
               "the full disk is reported")
+        ready = r.svc.get("/readyz")  # measuring, but not keeping what it decides: unready
+        assert ready.status_code == 503 and "log_unwritable" in ready.text, ready.text
+        seq = r.svc.get("/api/v1/status").json()["compensation"]["offset_seq"]
         time.sleep(2.0)
         assert r.applied() == []  # nothing written that could not be logged
+        # ... nor proposed anew with every measurement (the second probe: ten a second, each
+        # with an offset number of its own)
+        assert r.svc.get("/api/v1/status").json()["compensation"]["offset_seq"] == seq
         # A change that cannot be stored answers 503 with the reason and changes nothing.
         before = r.svc.get("/api/v1/compensation").json()["settings"]
         for path, body in (("/api/v1/compensation/shadow", {"shadow": True}),

@@ -187,6 +187,35 @@ def test_a_full_disk_keeps_the_rows_and_writes_them_later(tmp_path, small_disk) 
     log.close()
 
 
+def test_a_full_disk_drops_quiet_decisions_before_archived_rows_and_counts_the_rows(
+        tmp_path, small_disk, monkeypatch) -> None:  # noqa: F811
+    """The second outside probe: past the backlog, archived measurements were lost without a
+    count. The oldest quiet decisions go first; archived rows only then, each counted."""
+    import calib_store.compensation_log as module
+
+    monkeypatch.setattr(module, "MAX_BACKLOG", 20)
+    log = Log(small_disk.path / "g.db")
+    st = ControllerState()
+    small_disk.fill()
+    row = {c: None for c in module.MEASUREMENT_COLUMNS}
+    for i in range(15):
+        log.submit(held(seq=i), time.time(), st)
+        log.submit_measurement({**row, "seq": i, "wall_time": time.time(), "status": "ok"})
+    deadline = time.monotonic() + 10
+    while log.dropped < 10 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert log.dropped == 10 and log.lost_measurements == 0  # the rows are kept
+    for i in range(15, 30):
+        log.submit_measurement({**row, "seq": i, "wall_time": time.time(), "status": "ok"})
+    deadline = time.monotonic() + 10
+    while log.lost_measurements < 10 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert log.dropped == 15 and log.lost_measurements == 10, (log.dropped,
+                                                               log.lost_measurements)
+    small_disk.free()
+    log.close()
+
+
 def test_a_value_refused_on_a_full_disk_is_kept_only_when_it_is_a_reservation(
         tmp_path, small_disk) -> None:  # noqa: F811
     log = Log(small_disk.path / "g.db")
