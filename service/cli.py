@@ -267,7 +267,7 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
         drift_um_per_min=args.drift_um_per_min, drift_period_min=args.drift_period_min,
         fps=args.fps, lost_ratio=args.lost_ratio,
         seed=args.seed, replay_frames=args.replay, rig=RigConfig(disturbances=spec),
-        lathe=lathe, stepped=stepped)
+        lathe=lathe, lathe_paced=args.lathe_paced, stepped=stepped)
     camera = SimGigECamera(settings)
     try:
         camera.start()
@@ -703,6 +703,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "drivers/sim/lathe.py), e.g. '{\"wear_per_min_mm\": 0.03, "
                    "\"laser_distance_mm\": 2, \"feed_mm_per_min\": 60}'; the CNC's total "
                    "offset comes from --cnc or the control port's cnc_total_mm")
+    p.add_argument("--lathe-paced", action="store_true",
+                   help="the lathe's time stands until the control port's advance_lathe "
+                   "moves it (a test in step with the gauge); without: the wall clock")
     p.add_argument("--stepped", metavar="JSON",
                    help="a stepped shaft, part after part, its segments in turn "
                    "(drivers/sim/stepped.py), e.g. '{\"segments\": [{\"diameter_mm\": 30, "

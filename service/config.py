@@ -92,6 +92,11 @@ class CameraSettings(_Section):
     ``sim_lathe_dead_time_s`` after it was applied; the CNC is the simulated PLC (its applied
     total, read over Modbus) or, with ``plc.source = "pull"``, whoever sets it on the
     camera's control port (the LinuxCNC demo sets LinuxCNC's tool offset)."""
+    sim_lathe_paced: bool = False
+    """The virtual lathe's time stands until its camera's control port moves it
+    (``{"do": "advance_lathe", "s": ...}``): a test drives it in step with the gauge's
+    measurements, from the first frame on; off, it runs on the wall clock from the camera's
+    start."""
     sim_lathe_dead_time_s: float = Field(1.2, ge=0, le=600)
     """From the cut to the laser line: laser distance over feed (2 mm at 100 mm/min)."""
     sim_lathe_thermal_um: float = Field(0.0, ge=-200, le=200)

@@ -140,7 +140,7 @@ def sim_lathe_args(settings: Settings) -> list[str]:
              "insert_every": max(1, round(period)) if period > 0 else 0,
              "thermal_mm": cam.sim_lathe_thermal_um / 1000.0,
              "thermal_tau_min": cam.sim_lathe_thermal_tau_s / 60.0}
-    args = ["--lathe", json.dumps(lathe)]
+    args = ["--lathe", json.dumps(lathe), *(["--lathe-paced"] if cam.sim_lathe_paced else [])]
     if plc.source == "sim":
         args += ["--cnc", f"{plc.host}:{plc.port}", "--cnc-total-address",
                  str(plc.total_address), "--cnc-unit-id", str(plc.unit_id),

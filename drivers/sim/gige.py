@@ -113,6 +113,9 @@ class SimCameraSettings:
     """A virtual lathe decides the diameter shown (continuous turning, the laser a dead time
     behind the tool; ``set_cnc_total`` or ``follow_cnc`` tell it the CNC's wear offset);
     ``diameter_mm`` and the drift are then not used."""
+    lathe_paced: bool = False
+    """The lathe's time stands at 0 until ``advance`` moves it (else: the wall clock from
+    the camera's start until the first ``advance``)."""
     stepped: SteppedPart | None = None
     """A stepped shaft, part after part, its segments in turn (``drivers.sim.stepped``);
     ``diameter_mm`` and the drift are then not used, until ``set_diameter`` (a master put
@@ -122,14 +125,15 @@ class SimCameraSettings:
 class CameraLathe:
     """The virtual lathe behind a simulated camera (continuous turning, ``LaserView``): what
     it cuts is what the camera shows; thread-safe. Its time runs from its start on the wall
-    clock until ``advance`` drives it: then only as a test moves it (in step with the gauge's
-    measurements, so that a slow or loaded machine slows the lathe with the gauge)."""
+    clock until ``advance`` drives it (``paced``: from the start): then only as a test moves
+    it (in step with the gauge's measurements, so that a slow or loaded machine slows the
+    lathe with the gauge)."""
 
-    def __init__(self, config: LatheConfig, seed: int = 0) -> None:
+    def __init__(self, config: LatheConfig, seed: int = 0, paced: bool = False) -> None:
         self._view = LaserView(VirtualLathe(config, seed=seed))
         self._lock = threading.Lock()
         self._t0 = time.monotonic()
-        self._driven: float | None = None
+        self._driven: float | None = 0.0 if paced else None
         self.cnc_error = ""
 
     def _now(self) -> float:
@@ -205,7 +209,7 @@ class SimGigECamera:
         self._repeats = 0
         self._t0 = time.monotonic()
         self._d0 = settings.diameter_mm
-        self.lathe = CameraLathe(settings.lathe, settings.seed) \
+        self.lathe = CameraLathe(settings.lathe, settings.seed, settings.lathe_paced) \
             if settings.lathe is not None else None
         self._scene: tuple[Shot, Board] | None = None   # None: the shaft
         self._scene_image: tuple[tuple[Shot, Board], np.ndarray] | None = None

@@ -3,7 +3,8 @@ camera shows, and the camera shows what a virtual lathe cuts with the simulated 
 total (read over Modbus); the offsets the gauge writes change what it sees a dead time later.
 
 The lathe's time is driven by the test in step with the gauge: a tenth of a second for each
-frame the gauge has measured (``LathePacer``). On a slow or loaded machine the gauge measures
+frame the gauge has measured (``LathePacer``); it stands until then, however long the
+service takes to start (``sim_lathe_paced``). On a slow or loaded machine the gauge measures
 fewer frames a second and the lathe wears as much slower; its dead time, the camera's lag and
 the law's dead time (in measurements) keep their proportions, so the outcome is the machine's
 no more than the physics'.
@@ -32,6 +33,7 @@ FPS = 10.0               # the tests' camera (spawn_service)
 def camera(wear_um_per_min: float = WEAR_UM_PER_MIN, thermal_um: float = 0.0,
            thermal_tau_s: float = 1200.0) -> str:
     return f"""sim_lathe = true
+sim_lathe_paced = true
 sim_drift_um_per_min = {wear_um_per_min}
 sim_drift_period_min = 0
 sim_lathe_dead_time_s = 1.0

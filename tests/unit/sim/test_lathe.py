@@ -96,3 +96,20 @@ def test_an_insert_changed_by_hand_in_continuous_work() -> None:
     assert lathe.cut_at(5.0, 0.0).wear_mm == pytest.approx(0.005)
     lathe.change_insert_at(5.5)
     assert lathe.cut_at(6.0, 0.0).wear_mm == pytest.approx(0.0005)
+
+
+def test_a_paced_lathe_stands_until_it_is_moved() -> None:
+    import time
+
+    from drivers.sim.gige import CameraLathe
+
+    config = LatheConfig(nominal_mm=30.0, wear_per_min_mm=60.0, feed_mm_per_min=100.0,
+                         laser_distance_mm=1.0)
+    paced, wall = CameraLathe(config, paced=True), CameraLathe(config)
+    time.sleep(0.05)
+    assert paced.stats()["time_s"] == 0.0 and paced.stats()["wear_mm"] == 0.0
+    assert wall.stats()["time_s"] > 0.0
+    assert paced.advance(2.5) == 2.5
+    time.sleep(0.05)
+    assert paced.stats()["time_s"] == 2.5
+    assert paced.stats()["wear_mm"] > 1.0   # 1 mm a second, seen a dead time (0.6 s) later
