@@ -234,6 +234,10 @@ class ApiSettings(_Section):
     """Images one calibration session may hold."""
     session_expiry_h: float = Field(24.0, gt=0)
     """A calibration session untouched this long is deleted with its images."""
+    calibration_step_budget_s: float = Field(600.0, gt=0, le=86400)
+    """A calibration step (each in a worker process of its own) that runs longer is stopped
+    and fails, naming this setting: 25 views of a 14x10 ChArUco board take under a minute
+    of one core."""
     trusted_proxies: list[str] = []
     """Addresses of reverse proxies whose ``X-Forwarded-For``/``-Proto`` the gauge believes
     (uvicorn's ``forwarded_allow_ips``). Empty (the default): none, not even loopback; the

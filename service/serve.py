@@ -323,7 +323,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     api = settings.api
     sessions = CalibrationSessions(settings.store.path.parent / "calibration-sessions",
                                    api.max_calibration_sessions, api.max_session_images,
-                                   api.session_expiry_h)
+                                   api.session_expiry_h, api.calibration_step_budget_s)
     if comp_log is not None and settings.store.archive_hz > 0:  # for the AQDEF export
         feed.on_publish(MeasurementArchive(comp_log, settings.store.archive_hz,
                                            jobs.feature_for, health.form_position))

@@ -21,6 +21,7 @@ from service.calibrate.session import (
     SessionLimitError,
     Step,
 )
+from service.calibrate.worker import StepStoppedError
 from service.config import ApiSettings
 from service.runtime.compensating import CompensationService
 from service.runtime.pipeline import FramePipeline
@@ -81,9 +82,9 @@ def router(sessions: CalibrationSessions, comp: CompensationService, pipeline: F
 
     async def background(s: CalibrationSession, step: Step) -> None:
         try:
-            await asyncio.to_thread(s.run, step)
-        except commands.StepError:
-            pass  # recorded in the session's progress
+            await asyncio.to_thread(sessions.run, s, step)
+        except (commands.StepError, StepStoppedError):
+            pass  # recorded in the session's progress, or the session is gone
         except Exception as err:  # a bug must show in the session, not kill the service
             s.progress = {"step": step, "state": "failed", "message": f"internal error: {err}"}
 

@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -19,6 +21,7 @@ import numpy as np
 from calib_store.model import Calibration, CalibrationError, load_calibration, save_calibration
 from service.calibrate import commands
 from service.calibrate.board import Board
+from service.calibrate.worker import StepStoppedError, run_in_worker
 
 ImageKind = Literal["view", "plane_off", "plane_on", "axis"]
 Step = Literal["intrinsics", "plane", "axis", "build"]
@@ -175,15 +178,17 @@ class CalibrationSession:
         h, w = image.shape[:2]
         return {"kind": kind, "index": len(self.images[kind]) - 1, "size": [w, h]}
 
-    def run(self, step: Step) -> StepResult:
-        """Run a step on the session's images, record its result (and the calibration, when
-        built); ``commands.StepError`` for unusable inputs is recorded too, then raised."""
+    def run(self, step: Step,
+            runner: Callable[[Step, StepInputs], StepResult] = run_step) -> StepResult:
+        """Run a step on the session's images (by ``runner``), record its result (and the
+        calibration, when built); ``commands.StepError`` for unusable inputs, a failure or a
+        step past its budget is recorded too, then raised."""
         self.touched = time.time()
         self.progress = {"step": step, "state": "running", "message": f"{step}: working",
                          "started": self.touched}
         self.save()
         try:
-            result = run_step(step, self.inputs())
+            result = runner(step, self.inputs())
         except commands.StepError as err:
             self.progress = {"step": step, "state": "failed", "message": str(err)}
             self.save()
@@ -217,15 +222,21 @@ class CalibrationSessions:
     expiry_h : float
         A session untouched this long is deleted with its images. Reads do not touch it;
         images, steps and activation do.
+    step_budget_s : float
+        A step that runs longer is stopped (``run``: each in a worker process of its own).
 
     Only sessions that ``count`` (neither activated nor failed) fill the ``max_open`` places;
     at most ``max_open`` finished ones are kept besides, the oldest deleted first.
     """
 
-    def __init__(self, root: Path, max_open: int, max_images: int, expiry_h: float) -> None:
+    def __init__(self, root: Path, max_open: int, max_images: int, expiry_h: float,
+                 step_budget_s: float = 600.0) -> None:
         self.root, self.max_open, self.max_images = root, max_open, max_images
         self.expiry_s = expiry_h * 3600.0
+        self.step_budget_s = step_budget_s
         self._open: dict[str, CalibrationSession] = {}
+        self._stops: dict[str, threading.Event] = {}   # by session, while a step runs
+        self._lock = threading.Lock()   # steps run in threads; ending one is a request
         if root.is_dir():
             for folder in sorted(root.iterdir()):
                 if (folder / SESSION_FILE).exists():
@@ -282,11 +293,31 @@ class CalibrationSessions:
         self.expire()
         return self._open[sid]
 
+    def run(self, s: CalibrationSession, step: Step) -> StepResult:
+        """Run a step of a kept session in a worker process within the step budget (as
+        ``CalibrationSession.run``); ``StepStoppedError`` when the session is ended meanwhile
+        (its folder is deleted once the worker is gone)."""
+        with self._lock:
+            if s.id not in self._open:
+                raise StepStoppedError(f"{step}: session {s.id} was ended")
+            stop = self._stops.setdefault(s.id, threading.Event())
+        try:
+            return s.run(step, lambda step_, inputs: run_in_worker(
+                step_, run_step, (step_, inputs), self.step_budget_s, stop))
+        finally:
+            with self._lock:
+                self._stops.pop(s.id, None)
+            if stop.is_set():
+                shutil.rmtree(s.dir, ignore_errors=True)
+
     def end(self, sid: str) -> None:
-        """End a session and delete its images (KeyError when there is none of that id,
-        SessionLimitError while a step runs on it)."""
-        s = self.get(sid)
-        if s.progress.get("state") == "running":
-            raise SessionLimitError(f"session {sid}: {s.progress.get('step')} is still "
-                                    "running; end it once the step is done")
-        self._delete(sid)
+        """End a session and delete its images (KeyError when there is none of that id); a
+        step running on it is stopped, and its folder goes once the step's worker is."""
+        self.get(sid)
+        with self._lock:
+            stop = self._stops.get(sid)
+            if stop is None:
+                self._delete(sid)
+            else:
+                stop.set()
+                self._open.pop(sid)

@@ -128,3 +128,24 @@ def test_a_fifth_session_opens_once_one_is_ended(client) -> None:
     assert ids[2] in client.get("/api/v1/status").json()["compensation"]["held"]
     client.delete(f"{start}/{ids[2]}", headers=H)
     assert client.get("/api/v1/status").json()["compensation"]["held"] is None
+
+
+def test_a_session_is_ended_while_its_step_runs(client) -> None:
+    """A step on a board of 3600 corners in images of noise runs for many seconds; ending its
+    session stops it (its worker process is killed) and frees the place."""
+    import cv2
+    import numpy as np
+
+    start = "/api/v1/calibration-sessions"
+    sid = client.post(start, headers=H, json={"board": "60x60x4"}).json()["id"]
+    noise = np.random.default_rng(1).integers(0, 256, (1024, 1376), dtype=np.uint8)
+    png = cv2.imencode(".png", noise)[1].tobytes()
+    for _ in range(3):
+        r = client.post(f"{start}/{sid}/images/view", headers=H, content=png)
+        assert r.status_code == 201, r.text
+    assert client.post(f"{start}/{sid}/run/intrinsics", headers=H).status_code == 202
+    until(lambda: client.get(f"{start}/{sid}").json()["progress"]["message"]
+          == "intrinsics: working", "the step running", step_s=0.1)
+    assert client.delete(f"{start}/{sid}", headers=H).json() == {"ended": sid}
+    assert client.get(f"{start}/{sid}").status_code == 404
+    assert sid not in {s["id"] for s in client.get(start).json()["items"]}

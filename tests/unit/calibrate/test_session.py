@@ -3,11 +3,15 @@ and one step dispatch for the API and the CLI."""
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
 from service.calibrate.commands import StepError
 from service.calibrate.session import CalibrationSessions, SessionLimitError
+from service.calibrate.worker import StepStoppedError
+from tests.waiting import DEADLINE_S, until
 
 
 def test_an_open_session_survives_a_restart(tmp_path) -> None:
@@ -68,7 +72,7 @@ def test_ended_activated_and_failed_sessions_free_their_places(tmp_path) -> None
     assert len(sessions.listing()) <= 2 * sessions.max_open
 
 
-def test_a_read_does_not_renew_a_session_and_a_running_one_is_not_ended(tmp_path) -> None:
+def test_a_read_does_not_renew_a_session(tmp_path) -> None:
     sessions = CalibrationSessions(tmp_path, max_open=2, max_images=5, expiry_h=1)
     s = sessions.create("9x6x6", "", "technician")
     s.touched -= 3000.0  # 50 minutes since its last change
@@ -77,8 +81,47 @@ def test_a_read_does_not_renew_a_session_and_a_running_one_is_not_ended(tmp_path
     s.touched -= 700.0  # past the hour: reads kept it from nothing
     with pytest.raises(KeyError):
         sessions.get(s.id)
-    r = sessions.create("9x6x6", "", "technician")
-    r.progress = {"step": "axis", "state": "running", "message": "axis: working"}
-    with pytest.raises(SessionLimitError, match="still running"):
-        sessions.end(r.id)
-    assert sessions.get(r.id) is r
+
+
+def slow_session(sessions: CalibrationSessions):
+    """A session whose intrinsics step takes many seconds: a board of 60x60 corners (the
+    most a side) searched for in images of noise."""
+    s = sessions.create("60x60x4", "", "technician")
+    noise = np.random.default_rng(0).integers(0, 256, (1024, 1280), dtype=np.uint8)
+    for _ in range(3):
+        s.add_image("view", noise, sessions.max_images)
+    return s
+
+
+def test_a_step_past_its_budget_is_stopped_and_fails_naming_the_setting(tmp_path) -> None:
+    sessions = CalibrationSessions(tmp_path, 2, 5, 24, step_budget_s=0.5)
+    s = slow_session(sessions)
+    with pytest.raises(StepError, match="calibration_step_budget_s"):
+        sessions.run(s, "intrinsics")
+    assert s.progress["state"] == "failed" and "budget of 0.5 s" in s.progress["message"]
+    assert not s.counts  # a failed step frees its place
+    assert sessions.run(sessions.create("9x6x6", "", "technician"), "intrinsics").ok is False
+
+
+def test_a_session_is_ended_while_its_step_runs(tmp_path) -> None:
+    sessions = CalibrationSessions(tmp_path, 2, 5, 24, step_budget_s=3600.0)
+    s = slow_session(sessions)
+    outcome: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            sessions.run(s, "intrinsics")
+        except BaseException as err:
+            outcome.append(err)
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    until(lambda: s.id in sessions._stops and s.progress["state"] == "running",
+          "the step running")
+    sessions.end(s.id)
+    with pytest.raises(KeyError):
+        sessions.get(s.id)
+    thread.join(DEADLINE_S)
+    assert not thread.is_alive() and isinstance(outcome[0], StepStoppedError), outcome
+    assert not s.dir.exists()
+    assert len(sessions.listing()) == 0
