@@ -87,6 +87,7 @@ class OffsetChannel:
         self.on_decision = on_decision
         self.clock = clock
         self.last_write: WriteResult | None = None
+        self.last_write_s = -float("inf")   # when, on ``clock``
         self.write_listeners: list[Callable[[WriteResult], None]] = []
         self._lock = asyncio.Lock()
         self._last_refresh = -float("inf")
@@ -169,7 +170,7 @@ class OffsetChannel:
         if veto is not None:
             return [self._note(veto)]
         result = await self.writer.write_offset(order.offset_mm, order.offset_seq)
-        self.last_write = result
+        self.last_write, self.last_write_s = result, self.clock()
         for listener in self.write_listeners:
             listener(result)
         return [self._note(self.controller.on_write_outcome(

@@ -347,8 +347,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     metrics = GaugeMetrics(health)
     feed.on_publish(metrics.record)
     pipeline.stage_listener = metrics.stage_time
-    compensation.channel.write_listeners.append(
-        lambda r: metrics.write_time(r.outcome.value, r.elapsed_s))
+    compensation.on_write(lambda r: metrics.write_time(r.outcome.value, r.elapsed_s))
     return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
                  sessions, metrics, spc, studies, jobs, writer, comp_log, plant, form)
 

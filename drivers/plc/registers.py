@@ -17,6 +17,11 @@ part counter, each written by the CNC, and the tool in the pull handshake (``req
 ``cnc_tool``; each adds into its block's check word, so a CNC written for version 3, leaving
 them 0, computes the same checks). A CNC written for version 3 reads and writes what it did,
 and the gauge behaves as it did for a job with one tool.
+
+Version 5 adds a block for each tool of the job in force (``TOOL_BLOCKS``, in the job's
+order of tools): its T number, the offset its controller proposed last, that offset's
+sequence number and its cumulative offset. In a job of several tools the gauge-wide
+``proposed_offset`` and ``cumulative_offset`` read *no value*: each tool's are in its block.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from dataclasses import dataclass
 
 NO_VALUE = -0x80000000  # 0x80000000 as a signed 32-bit integer
 TEST_PATTERN = 0x12345678
-MAP_VERSION = 4
+MAP_VERSION = 5
 UM_PER_UNIT = 0.1  # 0.1 um per count
 
 
@@ -71,10 +76,30 @@ def _r(name: str, address: int, kind: RegisterType, unit: str, description: str,
 
 U16, I32, U32 = RegisterType.U16, RegisterType.I32, RegisterType.U32
 
+TOOL_BLOCKS = 16
+"""Tools with a block of their own: as many as a job may have (``MAX_TOOLS``)."""
+TOOL_BLOCK_BASE = 51
+TOOL_BLOCK_WORDS = 7
+
+
+def _tool_block(k: int) -> tuple[Register, ...]:
+    """The block of the job's ``k``-th tool."""
+    a = TOOL_BLOCK_BASE + TOOL_BLOCK_WORDS * (k - 1)
+    return (
+        _r(f"tool{k}_number", a, U16, "T number", f"the job's tool {k} (in its order of "
+           "tools); 0 none"),
+        _r(f"tool{k}_proposed", a + 1, I32, "0.1 um", "the offset its controller proposed "
+           "last (also in shadow mode); no value none yet"),
+        _r(f"tool{k}_offset_seq", a + 3, U32, "count", "sequence number of that offset"),
+        _r(f"tool{k}_cumulative", a + 5, I32, "0.1 um", "its cumulative offset since its "
+           "last reset"),
+    )
+
+
 REGISTERS: tuple[Register, ...] = (
     _r("test_pattern", 0, U32, "-", "always 0x12345678: reads 0x1234, 0x5678 with "
        "big-endian words; check your word order with it"),
-    _r("map_version", 2, U16, "-", "version of this map (4)"),
+    _r("map_version", 2, U16, "-", "version of this map (5)"),
     _r("heartbeat", 3, U16, "count", "counts up once a second while the service is "
        "healthy (wraps at 65535); stands still when it is not"),
     _r("status", 4, U16, "bits", "status bits, see below"),
@@ -140,6 +165,8 @@ REGISTERS: tuple[Register, ...] = (
     _r("cnc_tool", 50, U16, "T number", "pull, written by the CNC with its report: the tool "
        "it was called for, whose total and answer the report gives; 0 from a version 3 CNC",
        writable=True),
+    # Each tool of the job in force (version 5): written by the gauge.
+    *(reg for k in range(1, TOOL_BLOCKS + 1) for reg in _tool_block(k)),
 )
 
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}
@@ -292,10 +319,16 @@ def markdown_tables() -> str:
     ``docs/modbus-register-map.md`` must contain; a test checks it)."""
     lines = ["| address | name | type | unit | access | meaning |",
              "|---:|---|---|---|---|---|"]
+    first_of_rest = TOOL_BLOCK_BASE + TOOL_BLOCK_WORDS
     for r in REGISTERS:
+        if r.address >= first_of_rest:  # the blocks of tools 2 and on: one line
+            continue
         span = str(r.address) if r.kind.words == 1 else f"{r.address}-{r.address + 1}"
         lines.append(f"| {span} | `{r.name}` | {r.kind.value} | {r.unit} | "
                      f"{'read/write' if r.writable else 'read'} | {r.description} |")
+    lines.append(f"| {first_of_rest}-{SIZE - 1} | `tool2_*` ... `tool{TOOL_BLOCKS}_*` | | | "
+                 f"read | the same block for the job's tools 2 to {TOOL_BLOCKS}, "
+                 f"{TOOL_BLOCK_WORDS} registers each |")
     for title, flags in (("status", StatusBit), ("faults", FaultBit)):
         lines += ["", f"`{title}` bits:", "", "| bit | name |", "|---:|---|"]
         lines += [f"| {int(f).bit_length() - 1} | `{f.name.lower()}` |" for f in flags]

@@ -70,6 +70,14 @@ CHARACTERISTIC = {"CharacteristicIdentifier": _INT, "Name": _STRING, "Nominal": 
 """A feature of the job in force, in OPC 40210's names where they fit (lengths in mm; the
 tolerances as deviations from the nominal; ``ResultEvaluation``: ``InTolerance``,
 ``AboveTolerance``, ``BelowTolerance``, or ``NotMeasured``)."""
+TOOL = {"ToolNumber": _INT, "State": _STRING, "CumulativeOffset": _DOUBLE,
+        "LastOffset": _DOUBLE, "InJob": _BOOL}
+"""A tool of the job in force (``Tools/Tool<n>``, n its T number): its compensation's state
+and offsets, mm. In a job of several tools the gauge-wide ``CumulativeOffset`` and
+``LastOffset`` have no value (NaN): each tool's are here."""
+GROUPS = {"Characteristics": ("Characteristic", CHARACTERISTIC), "Tools": ("Tool", TOOL)}
+"""The objects made as the job in force has them: folder -> (object name's stem, variables);
+one that leaves the job stays with ``InJob`` false."""
 _DEFAULTS = {_DOUBLE: math.nan, _STRING: "", _BOOL: False, _INT: -1}
 
 _CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
@@ -197,7 +205,8 @@ class GaugeView:
 
     ``values()`` returns the current values by variable name (``MONITORING`` and
     ``COMPENSATION``; None for "none"), and under ``Characteristics`` each feature of the job
-    in force by its number (``CHARACTERISTIC``); ``measure_now()`` takes a new measurement
+    in force by its number (``CHARACTERISTIC``) and under ``Tools`` each tool by its T
+    number (``TOOL``); ``measure_now()`` takes a new measurement
     and returns ``(diameter_mm or None, status)``; ``reset(who)`` resets compensation and
     returns what happened.
     """
@@ -238,8 +247,8 @@ class OpcUaServer:
         self.last_refused_certificate = ""
         self._nodes: dict[str, Any] = {}
         self._written: dict[Any, Any] = {}
-        self._char_nodes: dict[int, dict[str, Any]] = {}
-        self._characteristics: Any = None
+        self._members: dict[tuple[str, int], dict[str, Any]] = {}   # (folder, number)
+        self._folders: dict[str, Any] = {}
         self._idx = 0
         self.calls = {"MeasureNow": 0, "ResetCompensation": 0}
 
@@ -326,7 +335,8 @@ class OpcUaServer:
                 self._nodes[name] = await parent.add_variable(
                     idx, name, ua.Variant(_DEFAULTS[vtype], vtype))
         self._idx = idx
-        self._characteristics = await gauge.add_object(idx, "Characteristics")
+        for folder in GROUPS:
+            self._folders[folder] = await gauge.add_object(idx, folder)
         await gauge.add_method(idx, "MeasureNow", self._measure_now, [],
                                [ua.VariantType.Double, ua.VariantType.String])
         await gauge.add_method(idx, "ResetCompensation", self._reset, [],
@@ -342,15 +352,17 @@ class OpcUaServer:
         self.calls["ResetCompensation"] += 1
         return [ua.Variant(await self.view.reset("opcua:technician"), _STRING)]
 
-    async def _characteristic(self, number: int) -> dict[str, Any]:
-        """A feature's object (``Characteristic<n>``), made when it is first seen."""
-        nodes = self._char_nodes.get(number)
+    async def _member(self, folder: str, number: int) -> dict[str, Any]:
+        """A feature's or a tool's object (``Characteristic<n>``, ``Tool<n>``), made when it
+        is first seen."""
+        nodes = self._members.get((folder, number))
         if nodes is None:
-            obj = await self._characteristics.add_object(self._idx, f"Characteristic{number}")
-            nodes = self._char_nodes[number] = {
+            stem, table = GROUPS[folder]
+            obj = await self._folders[folder].add_object(self._idx, f"{stem}{number}")
+            nodes = self._members[folder, number] = {
                 name: await obj.add_variable(self._idx, name,
                                              ua.Variant(_DEFAULTS[vtype], vtype))
-                for name, vtype in CHARACTERISTIC.items()}
+                for name, vtype in table.items()}
         return nodes
 
     async def _write(self, key: Any, node: Any, value: Any, vtype: ua.VariantType) -> None:
@@ -364,12 +376,15 @@ class OpcUaServer:
     async def refresh(self) -> None:
         """Write the gauge's current values into the variables that changed."""
         values = self.view.values()
-        features: dict[int, dict[str, Any]] = values.get("Characteristics") or {}
-        for number in sorted({*features, *self._char_nodes}):
-            nodes = await self._characteristic(number)
-            got = {**features.get(number, {}), "InJob": number in features}
-            for name, vtype in CHARACTERISTIC.items():
-                await self._write((number, name), nodes[name], got.get(name), vtype)
+        for folder, (_, table) in GROUPS.items():
+            members: dict[int, dict[str, Any]] = values.get(folder) or {}
+            known = {n for f, n in self._members if f == folder}
+            for number in sorted({*members, *known}):
+                nodes = await self._member(folder, number)
+                got = {**members.get(number, {}), "InJob": number in members}
+                for name, vtype in table.items():
+                    await self._write((folder, number, name), nodes[name], got.get(name),
+                                      vtype)
         for name, node in self._nodes.items():
             await self._write(name, node, values.get(name),
                               MONITORING.get(name) or COMPENSATION[name])

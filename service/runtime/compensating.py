@@ -16,6 +16,7 @@ from typing import Any
 
 from calib_store.compensation_log import CompensationLog
 from calib_store.store import NotStoredError
+from drivers.plc.client import WriteResult
 from service.compensation import (
     CompensationController,
     CompensationSettings,
@@ -123,7 +124,8 @@ class CompensationService:
         self._job: Job | None = None  # the job in force (set_job): tuning is checked against it
         self.tools = ToolChannels(tool_transport, log_, self._decided, blocked=""
                                   if tool_transport is not None or writer is None
-                                  else NO_TOOL_IN_HANDSHAKE)
+                                  else NO_TOOL_IN_HANDSHAKE,
+                                  write_listeners=self.channel.write_listeners)
         self._decision_listeners: list[Callable[[Decision], None]] = []
         self._settings_listeners: list[Callable[[CompensationSettings], None]] = []
         self._hold: OffsetHold | None = None
@@ -166,6 +168,24 @@ class CompensationService:
                   *(ch.controller.state for ch in self.tools.channels.values())]
         return max(states, key=_GRAVITY.index)
 
+    def in_force(self) -> list[tuple[int | None, OffsetChannel]]:
+        """The offsets' channels of the job in force by tool, for every reader: each tool's
+        in a job of several, else the one channel (with its tool's number, None without a
+        job)."""
+        if self.tools.channels:
+            return sorted(self.tools.channels.items())
+        tools = self._job.tool_numbers() if self._job is not None else ()
+        return [(tools[0] if len(tools) == 1 else None, self.channel)]
+
+    def last_write(self) -> WriteResult | None:
+        """The latest offset write of any channel in force."""
+        written = [ch for _, ch in self.in_force() if ch.last_write is not None]
+        return max(written, key=lambda ch: ch.last_write_s).last_write if written else None
+
+    def on_write(self, listener: Callable[[WriteResult], None]) -> None:
+        """Call ``listener(result)`` after every offset write, of any channel."""
+        self.channel.write_listeners.append(listener)  # the tools' channels share the list
+
     def feature(self) -> Feature:
         """Nominal and tolerance in force."""
         s = self.settings
@@ -177,14 +197,18 @@ class CompensationService:
         return h.why if h is not None and time.monotonic() < h.until_s else None
 
     def status(self) -> dict[str, Any]:
-        """The compensation's part of the service status."""
+        """The compensation's part of the service status: the one channel's offsets, or
+        (a job of several tools) each tool's under ``tools`` and none at the top."""
         c = self.channel.controller
         p = c.persisted
+        one = not self.tools.channels
         return {"state": self.state.value, "shadow": c.settings.shadow,
-                "cumulative_offset_mm": c.cumulative_mm, "cnc_total_mm": p.cnc_total_mm,
-                "baseline_mm": p.baseline_mm, "cnc_offset_from_baseline_mm": p.cnc_offset_mm(),
-                "max_total_mm": c.settings.max_total_mm, "offset_seq": p.offset_seq,
-                "pending_seq": p.pending_seq, "held": self.offset_hold(),
+                **{k: v if one else None for k, v in (
+                    ("cumulative_offset_mm", c.cumulative_mm), ("cnc_total_mm", p.cnc_total_mm),
+                    ("baseline_mm", p.baseline_mm),
+                    ("cnc_offset_from_baseline_mm", p.cnc_offset_mm()),
+                    ("offset_seq", p.offset_seq), ("pending_seq", p.pending_seq))},
+                "max_total_mm": c.settings.max_total_mm, "held": self.offset_hold(),
                 "log_rows": None if self.log is None else self.log.rows_written,
                 "tools": self.tools.status()}
 

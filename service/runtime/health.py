@@ -109,13 +109,12 @@ class HealthReport:
         w = self.writer
         if w is not None and not w.connected and w.outage_since is not None:
             out.append(Problem("plc_unreachable", f"CNC/PLC unreachable: {w.last_error}"))
-        if comp.channel.controller.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
-            out.append(Problem(f"compensation_{comp.channel.controller.state.value}",
-                               f"compensation {comp.channel.controller.state.value}"))
-        for t, ch in sorted(comp.tools.channels.items()):
+        several = len(comp.in_force()) > 1
+        for t, ch in comp.in_force():
+            state = ch.controller.state.value
             if ch.controller.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
-                out.append(Problem(f"compensation_{ch.controller.state.value}",
-                                   f"compensation of tool {t} {ch.controller.state.value}"))
+                out.append(Problem(f"compensation_{state}", f"compensation of tool {t} {state}"
+                                   if several else f"compensation {state}"))
         if comp.tools.channels and comp.tools.blocked:
             out.append(Problem("offsets_blocked", f"offsets blocked: {comp.tools.blocked}"))
         study = self.quality[1].blocking() if self.quality else None
@@ -262,7 +261,7 @@ class HealthReport:
         w = self.writer
         if w is None:
             return None
-        last = self.compensation.channel.last_write
+        last = self.compensation.last_write()
         return {"host": w.host, "port": w.port, "connected": w.connected,
                 "last_error": w.last_error,
                 "outage_s": None if w.outage_since is None else

@@ -63,6 +63,17 @@ class StatusCollector(Collector):
             parts.add_metric([verdict], n)
         yield from (diameter, deviation, parts)
 
+    def _offsets(self) -> Metric:
+        """Each tool's cumulative offset (label ``tool``: its T number, empty without a job;
+        as many label sets as the job in force has tools)."""
+        cumulative = GaugeMetricFamily("shaftgauge_cumulative_offset_mm", "Acknowledged "
+                                       "tool-wear offset since reset, by tool",
+                                       labels=["tool"])
+        for tool, ch in self.health.compensation.in_force():
+            cumulative.add_metric(["" if tool is None else str(tool)],
+                                  ch.controller.cumulative_mm)
+        return cumulative
+
     def collect(self) -> Iterator[Metric]:
         st = self.health.status()
         p, cam = st["pipeline"], st["camera"]["counters"]
@@ -88,8 +99,7 @@ class StatusCollector(Collector):
         yield from gauge("measurement_rate_hz", "Measurements per second (10 s)",
                          p["rate_hz"])
         yield from self._features()
-        yield from gauge("cumulative_offset_mm", "Acknowledged tool-wear offset since reset",
-                         st["compensation"]["cumulative_offset_mm"])
+        yield self._offsets()
         yield from gauge("problems", "Problems reported now", len(st["problems"]))
         yield from counter("frames", "Frames taken from the camera", p["frames_in"])
         yield from counter("measurements", "Frames measured", p["measured"])

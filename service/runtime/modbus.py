@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 
 from calib_store.store import NotStoredError
 from drivers.plc.registers import (
+    TOOL_BLOCKS,
     Command,
     FaultBit,
     RegisterBank,
@@ -155,6 +156,7 @@ class ModbusFacade:
             if settings.tls else None)
         self._tasks: set[asyncio.Task] = set()
         self.jobs: JobService | None = None
+        self._proposed: dict[int | None, int] = {}   # by tool (None: the one channel), units
         compensation.on_decision(self.decided)
         compensation.on_settings(self.set_feature)
 
@@ -197,11 +199,29 @@ class ModbusFacade:
 
     def decided(self, d: Decision) -> None:
         """A compensation decision: the offsets' registers."""
-        c = self.compensation.controller
-        update = {"cumulative_offset": mm_to_units(c.cumulative_mm),
-                  "offset_seq": c.persisted.offset_seq & 0xFFFFFFFF}
         if d.offset_mm is not None:
-            update["proposed_offset"] = mm_to_units(d.offset_mm)
+            self._proposed[d.tool] = mm_to_units(d.offset_mm)
+        self._show_offsets()
+
+    def _show_offsets(self) -> None:
+        """Each tool's block from the channels in force (map v5); the gauge-wide registers
+        from the one channel, or *no value* in a job of several tools."""
+        in_force = self.compensation.in_force()
+        one = self.compensation.channel.controller
+        several = len(in_force) > 1
+        update = {"cumulative_offset": mm_to_units(None if several else one.cumulative_mm),
+                  "offset_seq": one.persisted.offset_seq & 0xFFFFFFFF,
+                  "proposed_offset": mm_to_units(None) if several else
+                  self._proposed.get(None, mm_to_units(None))}
+        for k in range(1, TOOL_BLOCKS + 1):
+            tool, ch = in_force[k - 1] if k <= len(in_force) else (None, None)
+            c = ch.controller if ch is not None else None
+            update.update({
+                f"tool{k}_number": tool or 0,
+                f"tool{k}_proposed": self._proposed.get(ch.tool_number, mm_to_units(None))
+                if ch is not None else mm_to_units(None),
+                f"tool{k}_offset_seq": c.persisted.offset_seq & 0xFFFFFFFF if c else 0,
+                f"tool{k}_cumulative": mm_to_units(c.cumulative_mm if c else None)})
         self.bank.set_many(update)
 
     def set_feature(self, settings: CompensationSettings) -> None:
@@ -238,6 +258,7 @@ class ModbusFacade:
         self._job_changed()
 
     def _job_changed(self) -> None:
+        self._show_offsets()  # the job's tools, each in its block
         jobs = self.jobs
         if jobs is not None:
             self.bank.set_many({"job": 0 if jobs.stored is None else jobs.stored.id & 0xFFFF,

@@ -47,10 +47,11 @@ class LastOffset:
 
     def __init__(self) -> None:
         self.offset_mm: float | None = None
+        self.by_tool: dict[int | None, float] = {}   # None: the one channel's
 
     def __call__(self, d: Decision) -> None:
         if d.kind is Kind.APPLIED and d.offset_mm is not None:
-            self.offset_mm = d.offset_mm
+            self.offset_mm = self.by_tool[d.tool] = d.offset_mm
 
 
 def characteristic(f: JobFeature, latest: MeasurementRecord | None) -> dict[str, Any]:
@@ -84,10 +85,18 @@ class OpcUaValues:
         plc = "none" if w is None else ("connected" if w.connected else
                                         "unreachable" if w.outage_since is not None else
                                         "idle")
+        in_force = self.compensation.in_force()
+        several = len(in_force) > 1
         out: dict[str, Any] = {
             "CameraState": self.camera.status().state.value, "PlcState": plc,
-            "State": c.state.value, "CumulativeOffset": c.cumulative_mm,
-            "LastOffset": self.last_offset.offset_mm, "Shadow": c.settings.shadow}
+            "State": self.compensation.state.value,
+            "CumulativeOffset": None if several else c.cumulative_mm,
+            "LastOffset": None if several else self.last_offset.offset_mm,
+            "Shadow": c.settings.shadow,
+            "Tools": {t: {"ToolNumber": t, "State": ch.controller.state.value,
+                          "CumulativeOffset": ch.controller.cumulative_mm,
+                          "LastOffset": self.last_offset.by_tool.get(ch.tool_number)}
+                      for t, ch in in_force if t is not None}}
         f = self.form()
         out.update({name: f[key] for name, key in (
             ("RunoutTir", "tir_mm"), ("RunoutPhase", "eccentricity_deg"), ("Ront", "ront_mm"),

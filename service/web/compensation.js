@@ -59,17 +59,20 @@ function handshake(c) {
 }
 
 function showCnc(c) {
-  $("comp-cnc-total").textContent = c.cnc_total_mm == null ? "not read yet"
-    : um(c.cnc_total_mm);
-  $("comp-handshake").textContent = handshake(c);
+  const several = (c.tools ?? []).length > 0;  // each tool's, in its row
+  $("comp-cnc-total").textContent = several ? "each tool's, below"
+    : c.cnc_total_mm == null ? "not read yet" : um(c.cnc_total_mm);
+  $("comp-handshake").textContent = several ? "each tool's, below" : handshake(c);
 }
 
 export async function loadCompensation() {
   const c = await api("/compensation");
   showCnc(c);
   $("comp-state").textContent = c.state;
-  $("comp-cumulative").textContent = um(c.cumulative_offset_mm);
-  $("comp-cnc").textContent = c.cnc_total_mm == null || c.baseline_mm == null ? "not read yet"
+  $("comp-cumulative").textContent = (c.tools ?? []).length ? "each tool's, below"
+    : um(c.cumulative_offset_mm);
+  $("comp-cnc").textContent = (c.tools ?? []).length ? "each tool's, below"
+    : c.cnc_total_mm == null || c.baseline_mm == null ? "not read yet"
     : `${um(c.cnc_total_mm - c.baseline_mm)} of ±${um(c.settings.max_total_mm)}`;
   if (!switching) $("shadow").checked = c.settings.shadow;
   showTools(c.tools ?? [], c.settings.shadow);

@@ -27,6 +27,7 @@ from tests.e2e.conftest import (
     wait_for_js,
     wait_ready,
 )
+from tests.waiting import until
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -373,6 +374,17 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
     page.goto(service.url + "/ui/#compensation")
     expect(page.locator("#comp-tools tr")).to_have_count(2, timeout=UI_WAIT_MS)
     expect(page.locator("#comp-tools tr").nth(1)).to_contain_text("T2")
+
+    def rows_match_the_status() -> bool:  # each tool's own cumulative offset, as served
+        tools = httpx.get(service.url + "/api/v1/status",
+                          timeout=10).json()["compensation"]["tools"]
+        shown = [page.locator("#comp-tools tr").nth(i).locator("td").nth(3).inner_text()
+                 for i in range(2)]
+        return shown == [f"{t['cumulative_offset_mm'] * 1000:.1f} µm" for t in tools]
+
+    until(rows_match_the_status, "each tool's row showing its cumulative offset")
+    for gauge_wide in ("#comp-cumulative", "#comp-cnc-total", "#comp-handshake"):
+        expect(page.locator(gauge_wide)).to_have_text("each tool's, below")
     expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=UI_WAIT_MS)
     shot(page, "compensation-tools")
     assert not page.errors  # type: ignore[attr-defined]

@@ -11,8 +11,16 @@ from fastapi.testclient import TestClient
 from pymodbus.client import ModbusTcpClient
 
 from drivers.plc.pull import REPORT, Result, settle_request, write_report
-from drivers.plc.registers import BY_NAME, SIZE, UM_PER_UNIT, RegisterBank
+from drivers.plc.registers import (
+    BY_NAME,
+    NO_VALUE,
+    SIZE,
+    TOOL_BLOCK_BASE,
+    UM_PER_UNIT,
+    RegisterBank,
+)
 from service.api.app import create_app
+from service.runtime.plant import OpcUaValues
 from service.serve import Children, build
 from tests.unit.service.conftest import TECHNICIAN, make_settings
 
@@ -36,7 +44,7 @@ class PollingCnc:
 
     def call(self, tool: int) -> None:
         """The subroutine called for ``tool``: settle its request, report its total."""
-        regs = self.client.read_holding_registers(0, count=SIZE, device_id=1)
+        regs = self.client.read_holding_registers(0, count=TOOL_BLOCK_BASE, device_id=1)
         assert not regs.isError(), regs
         mirror = RegisterBank()
         mirror.write_words(0, regs.registers)
@@ -94,8 +102,31 @@ def test_two_tools_each_corrected_through_its_own_requests(tmp_path) -> None:
                     break
                 time.sleep(0.5)
             log = client.get("/api/v1/compensation/log", params={"limit": 2000}).json()
+            # Every reader shows each tool's own cumulative offset, none the one channel's.
+            mirror = RegisterBank()  # a read takes 125 registers at most: two
+            mirror.write_words(0, cnc.client.read_holding_registers(
+                0, count=TOOL_BLOCK_BASE, device_id=1).registers)
+            mirror.write_words(TOOL_BLOCK_BASE, cnc.client.read_holding_registers(
+                TOOL_BLOCK_BASE, count=SIZE - TOOL_BLOCK_BASE, device_id=1).registers)
+            metrics = client.get("/metrics").text
+            plant = OpcUaValues(gauge.feed, gauge.compensation, gauge.camera,
+                                gauge.writer).values()
         finally:
             cnc.client.close()
+    status_tools = {t["tool"]: t for t in status["tools"]}
+    assert status["cumulative_offset_mm"] is None and plant["CumulativeOffset"] is None
+    assert mirror.get("cumulative_offset") == NO_VALUE == mirror.get("proposed_offset")
+    assert mirror.get("tool3_number") == 0
+    for k, t in ((1, 1), (2, 2)):
+        units = cnc.total[t]  # what the CNC applied, from a total of 0
+        assert units != 0
+        assert mirror.get(f"tool{k}_number") == t
+        assert mirror.get(f"tool{k}_cumulative") == units, (t, units)
+        assert round(status_tools[t]["cumulative_offset_mm"] * 1e4) == units
+        assert round(plant["Tools"][t]["CumulativeOffset"] * 1e4) == units
+        line = f'shaftgauge_cumulative_offset_mm{{tool="{t}"}} '
+        value = next(x for x in metrics.splitlines() if x.startswith(line))
+        assert round(float(value.split()[-1]) * 1e4) == units, value
     assert [t["tool"] for t in status["tools"]] == [1, 2]
     for t in (1, 2):
         assert cnc.applied[t], f"tool {t}: nothing applied ({status})"

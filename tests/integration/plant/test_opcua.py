@@ -278,6 +278,34 @@ async def test_each_feature_of_the_job_is_a_characteristic(served) -> None:
         await until_async(out_of_the_job, "Characteristic2 marked not in the job")
 
 
+async def test_each_tool_of_the_job_shows_its_own_offsets(served) -> None:
+    """A job of two tools: ``Tools/Tool<n>`` by T number, each with its cumulative offset;
+    the gauge-wide one has no value."""
+    _, gauge, url = served
+    gauge.values.update(CumulativeOffset=None, Tools={
+        1: {"ToolNumber": 1, "State": "active", "CumulativeOffset": 0.0012,
+            "LastOffset": 0.0004},
+        12: {"ToolNumber": 12, "State": "alarm", "CumulativeOffset": -0.0031,
+             "LastOffset": None}})
+    async with Client(url) as client:
+        async def tool_node():
+            try:
+                return await _node(client, "Shaftgauge", "Tools", "Tool12")
+            except ua.UaStatusCodeError:
+                return None
+
+        t12 = await until_async(tool_node, "Tool12 made")
+        idx = await client.get_namespace_index("urn:shaftgauge")
+        assert await (await t12.get_child(f"{idx}:CumulativeOffset")).read_value() \
+            == pytest.approx(-0.0031)
+        assert await (await t12.get_child(f"{idx}:State")).read_value() == "alarm"
+        assert math.isnan(await (await t12.get_child(f"{idx}:LastOffset")).read_value())
+        t1 = await _node(client, "Shaftgauge", "Tools", "Tool1", "CumulativeOffset")
+        assert await t1.read_value() == pytest.approx(0.0012)
+        whole = await _node(client, "Shaftgauge", "Compensation", "CumulativeOffset")
+        assert math.isnan(await whole.read_value())
+
+
 async def test_what_anonymous_clients_may_ask_is_bounded(tmp_path: Path) -> None:
     """The second outside probe: three anonymous clients of ten subscriptions of a thousand
     items at 1 ms slowed the CNC's Modbus reads to 430 ms, and 200 sessions were taken. Past
