@@ -22,6 +22,11 @@ MAX_FEATURES = 32
 MAX_TOOLS = 16
 MAX_TOOL_NUMBER = 9999
 """T numbers as a lathe's tool table holds them (LinuxCNC's wear entries are 10000 + n)."""
+MAX_ENTRIES = 16
+"""Offset entries a job corrects (tools' own and features' own together)."""
+MAX_ENTRY_NUMBER = 99_999
+"""Offset numbers as CNCs number them (Fanuc's 1-999, Siemens' D 1-32000, LinuxCNC's wear
+entries 10000 + n)."""
 MAX_TEXT = 80
 """The longest part number or name, characters (what a drawing's title block holds; the
 exports cut them further to their own fields)."""
@@ -55,6 +60,12 @@ class JobFeature:
         comparison's bias, a known deflection of a slender segment).
     deadband_mm, mean_value_band_mm, plausibility_mm : float or None
         This feature's bands; None: the job's defaults (``CompensationSettings``).
+    entry : int or None
+        The offset entry its correction goes to, when not the tool's own: another offset on
+        the same insert (Fanuc's offset number, T0211; Siemens' cutting edge D; LinuxCNC's
+        wear entry). Features that share an entry take one correction; a feature on an
+        entry of its own is held to its own nominal however far it drifts from the tool's
+        other features (a slender segment deflecting more as the insert wears).
     """
 
     number: int
@@ -67,6 +78,20 @@ class JobFeature:
     deadband_mm: float | None = None
     mean_value_band_mm: float | None = None
     plausibility_mm: float | None = None
+    entry: int | None = None
+
+
+@dataclass(frozen=True, order=True)
+class OffsetEntry:
+    """What the CNC corrects: a tool (T number) and the offset number the correction goes to
+    (None: the tool's own entry). One controller, one cumulative offset, one set of limits
+    and one handshake an entry."""
+
+    tool: int
+    number: int | None = None
+
+    def __str__(self) -> str:
+        return f"T{self.tool}" if self.number is None else f"T{self.tool} offset {self.number}"
 
 
 @dataclass(frozen=True)
@@ -138,6 +163,19 @@ class Job:
         """The features ``tool`` finishes."""
         return tuple(f for f in self.features if f.tool == tool)
 
+    @staticmethod
+    def entry_of(feature: JobFeature) -> OffsetEntry:
+        """The offset entry ``feature``'s correction goes to."""
+        return OffsetEntry(feature.tool, feature.entry)
+
+    def entries(self) -> tuple[OffsetEntry, ...]:
+        """The offset entries the job corrects, in the order they first appear."""
+        return tuple(dict.fromkeys(self.entry_of(f) for f in self.features))
+
+    def features_on(self, entry: OffsetEntry) -> tuple[JobFeature, ...]:
+        """The features whose correction goes to ``entry``."""
+        return tuple(f for f in self.features if self.entry_of(f) == entry)
+
     def settings_for(self, feature: JobFeature, base: CompensationSettings
                      ) -> CompensationSettings:
         """``base`` with this feature's nominal, tolerance and bands, and its tool's law."""
@@ -150,12 +188,15 @@ class Job:
         return replace(base, **{k: v for k, v in own.items()
                                 if v is not None or k == "plausibility_mm"})
 
-    def max_disagreement_mm(self, tool: int) -> float:
-        """How far the deviations of ``tool``'s features may differ before it is held."""
-        set_ = self.tool(tool).max_disagreement_mm
+    def max_disagreement_mm(self, entry: OffsetEntry | int) -> float:
+        """How far the deviations of the features on ``entry`` (a T number: the tool's own
+        entry) may differ before it is held."""
+        if not isinstance(entry, OffsetEntry):
+            entry = OffsetEntry(entry)
+        set_ = self.tool(entry.tool).max_disagreement_mm
         if set_ is not None:
             return set_
-        return 0.5 * min(f.tol_upper_mm - f.tol_lower_mm for f in self.features_of(tool))
+        return 0.5 * min(f.tol_upper_mm - f.tol_lower_mm for f in self.features_on(entry))
 
     def recognise(self, diameter_mm: float) -> Recognition:
         """The feature whose nominal is within the recognition window of ``diameter_mm``:
@@ -200,6 +241,14 @@ class Job:
                 p.append(f"{where}.tool: 1 to {MAX_TOOL_NUMBER}, not {f.tool}")
             if not (math.isfinite(f.empirical_mm) and abs(f.empirical_mm) <= 1.0):
                 p.append(f"{where}.empirical_mm: within +-1 mm")
+            if f.entry is not None:
+                other = next((g.tool for g in self.features
+                              if g.entry == f.entry and g.tool != f.tool), None)
+                if not 1 <= f.entry <= MAX_ENTRY_NUMBER:
+                    p.append(f"{where}.entry: 1 to {MAX_ENTRY_NUMBER}, not {f.entry}")
+                elif other is not None:
+                    p.append(f"{where}.entry: offset {f.entry} is tool {other}'s too; an "
+                             "offset entry corrects one tool")
             # The feature's nominal, tolerance and bands, in force (the base is checked)
             p += [f"{where}.{q}" for q in self.settings_for(f, base).problems()
                   if not q.startswith(("gain", "trend_gain"))]  # the tool's, said below
@@ -223,6 +272,9 @@ class Job:
                 p.append(f"{where}.max_disagreement_mm: within (0, {BOUNDS['tol_upper_mm']:g}]")
         if len(self.tool_numbers()) > MAX_TOOLS:
             p.append(f"features: at most {MAX_TOOLS} tools, not {len(self.tool_numbers())}")
+        if len(self.entries()) > MAX_ENTRIES:
+            p.append(f"features: at most {MAX_ENTRIES} offset entries, not "
+                     f"{len(self.entries())}")
         return p
 
     # ---- documents -----------------------------------------------------------------------

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 from service.compensation.combine import FeatureAgreement, aim
 from service.compensation.controller import CompensationController
-from service.compensation.job import Job, JobFeature
+from service.compensation.job import Job, JobFeature, OffsetEntry
 from service.compensation.records import (
     ControllerState,
     Decision,
@@ -25,16 +25,18 @@ from service.compensation.settings import CompensationSettings
 
 
 class ToolCompensation:
-    """One tool's compensation: a ``CompensationController`` with the tool's law and limits,
-    judging each measurement against its feature's nominal and bands."""
+    """One offset entry's compensation (a tool's own, or another offset of the same insert):
+    a ``CompensationController`` with the tool's law and limits, judging each measurement
+    against its feature's nominal and bands."""
 
-    def __init__(self, job: Job, tool: int, base: CompensationSettings,
+    def __init__(self, job: Job, entry: OffsetEntry | int, base: CompensationSettings,
                  state: ControllerState | None = None,
                  controller: CompensationController | None = None) -> None:
-        self.job, self.tool, self.base = job, tool, base
-        features = job.features_of(tool)
+        self.entry = entry if isinstance(entry, OffsetEntry) else OffsetEntry(entry)
+        self.job, self.tool, self.base = job, self.entry.tool, base
+        features = job.features_on(self.entry)
         if not features:
-            raise KeyError(f"tool {tool} finishes no feature of job {job.part_number!r}")
+            raise KeyError(f"{self.entry} corrects no feature of job {job.part_number!r}")
         # The tool's law and limits; its reference feature is the first it finishes. A
         # running service brings its own controller (its settings and persisted state).
         self.controller = controller or CompensationController(
@@ -56,13 +58,13 @@ class ToolCompensation:
             shift = levels[feature.number] - aim(levels, tolerances)
         return FeatureTerms(self.job.settings_for(feature, self.base),
                             feature.empirical_mm + shift,
-                            self.agreement.disagreement(self.job.max_disagreement_mm(self.tool)))
+                            self.agreement.disagreement(self.job.max_disagreement_mm(self.entry)))
 
     def on_measurement(self, feature: JobFeature, m: MeasurementIn, now: float) -> Decision:
         """Judge a measurement of one of this tool's features."""
-        if feature.tool != self.tool:
-            raise ValueError(f"feature {feature.number} is finished by tool {feature.tool}, "
-                             f"not {self.tool}")
+        if self.job.entry_of(feature) != self.entry:
+            raise ValueError(f"feature {feature.number} is corrected on "
+                             f"{self.job.entry_of(feature)}, not {self.entry}")
         if m.status == "ok" and m.diameter_mm is not None and m.uncertainty_mm is not None \
                 and math.isfinite(m.diameter_mm):
             self.agreement.add(feature.number,
@@ -75,23 +77,29 @@ class ToolCompensation:
 
 
 class JobCompensation:
-    """The controllers of a job's tools, and the routing of a feature's measurement to its
-    tool's."""
+    """The controllers of a job's offset entries, and the routing of a feature's measurement
+    to its entry's."""
 
     def __init__(self, job: Job, base: CompensationSettings,
-                 states: dict[int, ControllerState] | None = None) -> None:
+                 states: dict[OffsetEntry, ControllerState] | None = None) -> None:
         self.job = job
-        self.tools = {t: ToolCompensation(job, t, base, (states or {}).get(t))
-                      for t in job.tool_numbers()}
+        self.entries = {e: ToolCompensation(job, e, base, (states or {}).get(e))
+                        for e in job.entries()}
+
+    @property
+    def tools(self) -> dict[int, ToolCompensation]:
+        """Each tool's own entry's compensation, by T number."""
+        return {e.tool: c for e, c in self.entries.items() if e.number is None}
 
     def on_measurement(self, feature_number: int, m: MeasurementIn, now: float
-                       ) -> tuple[int, Decision]:
-        """(tool, decision) for a measurement of ``feature_number`` (KeyError naming the job's
-        features when it has no such feature)."""
+                       ) -> tuple[OffsetEntry, Decision]:
+        """(entry, decision) for a measurement of ``feature_number`` (KeyError naming the
+        job's features when it has no such feature)."""
         feature = self.job.feature(feature_number)
-        return feature.tool, self.tools[feature.tool].on_measurement(feature, m, now)
+        entry = self.job.entry_of(feature)
+        return entry, self.entries[entry].on_measurement(feature, m, now)
 
     def shadow(self, on: bool, now: float) -> None:
-        """Shadow mode for every tool."""
-        for t in self.tools.values():
+        """Shadow mode for every entry."""
+        for t in self.entries.values():
             t.controller.update_settings(replace(t.controller.settings, shadow=on), now)

@@ -214,11 +214,26 @@ class CompensationService:
 
     # ---- the measurements ----------------------------------------------------------------
 
+    @staticmethod
+    def cannot_take(job: Job) -> str:
+        """Why the running service cannot correct ``job`` ("" when it can): a feature on an
+        offset entry other than its tool's own needs a handshake that names the entry, which
+        the CNC links do not have yet (the controllers do: ``JobCompensation``)."""
+        for i, f in enumerate(job.features):
+            if f.entry is not None:
+                return (f"features[{i}].entry: offset entries other than a tool's own are not "
+                        "carried by the CNC handshake yet; leave it out (the tool's own "
+                        "entry)")
+        return ""
+
     def set_job(self, job: Job | None) -> None:
         """The job in force: one whose features one tool finishes has each measurement
         judged against its feature and taken into the tool's law (``ToolCompensation``); one
         of several tools, a channel per tool (``ToolChannels``); otherwise the settings'
         single feature, as before."""
+        why = self.cannot_take(job) if job is not None else ""
+        if why:
+            raise ValueError(why)
         tools = job.tool_numbers() if job is not None else ()
         self.tools.set_job(job, self.settings, self.channel.controller.calibration_id)
         self._job = job

@@ -157,6 +157,9 @@ class JobService:
         """Store a job document as its part number's next version (JobError naming the field
         of a bad one; NotStoredError when it cannot be stored)."""
         job = job_from_doc(document, self.compensation.settings)
+        why = self.compensation.cannot_take(job)
+        if why:
+            raise JobError(why)
         jid = self._store().add(job.to_doc(), by, note, activate=False)
         if activate:
             await self.activate(jid, by)

@@ -411,13 +411,21 @@ def whole_part() -> str:
     runs = _present(("whole_part", "tuning physics"),
                     ("whole_part_held_out", "held-out physics, scored once"),
                     ("whole_part_tight_bound", "tuning physics, tool 2's features allowed "
-                     "3 um apart (the deflection is 6): held"))
+                     "3 um apart (the deflection is 6): held"),
+                    ("whole_part_taper15", "tuning physics, the slender end tapering 15 um "
+                     "more over an insert's life, on its tool's one entry: held"),
+                    ("whole_part_taper15_entries", "the same, the slender end on an offset "
+                     "entry of its own"),
+                    ("whole_part_held_out_taper15_entries", "held-out physics, the same, "
+                     "scored once"))
     rows = ["| physics | feature | tolerance | parts out (worst seed) | mean | sd | Cpk "
             "(worst seed) |", "|---|---|---:|---:|---:|---:|---:|"]
     for what, d in runs:
         for i, f in enumerate(d["job"]["features"]):
             r = d["features"][str(f["number"])]
-            rows.append(f"| {what if i == 0 else ''} | {f['number']} {f['name']} (T{f['tool']}) "
+            entry = f" offset {f['entry']}" if f.get("entry") is not None else ""
+            rows.append(f"| {what if i == 0 else ''} | {f['number']} {f['name']} "
+                        f"(T{f['tool']}{entry}) "
                         f"| +-{f['tol_upper_mm'] * 1000:g} um | {r['out']:g} ({r['out_max']}) "
                         f"| {r['mean_um']:.1f} um | {r['sd_um']:.1f} um | {r['cpk']:.2f} "
                         f"({r['cpk_min']:.2f}) |")

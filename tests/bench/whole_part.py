@@ -13,6 +13,13 @@ features (half its narrowest tolerance): the tool's one correction takes both fe
 so each sits half the deflection off. The variant ``--tight-bound`` allows tool 2's features
 to differ by 3 um only, and counts the holds that say the deflection is beyond it.
 
+``--taper UM``: the slender end deflects more as tool 2's insert wears, UM more at the end of
+the insert's life (the parts between its insert changes), from nothing on a new insert: one
+correction for both of tool 2's features cannot hold both once the taper passes their
+bound. ``--entries`` puts the slender end on an offset entry of its own (offset 12 of tool
+2, as Fanuc's T0212): each entry is corrected by its own controller, so each feature is held
+to its own nominal.
+
 Reported per feature (medians over the seeds, the worst seed's parts out): parts out of
 tolerance, Cpk; per tool: offsets written. Tuning seeds 0-4; ``--held-out`` seeds 900-904 on
 other tool physics, scored once at the end.
@@ -32,7 +39,7 @@ import numpy as np
 
 from drivers.sim.lathe import LatheConfig, VirtualLathe
 from service.compensation import CompensationSettings, Kind, MeasurementIn
-from service.compensation.job import job_from_doc
+from service.compensation.job import OffsetEntry, job_from_doc
 from service.compensation.tools import JobCompensation
 from tests.bench.closed_loop import Gauge, insert_change
 from tests.bench.results import save_report
@@ -76,27 +83,46 @@ HELD_OUT = Physics(
     part_sigma_um=1.2, gauge_sigma_um=1.5, outlier_rate=0.02)
 
 
-def run(physics: Physics, parts: int, seed: int, job_doc: dict) -> dict:
-    """One run's figures per feature and tool."""
+def insert_life(config: LatheConfig, parts: int) -> int:
+    """Parts an insert of ``config`` cuts: between its changes, or the whole run."""
+    changes = sorted(config.insert_changes)
+    return min((b - a for a, b in zip([0, *changes], changes, strict=False)), default=parts)
+
+
+def run(physics: Physics, parts: int, seed: int, job_doc: dict, taper_um: float = 0.0
+        ) -> dict:
+    """One run's figures per feature and tool (offsets written per offset entry, named
+    ``T2`` or ``T2 offset 12``)."""
     job = job_from_doc(job_doc)
     comp = JobCompensation(job, BASE)
     lathes = {1: VirtualLathe(physics.tool1, seed=seed), 2: VirtualLathe(physics.tool2,
                                                                           seed=seed + 1)}
-    totals = dict.fromkeys(lathes, 0.0)
-    for t in comp.tools.values():
+    life = insert_life(physics.tool2, parts)
+    since_change = 0
+    totals = dict.fromkeys(comp.entries, 0.0)
+    for t in comp.entries.values():
         t.controller.observe_cnc_total(0.0, 0.0)
     rng = np.random.default_rng(seed + 7)
     gauge = Gauge(physics.gauge_sigma_um, "t3", physics.outlier_rate, rng)
     cut: dict[int, list[float]] = {f.number: [] for f in job.features}
     waiting: deque = deque()
-    writes, holds, seq = dict.fromkeys(lathes, 0), 0, 0
+    writes, holds, seq = dict.fromkeys(comp.entries, 0), 0, 0
     for k in range(parts):
         for t, lathe in lathes.items():
-            if k in lathe.config.insert_changes:  # the operator zeroes the tool's offset
-                totals[t] = insert_change(comp.tools[t].controller, False, k * 60.0)
-        tool_dev = {t: lathe.cut_part(totals[t]).diameter_mm for t, lathe in lathes.items()}
+            if k in lathe.config.insert_changes:  # the operator zeroes the tool's offsets
+                for e, c in comp.entries.items():
+                    if e.tool == t:
+                        totals[e] = insert_change(c.controller, False, k * 60.0)
+                since_change = 0 if t == 2 else since_change
+        # A lathe cuts with its tool's own entry; a feature on another entry of the same
+        # insert differs by what that entry holds more.
+        tool_dev = {t: lathe.cut_part(totals[OffsetEntry(t)]).diameter_mm
+                    for t, lathe in lathes.items()}
+        taper_mm = taper_um / 1000 * min(1.0, since_change / life)
+        since_change += 1
         part = {f.number: f.nominal_mm + tool_dev[f.tool]
-                + (DEFLECTION_UM / 1000 if f.number == 4 else 0.0)
+                + totals[job.entry_of(f)] - totals[OffsetEntry(f.tool)]
+                + ((DEFLECTION_UM / 1000 + taper_mm) if f.number == 4 else 0.0)
                 + rng.normal(0.0, physics.part_sigma_um / 1000) for f in job.features}
         for n, d in part.items():
             cut[n].append((d - job.feature(n).nominal_mm) * 1000)
@@ -106,19 +132,20 @@ def run(physics: Physics, parts: int, seed: int, job_doc: dict) -> dict:
         for i, (n, d) in enumerate(waiting.popleft().items()):
             seq += 1
             now = k * 60.0 + i  # a part a minute, its features a second apart
-            tool, dec = comp.on_measurement(n, MeasurementIn(
+            entry, dec = comp.on_measurement(n, MeasurementIn(
                 seq, now, "ok", d + gauge.error_mm(), physics.gauge_sigma_um / 1000), now)
             holds += dec.code == "features_disagree"
+            ctrl = comp.entries[entry].controller
             if dec.kind is Kind.ALARM:
-                comp.tools[tool].controller.acknowledge_alarm(now)
+                ctrl.acknowledge_alarm(now)
             if dec.kind is Kind.WRITE:
-                ctrl = comp.tools[tool].controller
-                if ctrl.check_before_write(dec.offset_seq, totals[tool], now) is None:
-                    totals[tool] += dec.offset_mm
+                if ctrl.check_before_write(dec.offset_seq, totals[entry], now) is None:
+                    totals[entry] += dec.offset_mm
                     ctrl.on_write_outcome(dec.offset_seq, True, now)
-                    writes[tool] += 1
-                ctrl.observe_cnc_total(totals[tool], now)
-    out: dict = {"features": {}, "writes": writes, "holds": holds}
+                    writes[entry] += 1
+                ctrl.observe_cnc_total(totals[entry], now)
+    out: dict = {"features": {}, "writes": {str(e): n for e, n in writes.items()},
+                 "holds": holds}
     for f in job.features:
         dev = np.array(cut[f.number])
         tol = (f.tol_upper_mm * 1000, f.tol_lower_mm * 1000)
@@ -149,26 +176,38 @@ def main() -> None:
     ap.add_argument("--held-out", action="store_true")
     ap.add_argument("--tight-bound", action="store_true",
                     help="tool 2's features may differ by 3 um only (the deflection is 6)")
+    ap.add_argument("--taper", type=float, default=0.0, metavar="UM",
+                    help="the slender end deflects this much more at the end of an insert's "
+                    "life")
+    ap.add_argument("--entries", action="store_true",
+                    help="the slender end on an offset entry of its own (T2 offset 12)")
     args = ap.parse_args()
     seeds = [900, 901, 902, 903, 904] if args.held_out else [0, 1, 2, 3, 4]
     physics = HELD_OUT if args.held_out else TUNING
     doc = JOB
     if args.tight_bound:
         doc = {**JOB, "tools": [{"number": 2, "max_disagreement_mm": 0.003}]}
-    result = summary([run(physics, args.parts, s, doc) for s in seeds])
+    if args.entries:
+        doc = {**doc, "features": [dict(f, entry=12) if f["number"] == 4 else f
+                                   for f in doc["features"]]}
+    result = summary([run(physics, args.parts, s, doc, args.taper) for s in seeds])
     print(f"whole part, {'HELD-OUT' if args.held_out else 'tuning'} physics, seeds {seeds}, "
-          f"{args.parts} parts{', tight bound' if args.tight_bound else ''}")
+          f"{args.parts} parts{', tight bound' if args.tight_bound else ''}"
+          f"{f', taper {args.taper:g} um' if args.taper else ''}"
+          f"{', the slender end on T2 offset 12' if args.entries else ''}")
     print(f"{'feature':>22} {'out':>4} {'worst':>5} {'mean':>6} {'sd':>5} {'Cpk':>5} "
           f"{'Cpk min':>7}")
     for f in JOB["features"]:
         r = result["features"][f["number"]]
         print(f"{f['number']} {f['name']:>20} {r['out']:4.0f} {r['out_max']:5d} "
               f"{r['mean_um']:6.2f} {r['sd_um']:5.2f} {r['cpk']:5.2f} {r['cpk_min']:7.2f}")
-    print(f"offsets written per tool {result['writes']}, holds for disagreeing features "
+    print(f"offsets written per entry {result['writes']}, holds for disagreeing features "
           f"{result['holds']}")
     name = "whole_part" + ("_held_out" if args.held_out else "") + \
-        ("_tight_bound" if args.tight_bound else "")
+        ("_tight_bound" if args.tight_bound else "") + \
+        (f"_taper{args.taper:g}" if args.taper else "") + ("_entries" if args.entries else "")
     save_report({"parts": args.parts, "seeds": seeds, "job": doc,
+                 "taper_um": args.taper,
                  "physics": {"tool1": asdict(physics.tool1), "tool2": asdict(physics.tool2),
                              **{k: v for k, v in asdict(replace(physics)).items()
                                 if not k.startswith("tool")}},

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from service.compensation import CompensationSettings, Kind, MeasurementIn
-from service.compensation.job import job_from_doc
+from service.compensation.job import JobError, OffsetEntry, job_from_doc
 from service.compensation.tools import JobCompensation
 
 WEAR_UM_PER_PART = {1: 1.2, 2: 2.5}
@@ -47,11 +47,12 @@ def run(job_doc: dict, parts: int, base: CompensationSettings = BASE, seed: int 
                       + totals[f.tool] * 1000 + rng.normal(0.0, 1.0))
             out[f.number].append(dev_um)
             seq, now = seq + 1, now + 1.0
-            tool, d = comp.on_measurement(f.number, MeasurementIn(
+            entry, d = comp.on_measurement(f.number, MeasurementIn(
                 seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now)
+            tool = entry.tool
             decisions.append((tool, f.number, d))
             if d.kind is Kind.WRITE:
-                ctrl = comp.tools[tool].controller
+                ctrl = comp.entries[entry].controller
                 assert ctrl.check_before_write(d.offset_seq, totals[tool], now) is None
                 totals[tool] += d.offset_mm
                 written[tool].append(d.offset_mm)
@@ -101,3 +102,70 @@ def test_a_feature_or_tool_the_job_does_not_have_is_refused() -> None:
     comp = JobCompensation(job_from_doc(JOB), BASE)
     with pytest.raises(KeyError, match="feature 7 is not in job"):
         comp.on_measurement(7, MeasurementIn(1, 1.0, "ok", 30.0, 0.001), 1.0)
+
+
+def taper_run(entry_of_4: int | None, parts: int = 80, seed: int = 3
+              ) -> tuple[dict[int, list[float]], dict, list[str]]:
+    """Tool 2 finishes the collar and the slender end; the end deflects more as the insert
+    wears, its taper growing 0.25 um a part (20 um over 80 parts) besides the wear of
+    2.5 um a part. Deviations (um) per feature, each entry's total, and the hold codes."""
+    doc = {**JOB, "features": [
+        dict(f, empirical_mm=0.0, **({"entry": entry_of_4} if f["number"] == 4 else {}))
+        for f in JOB["features"]]}
+    job = job_from_doc(doc)
+    comp = JobCompensation(job, BASE)
+    totals = dict.fromkeys(comp.entries, 0.0)
+    for c in comp.entries.values():
+        c.controller.observe_cnc_total(0.0, 0.0)
+    rng = np.random.default_rng(seed)
+    out: dict[int, list[float]] = {f.number: [] for f in job.features}
+    codes, seq, now = [], 0, 0.0
+    for k in range(parts):
+        for f in job.features:
+            entry = job.entry_of(f)
+            dev_um = (WEAR_UM_PER_PART[f.tool] * k + (0.25 * k if f.number == 4 else 0.0)
+                      + totals[entry] * 1000 + rng.normal(0.0, 1.0))
+            out[f.number].append(dev_um)
+            seq, now = seq + 1, now + 1.0
+            got, d = comp.on_measurement(f.number, MeasurementIn(
+                seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now)
+            assert got == entry
+            codes.append(d.code)
+            if d.kind is Kind.WRITE:
+                ctrl = comp.entries[entry].controller
+                assert ctrl.check_before_write(d.offset_seq, totals[entry], now) is None
+                totals[entry] += d.offset_mm
+                ctrl.on_write_outcome(d.offset_seq, True, now)
+                ctrl.observe_cnc_total(totals[entry], now)
+    return out, totals, codes
+
+
+def test_a_feature_on_an_offset_entry_of_its_own_is_held_to_its_nominal_as_the_taper_grows(
+) -> None:
+    out, totals, codes = taper_run(entry_of_4=12)
+    for n, tol_um in ((1, 15), (2, 12), (3, 20), (4, 15)):
+        assert max(abs(v) for v in out[n][5:]) < tol_um, (n, max(out[n]))
+    t2, t2_12 = totals[OffsetEntry(2)], totals[OffsetEntry(2, 12)]
+    # Each entry carries its own: the end's entry the wear and its taper (20 um more).
+    assert (t2 - t2_12) * 1000 == pytest.approx(0.25 * 80, abs=6.0), totals
+    assert "features_disagree" not in codes
+    # On the tool's one entry the taper outgrows what its features may disagree by (half
+    # of 30 um): the tool is held and the part leaves its tolerance.
+    out, _, codes = taper_run(entry_of_4=None)
+    assert "features_disagree" in codes
+    assert max(abs(v) for v in out[4]) > 15 or max(abs(v) for v in out[3]) > 20
+
+
+def test_offset_entries_in_the_job_document() -> None:
+    doc = {**JOB, "features": [dict(f, entry=12) if f["number"] == 4 else f
+                               for f in JOB["features"]]}
+    job = job_from_doc(doc)
+    assert job.entries() == (OffsetEntry(1), OffsetEntry(2), OffsetEntry(2, 12))
+    assert [f.number for f in job.features_on(OffsetEntry(2, 12))] == [4]
+    assert str(OffsetEntry(2, 12)) == "T2 offset 12" and str(OffsetEntry(1)) == "T1"
+    bad = {**JOB, "features": [dict(f, entry=12) if f["number"] in (1, 4) else f
+                               for f in JOB["features"]]}
+    with pytest.raises(JobError, match=r"features\[3\].entry: offset 12 is tool 1's too"):
+        job_from_doc(bad)
+    with pytest.raises(JobError, match=r"features\[0\].entry: 1 to 99999, not 0"):
+        job_from_doc({**JOB, "features": [dict(JOB["features"][0], entry=0)]})

@@ -256,6 +256,15 @@ def test_a_job_the_controller_cannot_take_is_refused_whole_and_the_last_stays(cl
         assert r.status_code == 422 and "part_number" in r.json()["detail"], r.text
 
 
+def test_a_job_on_offset_entries_the_handshake_cannot_name_is_refused_before_it_is_stored(
+        client) -> None:
+    doc = {**TWO, "features": [dict(f, entry=12) if i == 1 else f
+                               for i, f in enumerate(TWO["features"])]}
+    r = client.post("/api/v1/jobs", headers=H, json={"document": doc, "activate": True})
+    assert r.status_code == 422 and "features[1].entry" in r.json()["detail"], r.text
+    assert client.get("/api/v1/jobs").json()["items"] == []
+
+
 def test_a_start_on_a_stored_job_it_cannot_take_falls_back_and_says_so(tmp_path) -> None:
     """A job an older release stored and put in force, which this one refuses: the gauge
     starts on the settings' single feature, says why, and a technician ends the job."""
