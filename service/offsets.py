@@ -33,6 +33,7 @@ from service.compensation import (
 )
 from service.compensation.job import JobFeature
 from service.compensation.tools import ToolCompensation
+from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.compensation")
 
@@ -88,7 +89,7 @@ class OffsetChannel:
         self.clock = clock
         self.last_write: WriteResult | None = None
         self.last_write_s = -float("inf")   # when, on ``clock``
-        self.write_listeners: list[Callable[[WriteResult], None]] = []
+        self.writes: Listeners[WriteResult] = Listeners("offset write")
         self._lock = asyncio.Lock()
         self._last_refresh = -float("inf")
 
@@ -171,8 +172,7 @@ class OffsetChannel:
             return [self._note(veto)]
         result = await self.writer.write_offset(order.offset_mm, order.offset_seq)
         self.last_write, self.last_write_s = result, self.clock()
-        for listener in self.write_listeners:
-            listener(result)
+        self.writes.tell(result)
         return [self._note(self.controller.on_write_outcome(
             order.offset_seq, result.applied, self.clock(), result.message))]
 

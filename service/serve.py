@@ -307,11 +307,14 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                            sheet_sigma_mm=ms.sheet_sigma_mm)
     modbus = ModbusFacade(settings.modbus, compensation, trigger=camera.software_trigger,
                           bank=bank)
+    compensation.on_decision(modbus.decided)
+    compensation.on_settings(modbus.set_feature)
     sequence = SequenceCounter(comp_log, compensation.controller.persisted
                                .last_measurement_seq + 1)
     jobs = JobService(job_store, compensation, store_error)
     compensation.on_settings(lambda _: jobs.settings_changed())
-    modbus.follow_jobs(jobs)
+    modbus.serve_jobs(jobs)
+    jobs.on_change(modbus.job_changed)
     publisher = Publisher(sequence, feed, modbus, compensation, jobs, sp.max_tir_mm)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
                              settings.camera.roi_margin_px if settings.camera.roi_enabled
@@ -342,7 +345,14 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     health.quality = (spc, studies)
     form = FormWatch(context) if context.spindle is not None else None
     health.form = form
-    plant = make_plant_links(settings, feed, compensation, camera, writer, health, jobs)
+    made = make_plant_links(settings, feed, compensation, camera, writer, health, jobs)
+    if made.mqtt is not None:
+        feed.on_publish(made.mqtt.measurement)
+        compensation.on_decision(made.mqtt.decision)
+        jobs.on_part(made.mqtt.part)
+    if made.opcua_values is not None:
+        compensation.on_decision(made.opcua_values.last_offset)
+    plant = made.links
     health.plant = plant
     metrics = GaugeMetrics(health)
     feed.on_publish(metrics.record)

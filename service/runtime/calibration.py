@@ -18,6 +18,7 @@ from service.measure.diameter import axis_center
 from service.measure.form import ConcentricityWatch
 from service.measure.geometry import RigGeometry, geometry_of
 from service.measure.runout_track import RunoutTracker, Settling, SpindleAngles
+from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.calibration")
 
@@ -74,11 +75,11 @@ class CalibrationContext:
         self.spindle = spindle
         self.in_use: CalibrationInUse | None = None
         self._last_master_check: dict[str, Any] | None = None
-        self._listeners: list[Callable[[int], None]] = []
+        self._changed: Listeners[int] = Listeners("calibration activated")
 
     def on_change(self, listener: Callable[[int], None]) -> None:
         """Call ``listener(calibration_id)`` whenever another calibration is activated."""
-        self._listeners.append(listener)
+        self._changed.add(listener)
 
     def load_active(self) -> None:
         """Take the store's active calibration (a damaged one is reported, not raised)."""
@@ -138,8 +139,7 @@ class CalibrationContext:
                                        self.spindle is not None else None)
         self._last_master_check = (self.store.last_master_check(info.id)
                                    if self.store is not None else None)
-        for listener in self._listeners:
-            listener(info.id)
+        self._changed.tell(info.id)
         log.info("calibration %d in use (%s)", info.id, info.note or "no note")
 
     def set_correction(self, correction: DiameterCorrection) -> None:

@@ -29,6 +29,7 @@ from service.compensation.job import Job, JobFeature
 from service.compensation.tools import ToolCompensation
 from service.offsets import OffsetChannel, OffsetTransport
 from service.record import Feature, MeasurementRecord
+from service.runtime.listeners import Listeners
 from service.runtime.tool_channels import NO_TOOL_IN_HANDSHAKE, ToolChannels
 
 log = logging.getLogger("shaftgauge.compensation")
@@ -125,9 +126,9 @@ class CompensationService:
         self.tools = ToolChannels(tool_transport, log_, self._decided, blocked=""
                                   if tool_transport is not None or writer is None
                                   else NO_TOOL_IN_HANDSHAKE,
-                                  write_listeners=self.channel.write_listeners)
-        self._decision_listeners: list[Callable[[Decision], None]] = []
-        self._settings_listeners: list[Callable[[CompensationSettings], None]] = []
+                                  writes=self.channel.writes)
+        self._decisions: Listeners[Decision] = Listeners("decision")
+        self._settings_changed: Listeners[CompensationSettings] = Listeners("settings change")
         self._hold: OffsetHold | None = None
         self._queue: asyncio.Queue[tuple[MeasurementIn, JobFeature | None]] | None = None
         self.dropped = 0
@@ -137,16 +138,15 @@ class CompensationService:
 
     def on_decision(self, listener: Callable[[Decision], None]) -> None:
         """Call ``listener(decision)`` for every decision."""
-        self._decision_listeners.append(listener)
+        self._decisions.add(listener)
 
     def on_settings(self, listener: Callable[[CompensationSettings], None]) -> None:
         """Call ``listener(settings)`` when the settings change (and once now)."""
-        self._settings_listeners.append(listener)
+        self._settings_changed.add(listener)
         listener(self.settings)
 
     def _decided(self, d: Decision) -> None:
-        for listener in self._decision_listeners:
-            listener(d)
+        self._decisions.tell(d)
 
     # ---- read-only views -----------------------------------------------------------------
 
@@ -184,7 +184,7 @@ class CompensationService:
 
     def on_write(self, listener: Callable[[WriteResult], None]) -> None:
         """Call ``listener(result)`` after every offset write, of any channel."""
-        self.channel.write_listeners.append(listener)  # the tools' channels share the list
+        self.channel.writes.add(listener)  # the tools' channels share them
 
     def feature(self) -> Feature:
         """Nominal and tolerance in force."""
@@ -329,8 +329,7 @@ class CompensationService:
         if self.channel.tool is not None:
             self.channel.tool.rebase(settings)
         await self.tools.update_settings(settings, who)
-        for listener in self._settings_listeners:
-            listener(settings)
+        self._settings_changed.tell(settings)
         return d
 
     async def update_feature(self, who: str, **changes: float | None) -> Decision:

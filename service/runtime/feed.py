@@ -21,6 +21,7 @@ from service.measure.fuse import fuse
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement
 from service.record import MeasurementRecord
+from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.feed")
 
@@ -115,12 +116,12 @@ class MeasurementFeed:
         self._times: collections.deque[float] = collections.deque(maxlen=2000)
         self.latency_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self.counters: collections.Counter[str] = collections.Counter()
-        self._listeners: list[Callable[[MeasurementRecord], None]] = []
+        self._published: Listeners[MeasurementRecord] = Listeners("measurement published")
 
     def on_publish(self, listener: Callable[[MeasurementRecord], None]) -> None:
         """Call ``listener(record)`` for every record published (on the loop; keep it short:
         it is on the frame's path)."""
-        self._listeners.append(listener)
+        self._published.add(listener)
 
     def fused(self, m: Measurement) -> Measurement | None:
         """Add a measurement to the fusion window; the fused value once it holds three."""
@@ -142,8 +143,7 @@ class MeasurementFeed:
         self._times.append(time.monotonic())
         self.latency_ms.append((time.monotonic_ns() - frame.received_ns) / 1e6)
         self.subscribers.publish(record)
-        for listener in self._listeners:
-            listener(record)
+        self._published.tell(record)
 
     def history_newest_first(self) -> Iterator[MeasurementRecord]:
         """The history's records, the newest first (from a copy: API threads read while the

@@ -23,6 +23,7 @@ from service.compensation.job import Job, JobError, JobFeature, job_from_doc
 from service.quality.parts import PartAssembler, PartRecord
 from service.record import Feature, MeasurementRecord
 from service.runtime.compensating import CompensationService
+from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.jobs")
 
@@ -51,11 +52,11 @@ class JobService:
         self.selected: int | None = None
         self._feature_set = compensation.feature()  # as the job in force left it
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
-        self._part_listeners: list[Callable[[dict[str, Any]], None]] = []
+        self._parts_done: Listeners[dict[str, Any]] = Listeners("part finished")
         self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
         self.part_counter: int | None = None  # the CNC's, when it counts (map v4)
-        self._change_listeners: list[Callable[[], None]] = []
-        self._job_listeners: list[Callable[[], None]] = []
+        self._changes: Listeners[None] = Listeners("job or feature changed")
+        self._new_jobs: Listeners[None] = Listeners("job put in force")
         self.part_counts: dict[str, int] = {"ok": 0, "out": 0, "incomplete": 0}
         self.refused = 0
         self.last_refused = ""
@@ -70,19 +71,18 @@ class JobService:
 
     def on_change(self, listener: Callable[[], None]) -> None:
         """Call ``listener()`` whenever the job in force or the feature named changes."""
-        self._change_listeners.append(listener)
+        self._changes.add(lambda _: listener())
 
     def on_new_job(self, listener: Callable[[], None]) -> None:
         """Call ``listener()`` whenever another job (or the single feature anew) is in force."""
-        self._job_listeners.append(listener)
+        self._new_jobs.add(lambda _: listener())
 
     def _changed(self) -> None:
-        for listener in self._change_listeners:
-            listener()
+        self._changes.tell(None)
 
     def on_part(self, listener: Callable[[dict[str, Any]], None]) -> None:
         """Call ``listener(part)`` (``PartRecord.as_dict``) for every finished part."""
-        self._part_listeners.append(listener)
+        self._parts_done.add(listener)
 
     # ---- the job ------------------------------------------------------------------------
 
@@ -106,8 +106,7 @@ class JobService:
         self.selected = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
-        for listener in self._job_listeners:
-            listener()
+        self._new_jobs.tell(None)
         self._changed()
 
     def _stored_job(self) -> Job | None:
@@ -265,8 +264,7 @@ class JobService:
         doc = part.as_dict()
         self.recent.appendleft(doc)
         self.part_counts[part.verdict] += 1
-        for listener in self._part_listeners:
-            listener(doc)
+        self._parts_done.tell(doc)
         if self.store is None:
             return
         try:

@@ -157,8 +157,6 @@ class ModbusFacade:
         self._tasks: set[asyncio.Task] = set()
         self.jobs: JobService | None = None
         self._proposed: dict[int | None, int] = {}   # by tool (None: the one channel), units
-        compensation.on_decision(self.decided)
-        compensation.on_settings(self.set_feature)
 
     @property
     def port(self) -> int:
@@ -251,13 +249,14 @@ class ModbusFacade:
         return {_FEATURE[name]: units_to_mm(value) for name, value in entries
                 if name in _FEATURE}
 
-    def follow_jobs(self, jobs: JobService) -> None:
-        """Serve the job registers (map v4) from ``jobs``, and take the CNC's writes there."""
+    def serve_jobs(self, jobs: JobService) -> None:
+        """Serve the job registers (map v4) from ``jobs`` (told of each change:
+        ``job_changed``), and take the CNC's writes there."""
         self.jobs = jobs
-        jobs.on_change(self._job_changed)
-        self._job_changed()
+        self.job_changed()
 
-    def _job_changed(self) -> None:
+    def job_changed(self) -> None:
+        """The job in force or the feature named changed: its registers and tool blocks."""
         self._show_offsets()  # the job's tools, each in its block
         jobs = self.jobs
         if jobs is not None:
@@ -365,7 +364,7 @@ class ModbusFacade:
                 jobs.select(feature or None)
         except (KeyError, ValueError, NotStoredError) as err:  # changed meanwhile
             log.warning("job or feature from %s not taken: %s", who, err)
-            self._job_changed()  # the registers show what is in force
+            self.job_changed()  # the registers show what is in force
 
     async def run_command(self, command: Command, source: str,
                           who: str | None = None) -> Decision | None:

@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import sqlite3
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -75,8 +76,7 @@ class OpcUaValues:
         self.feed, self.compensation, self.camera, self.writer = (feed, compensation, camera,
                                                                   writer)
         self.form, self.jobs = form, jobs
-        self.last_offset = LastOffset()
-        compensation.on_decision(self.last_offset)
+        self.last_offset = LastOffset()   # told each decision (serve.wire)
 
     def values(self) -> dict[str, Any]:
         """The variables' values by name (``service.plant.opcua.MONITORING`` and
@@ -134,12 +134,24 @@ class OpcUaValues:
         return f"{d.kind.value}: {d.reason}"
 
 
+@dataclass
+class PlantLinks:
+    """The links the settings ask for, and what of them ``serve.wire`` tells of the gauge's
+    events (the MQTT publisher; the OPC UA server's view)."""
+
+    links: list[PlantLink] = field(default_factory=list)
+    mqtt: Any = None
+    opcua_values: OpcUaValues | None = None
+
+
 def make_plant_links(settings: Settings, feed: MeasurementFeed,
                      compensation: CompensationService, camera: Camera,
                      writer: OffsetWriter | PullCnc | None, health: HealthReport,
-                     jobs: JobService | None = None) -> list[PlantLink]:
-    """The links the settings ask for, connected to the gauge's parts."""
-    links: list[PlantLink] = []
+                     jobs: JobService | None = None) -> PlantLinks:
+    """The links the settings ask for, made from the gauge's parts (not yet told of its
+    events: ``serve.wire`` does that)."""
+    made = PlantLinks()
+    links = made.links
     data_dir = settings.store.path.parent
     if settings.mqtt.host:
         from service.plant.mqtt import MqttPublisher
@@ -149,12 +161,9 @@ def make_plant_links(settings: Settings, feed: MeasurementFeed,
         except sqlite3.Error as err:  # decisions still go out while the broker is there
             outbox = Outbox(":memory:", settings.mqtt.outbox_max)
             problem = f"MQTT outbox {data_dir / 'mqtt-outbox.db'} cannot be used ({err})"
-        mqtt = MqttPublisher(settings.mqtt, outbox, health.summary, outbox_problem=problem)
-        feed.on_publish(mqtt.measurement)
-        compensation.on_decision(mqtt.decision)
-        if jobs is not None:
-            jobs.on_part(mqtt.part)
-        links.append(mqtt)
+        made.mqtt = MqttPublisher(settings.mqtt, outbox, health.summary,
+                                  outbox_problem=problem)
+        links.append(made.mqtt)
     ua = settings.opcua
     embedded = settings.camera.source == "sim"
     if ua.enabled or (ua.enabled is None and embedded):
@@ -163,9 +172,10 @@ def make_plant_links(settings: Settings, feed: MeasurementFeed,
         if ua.none_security is None:
             ua = ua.model_copy(update={"none_security": embedded})
 
-        values = OpcUaValues(feed, compensation, camera, writer, health.form_position, jobs)
+        values = made.opcua_values = OpcUaValues(feed, compensation, camera, writer,
+                                                 health.form_position, jobs)
         links.append(OpcUaServer(ua, GaugeView(
             values.values, values.measure_now, values.reset,
             serial_number=settings.camera.device_id or settings.camera.sim_serial,
             software_revision=package_version()), Path(data_dir) / "opcua"))
-    return links
+    return made

@@ -27,6 +27,7 @@ from service.compensation import (
 from service.compensation.job import Job, JobFeature
 from service.compensation.tools import ToolCompensation
 from service.offsets import OffsetChannel, OffsetTransport
+from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.compensation")
 
@@ -58,17 +59,17 @@ class ToolChannels:
         Told every decision (named by its tool).
     blocked : str
         Why the tools' offsets may never be written here (empty: they may).
-    write_listeners : list
-        Told every offset write; every tool's channel shares this list.
+    writes : Listeners
+        Told every offset write; every tool's channel shares them.
     """
 
     def __init__(self, transport: Callable[[int], OffsetTransport] | None,
                  log_: CompensationLog | None, on_decision: Callable[[Decision], None],
                  blocked: str = "",
-                 write_listeners: list[Callable[[WriteResult], None]] | None = None) -> None:
+                 writes: Listeners[WriteResult] | None = None) -> None:
         self.transport, self.log, self.on_decision = transport, log_, on_decision
         self.blocked = blocked
-        self.write_listeners = write_listeners if write_listeners is not None else []
+        self.writes = writes if writes is not None else Listeners("offset write")
         self.channels: dict[int, OffsetChannel] = {}
         self._resumed: set[int] = set()  # id() of the channels offered their offset again
         self._gate = ""  # the master gate's reason, for every tool
@@ -114,7 +115,7 @@ class ToolChannels:
             self._no_transport[tool] = f"tool {tool}'s offsets cannot be sent: {err}"
         ch = OffsetChannel(CompensationController(own, state), transport, self.log,
                            on_decision=self.on_decision, tool_number=tool)
-        ch.write_listeners = self.write_listeners
+        ch.writes = self.writes
         ch.set_calibration(calibration_id)
         ch.set_writes_blocked(self._why_blocked(tool))
         log.info("tool %d: its own compensation (state %s)", tool, ch.controller.state.value)

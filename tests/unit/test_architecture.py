@@ -132,3 +132,40 @@ def test_no_two_modules_import_each_other() -> None:
         if node not in state:
             visit(node, [node])
     assert not cycles, cycles
+
+
+SUBSCRIBE = ("on_decision", "on_settings", "on_publish", "on_change", "on_new_job", "on_part",
+             "on_write")
+"""The running service's subscriptions (each publisher keeps a ``Listeners``)."""
+
+
+def _subscriptions(path: Path) -> list[tuple[int, str, bool]]:
+    """(line, method, inside a constructor) of each subscription made in ``path``."""
+    tree = ast.parse(path.read_text())
+    inits = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and n.name == "__init__"]
+    in_init = {id(c) for n in inits for c in ast.walk(n)}
+    return [(c.lineno, c.func.attr, id(c) in in_init) for c in ast.walk(tree)
+            if isinstance(c, ast.Call) and isinstance(c.func, ast.Attribute)
+            and c.func.attr in SUBSCRIBE   # a part calling back its own owner is no subscription
+            and not (isinstance(c.func.value, ast.Name) and c.func.value.id == "self")]
+
+
+def test_subscriptions_are_made_in_one_place_never_by_a_constructor() -> None:
+    """One owner wires the flow (``service.serve.wire``): a reader finds every subscription
+    there, and no part starts listening by being made."""
+    wiring = ROOT / "service" / "serve.py"
+    for path in (ROOT / "service").rglob("*.py"):
+        subs = _subscriptions(path)
+        assert not [s for s in subs if s[2]], f"{path}: a constructor subscribes: {subs}"
+        if path != wiring:
+            assert not subs, f"{path}: subscriptions outside service/serve.py: {subs}"
+
+
+def test_every_publisher_keeps_its_listeners_in_the_one_listener_type() -> None:
+    """No hand-made list of callables: ``service.runtime.listeners.Listeners`` tells each
+    listener, and one that raises does not silence the others."""
+    for path in (ROOT / "service").rglob("*.py"):
+        if path.name == "listeners.py":
+            continue
+        text = path.read_text()
+        assert "_listeners: list[" not in text and "listeners: list[Callable" not in text, path
