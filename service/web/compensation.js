@@ -95,7 +95,8 @@ export function onDecision(d) {
   }
   body.prepend(row({ ...d, wall_time: Date.now() / 1000 }));
   while (body.children.length > 100) body.lastChild.remove();
-  if (d.tool == null) $("comp-cumulative").textContent = um(d.after_mm);
+  // The one channel's figure; in a job of several tools each tool's is in its row.
+  if (d.tool == null && $("comp-tools-card").hidden) $("comp-cumulative").textContent = um(d.after_mm);
 }
 
 export function onStatus(st) {
@@ -106,6 +107,7 @@ export function onStatus(st) {
   $("comp-state").textContent = st.compensation.state;
   showCnc(st.compensation);
   showTools(st.compensation.tools ?? [], st.compensation.shadow);
+  if ((st.compensation.tools ?? []).length) $("comp-cumulative").textContent = "each tool's, below";
   if (!switching) $("shadow").checked = st.compensation.shadow;  // the service's word counts
 }
 

@@ -384,7 +384,8 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
 
     until(rows_match_the_status, "each tool's row showing its cumulative offset")
     for gauge_wide in ("#comp-cumulative", "#comp-cnc-total", "#comp-handshake"):
-        expect(page.locator(gauge_wide)).to_have_text("each tool's, below")
+        expect(page.locator(gauge_wide)).to_have_text("each tool's, below",
+                                                      timeout=UI_WAIT_MS)
     expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=UI_WAIT_MS)
     shot(page, "compensation-tools")
     assert not page.errors  # type: ignore[attr-defined]
