@@ -277,7 +277,7 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
         if lathe is None:
             return _fail("--cnc: the CNC's total moves a virtual lathe: give --lathe too")
         from drivers.plc.client import CncTotalReader
-        from drivers.plc.offsets import PlcOffsetMap
+        from drivers.plc.offset_map import PlcOffsetMap
         from drivers.plc.registers import WordOrder
 
         host, _, port = args.cnc.rpartition(":")
@@ -310,7 +310,7 @@ def cmd_sim_plc(args: argparse.Namespace) -> int:
     import asyncio
     import signal
 
-    from drivers.plc.offsets import PlcOffsetMap
+    from drivers.plc.offset_map import PlcOffsetMap
     from drivers.plc.registers import WordOrder
     from drivers.plc.sim import SimPlc
 
@@ -351,7 +351,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     try:
         if args.step == "render":
-            from drivers.sim.board import render_set
+            from drivers.sim.board_shots import render_set
 
             print(json.dumps(render_set(args.output, args.seed, c.parse_board(args.board))))
             return EXIT_OK
@@ -548,7 +548,7 @@ def cmd_store(args: argparse.Namespace) -> int:
 def cmd_job(args: argparse.Namespace) -> int:
     """The job in force, or none: ``deactivate`` takes a stored job out of force (the
     service back on its settings' single feature), also while the service is stopped."""
-    from calib_store.jobs import JobStore
+    from calib_store.job_store import JobStore
     from calib_store.store import StoreError
 
     try:

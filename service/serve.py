@@ -30,12 +30,12 @@ import uvicorn
 
 from calib_store.compensation_log import CompensationLog, LogRetention
 from calib_store.gauge_studies import GaugeStudyStore
-from calib_store.jobs import JobStore
+from calib_store.job_store import JobStore
 from calib_store.model import load_calibration
 from calib_store.store import CalibrationStore, StoreError
 from drivers.camera.base import Camera, CameraConfig
 from drivers.plc.client import OffsetWriter
-from drivers.plc.offsets import PlcOffsetMap
+from drivers.plc.offset_map import PlcOffsetMap
 from drivers.plc.pull import PullCnc
 from drivers.plc.registers import RegisterBank, WordOrder
 from drivers.plc.tls import TlsFiles, client_context
@@ -51,16 +51,16 @@ from service.runtime.archive import MeasurementArchive
 from service.runtime.calibration import CalibrationContext, MasterPolicy
 from service.runtime.compensating import CompensationService, RuntimeSettings
 from service.runtime.feed import MeasurementFeed, SequenceCounter
-from service.runtime.form import FormWatch
+from service.runtime.form_watch import FormWatch
 from service.runtime.gauge import Gauge
 from service.runtime.health import HealthReport
-from service.runtime.jobs import JobService
+from service.runtime.job_service import JobService
 from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import make_plant_links
 from service.runtime.publish import Publisher
-from service.runtime.spc import SpcService
+from service.runtime.spc_service import SpcService
 from service.runtime.studies import GaugeStudies, StudyPolicy
 
 log = logging.getLogger("shaftgauge.serve")
@@ -216,7 +216,7 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
         trigger=cam_cfg.trigger, trigger_line=cam_cfg.trigger_line)
     camera: Camera
     if cam_cfg.source == "rig":
-        from drivers.camera.rig import RigCamera
+        from drivers.camera.rig_camera import RigCamera
 
         camera = RigCamera(cam_cfg.sim_diameter_mm, config, seed=cam_cfg.sim_seed,
                            replay_frames=cam_cfg.sim_replay_frames)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pymodbus.client import AsyncModbusTcpClient, AsyncModbusTlsClient
 from pymodbus.exceptions import ModbusException
 
-from drivers.plc.offsets import PlcOffsetMap
+from drivers.plc.offset_map import PlcOffsetMap
 from drivers.plc.registers import UM_PER_UNIT, RegisterType, from_words, mm_to_units, to_words
 from service.compensation import CncReading
 

@@ -30,7 +30,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer, ModbusTlsServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from drivers.plc.offsets import PlcOffsetMap
+from drivers.plc.offset_map import PlcOffsetMap
 from drivers.plc.registers import RegisterType, from_words, to_words
 
 log = logging.getLogger("shaftgauge.sim.plc")

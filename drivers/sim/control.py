@@ -25,7 +25,7 @@ import socketserver
 import threading
 from typing import Any
 
-from drivers.sim.board import Board, Shot, session_shots
+from drivers.sim.board_shots import Board, Shot, session_shots
 from drivers.sim.disturb import Disturbances
 from drivers.sim.gige import SimGigECamera
 from drivers.sim.rig import Turning

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.sim.board import Board, BoardRenderer, Shot
+from drivers.sim.board_shots import Board, BoardRenderer, Shot
 from drivers.sim.disturb import Disturbances
 from drivers.sim.lathe import LaserView, LatheConfig, VirtualLathe
 from drivers.sim.replay import FrameRing, crop, min_frame_period_us

@@ -20,7 +20,7 @@ from service.plant.aqdef import (
     header_lines,
     value_lines,
 )
-from service.runtime.jobs import JobService
+from service.runtime.job_service import JobService
 
 MAX_ROWS = 1_000_000
 """The most archived rows one request takes (11.6 days at the default 1 a second): a longer

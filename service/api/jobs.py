@@ -10,7 +10,7 @@ from service.api.auth import Caller, requires
 from service.api.models import FeatureSelectIn, JobIn
 from service.compensation.job import JobError
 from service.config import ApiSettings
-from service.runtime.jobs import JobService
+from service.runtime.job_service import JobService
 
 JobId = Annotated[int, Path(ge=1, le=2**63 - 1, description="job id")]
 

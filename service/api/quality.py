@@ -9,8 +9,8 @@ from service.api.auth import Caller, requires
 from service.api.models import _Strict
 from service.config import ApiSettings
 from service.runtime.compensating import CompensationService
-from service.runtime.jobs import JobService
-from service.runtime.spc import SpcService
+from service.runtime.job_service import JobService
+from service.runtime.spc_service import SpcService
 from service.runtime.studies import GaugeStudies, StudyError
 
 

@@ -33,7 +33,7 @@ import aiomqtt
 from calib_store.outbox import Outbox
 from service.compensation import QUIET_KINDS, Decision
 from service.config import MqttSettings
-from service.record import MeasurementRecord, finite_or_none
+from service.measurement_record import MeasurementRecord, finite_or_none
 
 log = logging.getLogger("shaftgauge.mqtt")
 

@@ -5,7 +5,7 @@ calibration in force), ``CompensationService`` (the controller and its settings)
 ``ModbusFacade`` (the registers), ``HealthReport`` (a read-only view), and ``Gauge`` (starts
 and stops them)."""
 
-from service.record import MeasurementRecord
+from service.measurement_record import MeasurementRecord
 from service.runtime.gauge import Gauge
 
 __all__ = ["Gauge", "MeasurementRecord"]

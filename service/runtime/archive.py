@@ -8,7 +8,7 @@ from collections.abc import Callable
 from typing import Any
 
 from calib_store.compensation_log import CompensationLog
-from service.record import Feature, MeasurementRecord
+from service.measurement_record import Feature, MeasurementRecord
 
 
 class MeasurementArchive:

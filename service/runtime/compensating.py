@@ -27,8 +27,8 @@ from service.compensation import (
 )
 from service.compensation.job import Job, JobFeature
 from service.compensation.tools import ToolCompensation
-from service.offsets import OffsetChannel, OffsetTransport
-from service.record import Feature, MeasurementRecord
+from service.measurement_record import Feature, MeasurementRecord
+from service.offset_channel import OffsetChannel, OffsetTransport
 from service.runtime.listeners import Listeners
 from service.runtime.tool_channels import NO_TOOL_IN_HANDSHAKE, ToolChannels
 

@@ -20,7 +20,7 @@ from drivers.camera.base import Frame
 from service.measure.fuse import fuse
 from service.measure.geometry import RigGeometry
 from service.measure.result import Measurement
-from service.record import MeasurementRecord
+from service.measurement_record import MeasurementRecord
 from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.feed")

@@ -16,14 +16,14 @@ from service.measure.compiled import compile_kernels
 from service.runtime.calibration import CalibrationContext
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
-from service.runtime.form import FormWatch
+from service.runtime.form_watch import FormWatch
 from service.runtime.health import HealthReport
-from service.runtime.jobs import JobService
+from service.runtime.job_service import JobService
 from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusFacade
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import PlantLink
-from service.runtime.spc import SpcService
+from service.runtime.spc_service import SpcService
 from service.runtime.studies import GaugeStudies
 
 

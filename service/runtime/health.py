@@ -45,8 +45,8 @@ class HealthReport:
         self.running = False
         self.plant: list[Any] = []  # service.runtime.plant.PlantLink, set by the gauge
         self.quality: tuple[Any, Any] | None = None  # (SpcService, GaugeStudies), set too
-        self.form: Any = None  # service.runtime.form.FormWatch, with the spindle's angle
-        self.jobs: Any = None  # service.runtime.jobs.JobService, set too
+        self.form: Any = None  # service.runtime.form_watch.FormWatch, with the spindle's angle
+        self.jobs: Any = None  # service.runtime.job_service.JobService, set too
 
     def _fresh(self) -> bool:
         age = self.feed.measurement_age_s()

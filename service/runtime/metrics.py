@@ -23,7 +23,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 from drivers.plc.client import Outcome
-from service.record import MeasurementRecord
+from service.measurement_record import MeasurementRecord
 from service.runtime.health import HealthReport
 
 # Frame -> registers is milliseconds; an offset write, tens of ms to seconds.

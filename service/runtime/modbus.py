@@ -25,9 +25,9 @@ from drivers.plc.tls import TlsFiles
 from service.compensation import CompensationSettings, Decision, State
 from service.compensation.job import JobError, job_from_doc
 from service.config import ModbusSettings
-from service.record import MeasurementRecord
+from service.measurement_record import MeasurementRecord
 from service.runtime.compensating import CompensationService
-from service.runtime.jobs import JobService
+from service.runtime.job_service import JobService
 
 log = logging.getLogger("shaftgauge.modbus")
 

@@ -29,7 +29,7 @@ from service.measure.cadence import ReflectionWatch
 from service.measure.diameter import MeasureParams
 from service.measure.result import Measurement, Method
 from service.measure.runout_track import SpindleAngles
-from service.measuring import FrameRef, FrameSlots, measure_timed, worker_start
+from service.measure_worker import FrameRef, FrameSlots, measure_timed, worker_start
 from service.runtime.calibration import CalibrationContext, CalibrationInUse
 from service.runtime.roi import KEEP, RegionFollower
 

@@ -19,11 +19,11 @@ from drivers.plc.pull import PullCnc
 from service.compensation import Decision, Kind
 from service.compensation.job import JobFeature
 from service.config import Settings
-from service.record import MeasurementRecord
+from service.measurement_record import MeasurementRecord
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
-from service.runtime.jobs import JobService
+from service.runtime.job_service import JobService
 from service.version import package_version
 
 MEASURE_NOW_TIMEOUT_S = 2.0

@@ -13,11 +13,11 @@ from drivers.camera.base import Frame
 from service.calibrate.master import corrected
 from service.measure.result import MAX_UNCERTAINTY_MM, Measurement, Status
 from service.measure.turning import about_the_form, centre_sigma_at, concentricity_check
-from service.record import make_record
+from service.measurement_record import make_record
 from service.runtime.calibration import CalibrationInUse
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed, SequenceCounter
-from service.runtime.jobs import JobService
+from service.runtime.job_service import JobService
 from service.runtime.modbus import ModbusFacade
 
 

@@ -26,7 +26,7 @@ from service.compensation import (
 )
 from service.compensation.job import Job, JobFeature
 from service.compensation.tools import ToolCompensation
-from service.offsets import OffsetChannel, OffsetTransport
+from service.offset_channel import OffsetChannel, OffsetTransport
 from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.compensation")

@@ -18,7 +18,7 @@ import itertools
 import cv2
 import numpy as np
 
-from drivers.sim.board import Board, BoardPose, BoardRenderer
+from drivers.sim.board_shots import Board, BoardPose, BoardRenderer
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from tests.bench.results import save_report
 

@@ -13,7 +13,7 @@ import pytest
 
 from drivers.camera.aravis import AravisCamera, enable_fake_interface
 from drivers.camera.base import Camera, CameraConfig, CameraState
-from drivers.camera.rig import RigCamera
+from drivers.camera.rig_camera import RigCamera
 from tests.integration.conftest import take_frames
 
 IMPLEMENTATIONS = ["gige-sim", "gige-sim-udp", "aravis-fake", "rig"]

@@ -10,7 +10,7 @@ import pytest
 
 from calib_store.compensation_log import CompensationLog
 from drivers.plc.client import OffsetWriter, Outcome
-from drivers.plc.offsets import PlcOffsetMap
+from drivers.plc.offset_map import PlcOffsetMap
 from service.compensation import (
     CompensationController,
     CompensationSettings,
@@ -19,7 +19,7 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
-from service.offsets import OffsetChannel
+from service.offset_channel import OffsetChannel
 
 # The window law with the tuning these handshakes were written with (a write when the third
 # measurement fills the window); the exchange does not depend on the law.

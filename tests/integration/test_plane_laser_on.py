@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.sim.board import BoardRenderer, session_shots
+from drivers.sim.board_shots import BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate import commands
 from service.calibrate.board import parse_board

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calib_store.model import SCHEMA, parse_calibration
-from drivers.sim.board import Board, BoardRenderer, session_shots
+from drivers.sim.board_shots import Board, BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate.axis import calibrate_axis
 from service.calibrate.intrinsics import calibrate_intrinsics

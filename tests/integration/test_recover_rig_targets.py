@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.sim.board import BoardRenderer, session_shots
+from drivers.sim.board_shots import BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate.axis import calibrate_axis
 from service.calibrate.board import parse_board

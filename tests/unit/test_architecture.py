@@ -11,13 +11,13 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 # The pure core: numerics and state machines, no I/O, nothing of the adapters or the app.
 CORE = ["service/measure", "service/quality", "service/compensation",
-        "service/record.py",
+        "service/measurement_record.py",
         "service/calibrate/board.py",
         "service/calibrate/intrinsics.py", "service/calibrate/plane.py",
         "service/calibrate/axis.py", "service/calibrate/report.py",
         "service/calibrate/master.py", "service/calibrate/laser_line.py"]
 CORE_MODULES = ("service.measure", "service.quality", "service.compensation",
-                "service.record",
+                "service.measurement_record",
                 "service.calibrate.board",
                 "service.calibrate.intrinsics", "service.calibrate.plane",
                 "service.calibrate.axis", "service.calibrate.report",
@@ -169,3 +169,15 @@ def test_every_publisher_keeps_its_listeners_in_the_one_listener_type() -> None:
             continue
         text = path.read_text()
         assert "_listeners: list[" not in text and "listeners: list[Callable" not in text, path
+
+
+def test_no_two_modules_share_a_file_name_but_api_routers() -> None:
+    """A file's name says which of its kind it is: the offset channel is not the register
+    map's offsets, the job's owner not its store (an API router may share its resource's
+    name)."""
+    seen: dict[str, list[str]] = {}
+    for top in ("service", "drivers", "calib_store"):
+        for path in (ROOT / top).rglob("*.py"):
+            if path.name != "__init__.py" and path.parent.name != "api":
+                seen.setdefault(path.name, []).append(str(path.relative_to(ROOT)))
+    assert not {n: p for n, p in seen.items() if len(p) > 1}

@@ -30,7 +30,7 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
-from service.offsets import OffsetChannel
+from service.offset_channel import OffsetChannel
 
 # The window law with the tuning these handshakes were written with (the figures below are
 # its corrections); the handshakes do not depend on the law.

@@ -37,7 +37,7 @@ from service.compensation import (
 )
 from service.compensation.job import Job, JobFeature
 from service.compensation.tools import ToolCompensation
-from service.offsets import OffsetChannel
+from service.offset_channel import OffsetChannel
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN_SIM = ROOT / "deploy" / "linuxcnc" / "run-sim.sh"

@@ -16,8 +16,8 @@ import aiomqtt
 from calib_store.outbox import Outbox
 from service.compensation import Decision, Kind
 from service.config import MqttSettings
+from service.measurement_record import MeasurementRecord
 from service.plant.mqtt import MqttPublisher
-from service.record import MeasurementRecord
 
 
 @dataclass

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from calib_store import schema
-from calib_store.jobs import JobStore
+from calib_store.job_store import JobStore
 
 FIXTURES = Path(__file__).resolve().parents[2] / "fixtures" / "stores"
 DOC = {"part_number": "SH-4711", "name": "stepped shaft", "features": [

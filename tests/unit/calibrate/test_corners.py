@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.sim.board import Board, BoardRenderer
+from drivers.sim.board_shots import Board, BoardRenderer
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate import intrinsics
 from service.calibrate.board import parse_board

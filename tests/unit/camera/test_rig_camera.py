@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.camera.base import CameraConfig, Frame
-from drivers.camera.rig import RigCamera
+from drivers.camera.rig_camera import RigCamera
 
 
 def _frames(cam: RigCamera, n: int) -> list[Frame]:

@@ -12,9 +12,9 @@ import numpy as np
 
 from calib_store.gauge_studies import GaugeStudyStore
 from service.config import SpcConfig
-from service.record import Feature
+from service.measurement_record import Feature
 from service.runtime.feed import Subscribers
-from service.runtime.spc import SpcService
+from service.runtime.spc_service import SpcService
 from service.runtime.studies import GaugeStudies, StudyPolicy
 from tests.integration.plant.test_mqtt import record
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from drivers.sim.board import Board, BoardRenderer
+from drivers.sim.board_shots import Board, BoardRenderer
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate.intrinsics import find_corners
 

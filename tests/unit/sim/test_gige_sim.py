@@ -42,7 +42,7 @@ def test_control_requests() -> None:
 
 
 def test_shows_a_calibration_board_instead_of_the_shaft() -> None:
-    from drivers.sim.board import Board
+    from drivers.sim.board_shots import Board
     from service.calibrate.intrinsics import find_corners
 
     cam = SimGigECamera(SimCameraSettings(diameter_mm=30.0))

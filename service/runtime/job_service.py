@@ -17,11 +17,11 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from calib_store.jobs import JobInfo, JobStore
+from calib_store.job_store import JobInfo, JobStore
 from calib_store.store import NotStoredError
 from service.compensation.job import Job, JobError, JobFeature, job_from_doc
+from service.measurement_record import Feature, MeasurementRecord
 from service.quality.parts import PartAssembler, PartRecord
-from service.record import Feature, MeasurementRecord
 from service.runtime.compensating import CompensationService
 from service.runtime.listeners import Listeners
 

@@ -1,4 +1,5 @@
-"""Frames handed to measuring worker processes through shared memory (``service.measuring``)."""
+"""Frames handed to measuring worker processes through shared memory
+(``service.measure_worker``)."""
 
 from __future__ import annotations
 
@@ -6,8 +7,8 @@ import os
 
 import numpy as np
 
-from service import measuring
-from service.measuring import FrameSlots
+from service import measure_worker as measuring
+from service.measure_worker import FrameSlots
 
 
 def test_a_frame_is_read_in_place_as_it_was_put() -> None:

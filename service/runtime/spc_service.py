@@ -8,8 +8,8 @@ from collections.abc import Callable
 from typing import Any
 
 from service.config import SpcConfig
+from service.measurement_record import Feature, MeasurementRecord
 from service.quality.monitor import SpcMonitor, SpcSettings, Subgroup
-from service.record import Feature, MeasurementRecord
 from service.runtime.feed import Subscribers
 
 
