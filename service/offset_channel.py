@@ -148,7 +148,7 @@ class OffsetChannel:
         controller asks for one."""
         async with self._lock:
             if self.tool is not None and feature is not None:
-                order = self.tool.on_measurement(feature, m, self.clock())
+                order = self.tool.on_measurement(m, self.clock(), feature)
             else:
                 order = self.controller.on_measurement(m, self.clock())
             if order.kind is not Kind.WRITE:

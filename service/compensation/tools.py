@@ -60,8 +60,8 @@ class ToolCompensation:
                             feature.empirical_mm + shift,
                             self.agreement.disagreement(self.job.max_disagreement_mm(self.entry)))
 
-    def on_measurement(self, feature: JobFeature, m: MeasurementIn, now: float) -> Decision:
-        """Judge a measurement of one of this tool's features."""
+    def on_measurement(self, m: MeasurementIn, now: float, feature: JobFeature) -> Decision:
+        """Judge a measurement of ``feature``, one of this entry's."""
         if self.job.entry_of(feature) != self.entry:
             raise ValueError(f"feature {feature.number} is corrected on "
                              f"{self.job.entry_of(feature)}, not {self.entry}")
@@ -91,13 +91,13 @@ class JobCompensation:
         """Each tool's own entry's compensation, by T number."""
         return {e.tool: c for e, c in self.entries.items() if e.number is None}
 
-    def on_measurement(self, feature_number: int, m: MeasurementIn, now: float
+    def on_measurement(self, m: MeasurementIn, now: float, feature_number: int
                        ) -> tuple[OffsetEntry, Decision]:
         """(entry, decision) for a measurement of ``feature_number`` (KeyError naming the
         job's features when it has no such feature)."""
         feature = self.job.feature(feature_number)
         entry = self.job.entry_of(feature)
-        return entry, self.entries[entry].on_measurement(feature, m, now)
+        return entry, self.entries[entry].on_measurement(m, now, feature)
 
     def shadow(self, on: bool, now: float) -> None:
         """Shadow mode for every entry."""

@@ -132,8 +132,8 @@ def run(physics: Physics, parts: int, seed: int, job_doc: dict, taper_um: float 
         for i, (n, d) in enumerate(waiting.popleft().items()):
             seq += 1
             now = k * 60.0 + i  # a part a minute, its features a second apart
-            entry, dec = comp.on_measurement(n, MeasurementIn(
-                seq, now, "ok", d + gauge.error_mm(), physics.gauge_sigma_um / 1000), now)
+            entry, dec = comp.on_measurement(MeasurementIn(
+                seq, now, "ok", d + gauge.error_mm(), physics.gauge_sigma_um / 1000), now, n)
             holds += dec.code == "features_disagree"
             ctrl = comp.entries[entry].controller
             if dec.kind is Kind.ALARM:

@@ -181,3 +181,19 @@ def test_no_two_modules_share_a_file_name_but_api_routers() -> None:
             if path.name != "__init__.py" and path.parent.name != "api":
                 seen.setdefault(path.name, []).append(str(path.relative_to(ROOT)))
     assert not {n: p for n, p in seen.items() if len(p) > 1}
+
+
+def test_every_on_measurement_takes_the_measurement_then_the_time_then_the_feature() -> None:
+    """One signature: ``on_measurement(m[, now][, feature])`` wherever a measurement is
+    judged (the controller, an entry's, the job's, the channel's)."""
+    found = []
+    for path in (ROOT / "service").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) \
+                    and node.name == "on_measurement":
+                names = [a.arg for a in node.args.args][1:]
+                found.append((path.name, names))
+                assert names[0] == "m", (path, names)
+                assert names[1:2] in (["now"], ["feature"], ["feature_number"]), (path, names)
+                assert names[-1] in ("now", "feature", "feature_number"), (path, names)
+    assert len(found) >= 4, found

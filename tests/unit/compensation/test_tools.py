@@ -47,8 +47,8 @@ def run(job_doc: dict, parts: int, base: CompensationSettings = BASE, seed: int 
                       + totals[f.tool] * 1000 + rng.normal(0.0, 1.0))
             out[f.number].append(dev_um)
             seq, now = seq + 1, now + 1.0
-            entry, d = comp.on_measurement(f.number, MeasurementIn(
-                seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now)
+            entry, d = comp.on_measurement(MeasurementIn(
+                seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now, f.number)
             tool = entry.tool
             decisions.append((tool, f.number, d))
             if d.kind is Kind.WRITE:
@@ -101,7 +101,7 @@ def test_a_deflection_no_empirical_value_takes_holds_the_tool_and_says_which() -
 def test_a_feature_or_tool_the_job_does_not_have_is_refused() -> None:
     comp = JobCompensation(job_from_doc(JOB), BASE)
     with pytest.raises(KeyError, match="feature 7 is not in job"):
-        comp.on_measurement(7, MeasurementIn(1, 1.0, "ok", 30.0, 0.001), 1.0)
+        comp.on_measurement(MeasurementIn(1, 1.0, "ok", 30.0, 0.001), 1.0, 7)
 
 
 def taper_run(entry_of_4: int | None, parts: int = 80, seed: int = 3
@@ -127,8 +127,8 @@ def taper_run(entry_of_4: int | None, parts: int = 80, seed: int = 3
                       + totals[entry] * 1000 + rng.normal(0.0, 1.0))
             out[f.number].append(dev_um)
             seq, now = seq + 1, now + 1.0
-            got, d = comp.on_measurement(f.number, MeasurementIn(
-                seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now)
+            got, d = comp.on_measurement(MeasurementIn(
+                seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now, f.number)
             assert got == entry
             codes.append(d.code)
             if d.kind is Kind.WRITE:
