@@ -58,11 +58,10 @@ from typing import Any
 from service.compensation.bands import PartBand, part_band, tolerance_text
 from service.compensation.exchange import clip_step, effect_mm, same_total
 from service.compensation.handshake import OffsetBook
-from service.compensation.laws import Predictor, WindowLaw
+from service.compensation.laws import Estimate, Law, law_of
 from service.compensation.records import Decision, FeatureTerms, Kind, MeasurementIn, State
 from service.compensation.settings import CompensationSettings
 
-REVERSAL_NULL_BANDS = 3.0
 """An offset that would reverse the gauge's last one must be this many null bands: noise
 does not walk the tool back and forth."""
 
@@ -84,8 +83,7 @@ class CompensationController(OffsetBook):
         problems = self.settings.problems()
         if problems:
             raise ValueError("; ".join(problems))
-        self._window = WindowLaw.of(self.settings)
-        self._predictor = Predictor.of(self.settings)
+        self._law: Law = law_of(self.settings)   # chosen once, anew when the law changes
         self._applied_mm = 0.0  # the effect of every offset applied since the start, mm
         self._last_offset_mm = 0.0  # the last applied offset's effect, mm
         # A write handed out but never reported (the service died) is uncertain on restart.
@@ -96,11 +94,11 @@ class CompensationController(OffsetBook):
                **kw: Any) -> Decision:
         """Move to ``state`` (the filter window starts afresh) and record why."""
         self.persisted.state = state.value
-        self._window.clear()
+        self._law.clear()
         return self._decision(kind, code, reason, now, **kw)
 
     def _forget(self) -> None:
-        self._window.clear()
+        self._law.clear()
 
     def _applied_now(self, effect: float, now: float) -> None:
         self._last_offset_mm = effect
@@ -108,10 +106,8 @@ class CompensationController(OffsetBook):
 
     def _in_flight(self, effect: float, now: float) -> None:
         """An offset's effect on the diameter (mm) applied now: the laws wait for it."""
-        s = self.settings
         self._applied_mm += effect
-        self._window.corrected(now)
-        self._predictor.applied(effect, s.dead_time_measurements, now + s.dead_time_s)
+        self._law.applied(effect, now)
 
     # ---- inputs --------------------------------------------------------------------------
 
@@ -133,10 +129,10 @@ class CompensationController(OffsetBook):
         self.check_settings(settings)
         old = self.settings
         self.settings = settings
-        self._window = self._window.retuned(settings)
-        keep = (old.law, old.nominal_mm, old.programming, old.offset_sign) == (
-            settings.law, settings.nominal_mm, settings.programming, settings.offset_sign)
-        self._predictor = self._predictor.retuned(settings) if keep else Predictor.of(settings)
+        renewed = (old.nominal_mm, old.programming, old.offset_sign) != (
+            settings.nominal_mm, settings.programming, settings.offset_sign)
+        self._law = self._law.retuned(settings, renewed) if old.law == settings.law \
+            else law_of(settings)
         enabled = old.shadow and not settings.shadow
         if enabled:
             self.persisted.baseline_mm = None
@@ -166,11 +162,10 @@ class CompensationController(OffsetBook):
 
     def _changed_at_cnc(self, change_mm: float, now: float) -> Decision:
         """Someone else moved the CNC's total by ``change_mm`` (offset units)."""
-        s = self.settings
-        self._in_flight(effect_mm(s, change_mm), now)
+        self._in_flight(effect_mm(self.settings, change_mm), now)
         # An insert change, most likely: the process estimate starts again from the parts cut
         # after it, and nothing is corrected before they are seen.
-        self._predictor.reset(s.dead_time_measurements, now + s.dead_time_s)
+        self._law.restart(now)
         return self._decision(
             Kind.BASELINE, "cnc_total_changed", f"the CNC's total wear offset was changed "
             f"at the CNC by {change_mm * 1000:+.1f} um (an insert change?): the process is "
@@ -216,36 +211,23 @@ class CompensationController(OffsetBook):
             return self._decision(Kind.HELD, f"gate_{self.state.value}", gate, now, **kw)
         if feature is not None and feature.held:
             return self._decision(Kind.HELD, "features_disagree", feature.held, now, **kw)
-        if s.law == "predictive":
-            # The interval between measurements from when they were taken: a queue judged in
-            # a burst (a busy host) must not read as measurements microseconds apart.
-            got = self._predictor.observe(deviation, self._applied_mm, now,
-                                          float(m.uncertainty_mm), m.time_s)
-            # Where the coming parts will stand with the offsets applied (in flight too).
-            filtered = got if isinstance(got, tuple) else got + self._applied_mm
-            gain = 1.0
-        else:
-            filtered = self._window.observe(deviation, float(m.uncertainty_mm), now)
-            gain = s.gain
+        # The interval between measurements from when they were taken (``m.time_s``): a
+        # queue judged in a burst (a busy host) must not read as measurements microseconds
+        # apart.
+        got = self._law.estimate(deviation, float(m.uncertainty_mm), now, m.time_s,
+                                 self._applied_mm, self._last_offset_mm, b.deadband_mm)
         flag = "" if band is PartBand.IN_TOLERANCE else (
             f"part out of tolerance ({raw * 1000:+.1f} um, tolerance "
             f"{tolerance_text(b)}): flagged; ")
-        if isinstance(filtered, tuple):
-            return self._decision(Kind.HELD, filtered[0], flag + filtered[1], now, **kw)
+        if not isinstance(got, Estimate):
+            return self._decision(Kind.HELD, got.code, flag + got.why, now, **kw)
+        filtered, note = got.deviation_mm, flag + got.note
         kw["filtered_mm"] = filtered
-        step = self._predictor.last_step_mm if s.law == "predictive" else None
-        note = flag + ("" if step is None else f"a step of {step * 1000:+.1f} um in the "
-                       "process, confirmed by two measurements: followed; ")
-        null = b.deadband_mm
-        if s.law == "predictive":
-            null = self._predictor.null_band()
-            if self._last_offset_mm * filtered > 0:  # it would reverse the last offset: surer
-                null *= REVERSAL_NULL_BANDS
-        if abs(filtered) <= null:
+        if abs(filtered) <= got.null_mm:
             return self._decision(Kind.HELD, "deadband", f"{note}filtered deviation "
                                   f"{filtered * 1000:+.1f} um inside the null band (deadband) of "
-                                  f"{null * 1000:.1f} um", now, **kw)
-        return self._correct(-gain * filtered / effect_mm(s, 1.0), now, kw, note)
+                                  f"{got.null_mm * 1000:.1f} um", now, **kw)
+        return self._correct(-got.gain * filtered / effect_mm(s, 1.0), now, kw, note)
 
     def _implausible(self, deviation: float, limit_mm: float, gate: str, now: float,
                      kw: dict[str, Any]) -> Decision:
@@ -269,13 +251,13 @@ class CompensationController(OffsetBook):
         # Writing, the limit is on the CNC's own total; proposing, on our bookkeeping.
         cnc = self.persisted.cnc_offset_mm()
         if writing and cnc is None:
-            self._window.clear()
+            self._law.clear()
             return self._decision(Kind.HELD, "cnc_total_unknown", "the CNC's total wear offset "
                                   "has not been read yet: no offset until it is (the "
                                   "cumulative limit is checked against it)", now, **kw)
         cum = cnc if writing else self.persisted.cumulative_mm
         step, limited = clip_step(s, wanted, cum)
-        self._window.clear()
+        self._law.clear()
         if step == 0.0:
             if limited:  # already at the cumulative limit in this direction
                 return self._decision(
@@ -310,7 +292,7 @@ class CompensationController(OffsetBook):
             return self._decision(Kind.HELD, "no_alarm", f"no alarm to acknowledge "
                                   f"({self.state.value})", now, who=who)
         self.persisted.state = State.ACTIVE.value
-        self._window.clear()
+        self._law.clear()
         return self._decision(Kind.ACKNOWLEDGED, "acknowledged", "alarm acknowledged", now,
                               who=who)
 
@@ -326,10 +308,9 @@ class CompensationController(OffsetBook):
         self.persisted.cumulative_mm = 0.0
         self.persisted.state = State.ACTIVE.value
         self.persisted.baseline_mm = None
-        self._window.clear()
+        self._law.clear()
         # Parts cut before the reset (a new insert) say nothing of the process after it.
-        self._predictor.reset(self.settings.dead_time_measurements,
-                              now + self.settings.dead_time_s)
+        self._law.restart(now)
         return self._decision(Kind.RESET, "reset", "compensation reset: cumulative offset "
                               "back to 0; the CNC's total at the next reading is the new "
                               "baseline", now, before_mm=before, after_mm=0.0, who=who)

@@ -53,7 +53,71 @@ import collections
 import math
 import statistics
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
+
+REVERSAL_NULL_BANDS = 3.0
+"""An offset that would reverse the last one needs this many null bands (predictive law)."""
+
+
+@dataclass(frozen=True)
+class Hold:
+    """A law has nothing to correct from now: ``code`` (a stable name, ``dead_time``,
+    ``starting``, ``set_aside`` ...) and ``why`` in words."""
+
+    code: str
+    why: str
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What a law makes of the measurements so far.
+
+    Attributes
+    ----------
+    deviation_mm : float
+        Where the coming parts stand with the offsets in force and in flight (mm of
+        diameter; the controller corrects ``-gain`` times it).
+    gain : float
+        The share of it to correct.
+    null_mm : float
+        Nothing is corrected inside this.
+    note : str
+        What the law followed (a step), for the decision's words.
+    """
+
+    deviation_mm: float
+    gain: float
+    null_mm: float
+    note: str = ""
+
+
+class Law(Protocol):
+    """A control law, chosen once for the settings (``law_of``): the controller tells it each
+    measurement's deviation and what it applies, and asks for an estimate or a hold."""
+
+    def estimate(self, deviation_mm: float, uncertainty_mm: float, now_s: float,
+                 time_s: float, applied_mm: float, last_offset_mm: float,
+                 deadband_mm: float) -> Estimate | Hold:
+        """The estimate from this measurement on, or why there is none now."""
+        ...
+
+    def applied(self, effect_mm: float, now_s: float) -> None:
+        """An offset's effect on the diameter (mm), applied now."""
+        ...
+
+    def clear(self) -> None:
+        """The controller changed state: what was gathered for the next correction goes."""
+        ...
+
+    def restart(self, now_s: float) -> None:
+        """A step is expected (a reset, a change at the CNC): the parts cut before now say
+        nothing of the process after."""
+        ...
+
+    def retuned(self, settings: Any, renewed: bool) -> Law:
+        """The law under new settings of the same law; ``renewed``: another nominal or
+        offset convention, the process estimate starts again."""
+        ...
 
 
 def filtered_deviation(window: list[tuple[float, float]], how: str) -> float:
@@ -79,19 +143,35 @@ class WindowLaw:
     values: collections.deque = field(default_factory=collections.deque)
     since_correction: int = 0
     correction_time: float = -math.inf
+    gain: float = 1.0
+    """The share of the filtered deviation corrected."""
 
     @classmethod
     def of(cls, settings: Any) -> WindowLaw:
-        """For compensation settings (``window``, ``filter``, the dead times); no dead time
-        at the start."""
+        """For compensation settings (``window``, ``filter``, the dead times, ``gain``); no
+        dead time at the start."""
         return cls(settings.window, settings.filter, settings.dead_time_measurements,
                    settings.dead_time_s, collections.deque(maxlen=settings.window),
-                   settings.dead_time_measurements)
+                   settings.dead_time_measurements, gain=settings.gain)
 
-    def retuned(self, settings: Any) -> WindowLaw:
+    def retuned(self, settings: Any, renewed: bool = False) -> WindowLaw:
         """An empty window for new settings, the dead time running on."""
         return replace(WindowLaw.of(settings), since_correction=self.since_correction,
                        correction_time=self.correction_time)
+
+    def estimate(self, deviation_mm: float, uncertainty_mm: float, now_s: float,
+                 time_s: float, applied_mm: float, last_offset_mm: float,
+                 deadband_mm: float) -> Estimate | Hold:
+        """The window's filtered deviation once full, outside the dead time."""
+        got = self.observe(deviation_mm, uncertainty_mm, now_s)
+        return Hold(*got) if isinstance(got, tuple) else Estimate(got, self.gain, deadband_mm)
+
+    def applied(self, effect_mm: float, now_s: float) -> None:
+        """An offset applied now: its dead time starts."""
+        self.corrected(now_s)
+
+    def restart(self, now_s: float) -> None:
+        """Nothing more than the dead time its ``applied`` started."""
 
     def observe(self, deviation: float, uncertainty: float, now: float
                 ) -> float | tuple[str, str]:
@@ -417,3 +497,60 @@ class Predictor:
         self.surprise_run.clear()
         self.skip = InFlight(0.0, after_measurements, visible_at_s) \
             if after_measurements > 0 or visible_at_s > -math.inf else None
+
+
+@dataclass
+class PredictiveLaw:
+    """The predictive law (``Predictor``) with the dead times its offsets take to show."""
+
+    predictor: Predictor
+    dead_measurements: int
+    dead_s: float
+
+    @classmethod
+    def of(cls, settings: Any) -> PredictiveLaw:
+        """A fresh estimate for compensation settings."""
+        return cls(Predictor.of(settings), settings.dead_time_measurements,
+                   settings.dead_time_s)
+
+    def retuned(self, settings: Any, renewed: bool = False) -> PredictiveLaw:
+        """New gains and bands, the estimate kept (``renewed``: started again)."""
+        if renewed:
+            return PredictiveLaw.of(settings)
+        return PredictiveLaw(self.predictor.retuned(settings), settings.dead_time_measurements,
+                             settings.dead_time_s)
+
+    def estimate(self, deviation_mm: float, uncertainty_mm: float, now_s: float,
+                 time_s: float, applied_mm: float, last_offset_mm: float,
+                 deadband_mm: float) -> Estimate | Hold:
+        """The uncompensated process forecast where the next correction shows, with the
+        offsets applied: the whole of it is corrected, outside the forecast's own noise (and
+        three times that for an offset that would reverse the last one)."""
+        got = self.predictor.observe(deviation_mm, applied_mm, now_s, uncertainty_mm, time_s)
+        if isinstance(got, tuple):
+            return Hold(*got)
+        where = got + applied_mm
+        step = self.predictor.last_step_mm
+        note = "" if step is None else (f"a step of {step * 1000:+.1f} um in the process, "
+                                        "confirmed by two measurements: followed; ")
+        null = self.predictor.null_band()
+        if last_offset_mm * where > 0:  # it would reverse the last offset: surer
+            null *= REVERSAL_NULL_BANDS
+        return Estimate(where, 1.0, null, note)
+
+    def applied(self, effect_mm: float, now_s: float) -> None:
+        """An offset applied now, shown a dead time later."""
+        self.predictor.applied(effect_mm, self.dead_measurements, now_s + self.dead_s)
+
+    def clear(self) -> None:
+        """The estimate outlives the controller's states."""
+
+    def restart(self, now_s: float) -> None:
+        """The level starts again from the first part cut after now."""
+        self.predictor.reset(self.dead_measurements, now_s + self.dead_s)
+
+
+def law_of(settings: Any) -> Law:
+    """The law the settings name (``law``), fresh."""
+    return PredictiveLaw.of(settings) if settings.law == "predictive" else WindowLaw.of(settings)
+
