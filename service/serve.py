@@ -49,6 +49,7 @@ from service.measure.runout_track import SpindleAngles
 from service.measure.stripe import StripeParams
 from service.runtime.archive import MeasurementArchive
 from service.runtime.calibration import CalibrationContext, MasterPolicy
+from service.runtime.cnc_writes import CncCommands, CncWriteRules
 from service.runtime.compensating import CompensationService, RuntimeSettings
 from service.runtime.feed import MeasurementFeed, SequenceCounter
 from service.runtime.form_watch import FormWatch
@@ -56,10 +57,11 @@ from service.runtime.gauge import Gauge
 from service.runtime.health import HealthReport
 from service.runtime.job_service import JobService
 from service.runtime.metrics import GaugeMetrics
-from service.runtime.modbus import ModbusFacade
+from service.runtime.modbus import ModbusService
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import make_plant_links
 from service.runtime.publish import Publisher
+from service.runtime.register_view import RegisterView
 from service.runtime.spc_service import SpcService
 from service.runtime.studies import GaugeStudies, StudyPolicy
 
@@ -305,17 +307,20 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                            axis_sigma_mm=ms.axis_sigma_mm, free_fit=ms.track_axis,
                            sheet_correction=ms.sheet_correction,
                            sheet_sigma_mm=ms.sheet_sigma_mm)
-    modbus = ModbusFacade(settings.modbus, compensation, trigger=camera.software_trigger,
-                          bank=bank)
-    compensation.on_decision(modbus.decided)
-    compensation.on_settings(modbus.set_feature)
+    registers = RegisterView(bank, compensation)
+    rules = CncWriteRules(settings.modbus, compensation)
+    commands = CncCommands(settings.modbus, compensation, registers, camera.software_trigger)
+    modbus = ModbusService(settings.modbus, bank, registers, rules.check, commands.take)
+    compensation.on_decision(registers.decided)
+    compensation.on_settings(registers.set_feature)
     sequence = SequenceCounter(comp_log, compensation.controller.persisted
                                .last_measurement_seq + 1)
     jobs = JobService(job_store, compensation, store_error)
     compensation.on_settings(lambda _: jobs.settings_changed())
-    modbus.serve_jobs(jobs)
-    jobs.on_change(modbus.job_changed)
-    publisher = Publisher(sequence, feed, modbus, compensation, jobs, sp.max_tir_mm)
+    rules.jobs = commands.jobs = jobs
+    registers.show_jobs(jobs)
+    jobs.on_change(registers.job_changed)
+    publisher = Publisher(sequence, feed, registers, compensation, jobs, sp.max_tir_mm)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
                              settings.camera.roi_margin_px if settings.camera.roi_enabled
                              else None, ms.max_rate_hz, ms.reflection_check_hz,
@@ -359,7 +364,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     pipeline.stage_listener = metrics.stage_time
     compensation.on_write(lambda r: metrics.write_time(r.outcome.value, r.elapsed_s))
     return Gauge(settings, camera, context, pipeline, feed, compensation, modbus, health,
-                 sessions, metrics, spc, studies, jobs, writer, comp_log, plant, form)
+                 sessions, metrics, spc, studies, jobs, writer, comp_log, plant, form, commands)
 
 
 STOP_MARGIN_S = 1.5

@@ -92,7 +92,7 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
     api.include_router(measurements.router(g.feed, g.health, keys,
                                            {"spc": g.spc.events}))
     api.include_router(calibrations.router(g.context, keys))
-    api.include_router(compensation.router(g.compensation, g.log, g.modbus.run_command, keys,
+    api.include_router(compensation.router(g.compensation, g.log, g.commands.run_command, keys,
                                            g.context.store_error))
     api.include_router(master.router(g.context, g.compensation, g.feed,
                                      g.settings.measurement, keys))

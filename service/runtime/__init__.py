@@ -2,7 +2,8 @@
 (frames to measurements), ``Publisher`` and ``make_record`` (measurements to records, fanned
 out), ``MeasurementFeed`` (latest, history, subscribers), ``CalibrationContext`` (the
 calibration in force), ``CompensationService`` (the controller and its settings),
-``ModbusFacade`` (the registers), ``HealthReport`` (a read-only view), and ``Gauge`` (starts
+``RegisterView`` (what the registers show), ``CncWriteRules`` and ``CncCommands`` (what
+the CNC writes), ``ModbusService`` (their server), ``HealthReport`` (a read-only view), and ``Gauge`` (starts
 and stops them)."""
 
 from service.measurement_record import MeasurementRecord

@@ -14,13 +14,14 @@ from service.calibrate.session import CalibrationSessions
 from service.config import Settings
 from service.measure.compiled import compile_kernels
 from service.runtime.calibration import CalibrationContext
+from service.runtime.cnc_writes import CncCommands
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
 from service.runtime.form_watch import FormWatch
 from service.runtime.health import HealthReport
 from service.runtime.job_service import JobService
 from service.runtime.metrics import GaugeMetrics
-from service.runtime.modbus import ModbusFacade
+from service.runtime.modbus import ModbusService
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import PlantLink
 from service.runtime.spc_service import SpcService
@@ -37,7 +38,7 @@ class Gauge:
     pipeline: FramePipeline
     feed: MeasurementFeed
     compensation: CompensationService
-    modbus: ModbusFacade
+    modbus: ModbusService
     health: HealthReport
     sessions: CalibrationSessions
     metrics: GaugeMetrics
@@ -48,6 +49,8 @@ class Gauge:
     log: CompensationLog | None = None
     plant: list[PlantLink] = field(default_factory=list)
     form: FormWatch | None = None
+    commands: CncCommands | None = None
+    """The commands the CNC gives in its registers; the API runs them too."""
     _tasks: list[asyncio.Task] = field(default_factory=list)
 
     async def start(self) -> None:

@@ -15,8 +15,9 @@ from service.config import Settings
 from service.runtime.calibration import CalibrationContext
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed
-from service.runtime.modbus import ModbusFacade, StatusSnapshot
+from service.runtime.modbus import ModbusService
 from service.runtime.pipeline import FramePipeline
+from service.runtime.status_words import StatusSnapshot
 
 
 @dataclass(frozen=True)
@@ -37,7 +38,7 @@ class HealthReport:
     def __init__(self, settings: Settings, camera: Camera, context: CalibrationContext,
                  pipeline: FramePipeline, feed: MeasurementFeed,
                  compensation: CompensationService, writer: OffsetWriter | PullCnc | None,
-                 modbus: ModbusFacade) -> None:
+                 modbus: ModbusService) -> None:
         self.settings, self.camera, self.context = settings, camera, context
         self.pipeline, self.feed, self.compensation = pipeline, feed, compensation
         self.writer, self.modbus = writer, modbus

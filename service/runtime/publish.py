@@ -18,7 +18,7 @@ from service.runtime.calibration import CalibrationInUse
 from service.runtime.compensating import CompensationService
 from service.runtime.feed import MeasurementFeed, SequenceCounter
 from service.runtime.job_service import JobService
-from service.runtime.modbus import ModbusFacade
+from service.runtime.register_view import RegisterView
 
 
 class Publisher:
@@ -28,7 +28,7 @@ class Publisher:
     ----------
     sequence : SequenceCounter
         The measurements' sequence numbers.
-    feed, modbus, compensation : MeasurementFeed, ModbusFacade, CompensationService
+    feed, registers, compensation : MeasurementFeed, RegisterView, CompensationService
         Where the record goes.
     jobs : JobService
         Which feature of the job a diameter is.
@@ -37,13 +37,13 @@ class Publisher:
     """
 
     def __init__(self, sequence: SequenceCounter, feed: MeasurementFeed,
-                 modbus: ModbusFacade, compensation: CompensationService, jobs: JobService,
+                 registers: RegisterView, compensation: CompensationService, jobs: JobService,
                  max_tir_mm: float = 0.02) -> None:
         self.sequence, self.feed = sequence, feed
-        self.modbus, self.compensation, self.jobs = modbus, compensation, jobs
+        self.registers, self.compensation, self.jobs = registers, compensation, jobs
         self.max_tir_mm = max_tir_mm
         self._feature: int | None = None
-        modbus.set_sequence(sequence.current)
+        registers.set_sequence(sequence.current)
 
     def __call__(self, frame: Frame, raw: Measurement, in_use: CalibrationInUse) -> None:
         m = judged(corrected(raw, in_use.correction), frame.frame_id, in_use,
@@ -64,7 +64,7 @@ class Publisher:
             latency_ms=(time.monotonic_ns() - frame.received_ns) / 1e6,
             calibration_id=in_use.info.id,
             feature_number=number, refused=refused)
-        self.modbus.publish(record)  # first: the latency is frame -> registers
+        self.registers.publish(record)  # first: the latency is frame -> registers
         self.feed.publish(record, m, frame, in_use.geometry)
         runout = in_use.runout.runout if in_use.runout is not None else None
         held = "runout" if runout is not None and runout.tir_mm > self.max_tir_mm else None

@@ -9,7 +9,7 @@ from fastapi.testclient import TestClient
 
 from drivers.plc.registers import FaultBit, StatusBit
 from service.api.app import create_app
-from service.runtime.modbus import status_words
+from service.runtime.status_words import status_words
 from service.serve import Children, build
 from tests.unit.service.conftest import TECHNICIAN, make_settings
 

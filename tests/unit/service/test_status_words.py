@@ -9,7 +9,7 @@ import pytest
 
 from drivers.plc.registers import FaultBit, StatusBit
 from service.compensation import State
-from service.runtime.modbus import StatusSnapshot, status_words
+from service.runtime.status_words import StatusSnapshot, status_words
 
 # A gauge measuring in shadow mode with its PLC connected: the reference every row changes.
 BASE = StatusSnapshot(healthy=True, camera_streaming=True, calibrated=True,
@@ -81,7 +81,7 @@ def test_a_healthy_shadow_gauge_has_no_fault_and_a_fresh_age() -> None:
 
 def test_the_form_registers_say_no_value_until_the_run_out_is_known() -> None:
     from drivers.plc.registers import NO_VALUE
-    from service.runtime.modbus import form_words
+    from service.runtime.status_words import form_words
 
     assert form_words(BASE) == {"runout_tir": NO_VALUE, "ront": NO_VALUE,
                                 "runout_phase": 0xFFFF, "lobes": 0}
