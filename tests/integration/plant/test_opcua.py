@@ -63,6 +63,18 @@ async def _node(client: Client, *path: str):
     return await client.nodes.objects.get_child([f"{idx}:{p}" for p in path])
 
 
+async def _made(client: Client, *path: str):
+    """The node at ``path`` once the server has made it (objects of the job come as the
+    server refreshes)."""
+    async def node():
+        try:
+            return await _node(client, *path)
+        except ua.UaStatusCodeError:
+            return None
+
+    return await until_async(node, f"{path[-1]} made")
+
+
 async def test_an_anonymous_client_reads_and_subscribes_but_cannot_call(served) -> None:
     server, gauge, url = served
     async with Client(url) as client:
@@ -255,13 +267,7 @@ async def test_each_feature_of_the_job_is_a_characteristic(served) -> None:
             "LowerTolerance": -0.01, "UpperTolerance": 0.01, "ResultValue": None,
             "ResultEvaluation": "NotMeasured"}}
     async with Client(url) as client:
-        async def seat_node():
-            try:
-                return await _node(client, "Shaftgauge", "Characteristics", "Characteristic2")
-            except ua.UaStatusCodeError:
-                return None
-
-        seat = await until_async(seat_node, "Characteristic2 made")
+        seat = await _made(client, "Shaftgauge", "Characteristics", "Characteristic2")
         value = await (await _node(client, "Shaftgauge", "Characteristics",
                                    "Characteristic1", "ResultValue")).read_value()
         assert value == pytest.approx(30.004)
@@ -288,13 +294,7 @@ async def test_each_tool_of_the_job_shows_its_own_offsets(served) -> None:
         12: {"ToolNumber": 12, "State": "alarm", "CumulativeOffset": -0.0031,
              "LastOffset": None}})
     async with Client(url) as client:
-        async def tool_node():
-            try:
-                return await _node(client, "Shaftgauge", "Tools", "Tool12")
-            except ua.UaStatusCodeError:
-                return None
-
-        t12 = await until_async(tool_node, "Tool12 made")
+        t12 = await _made(client, "Shaftgauge", "Tools", "Tool12")
         idx = await client.get_namespace_index("urn:shaftgauge")
         assert await (await t12.get_child(f"{idx}:CumulativeOffset")).read_value() \
             == pytest.approx(-0.0031)

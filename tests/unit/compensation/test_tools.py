@@ -28,36 +28,42 @@ BASE = CompensationSettings(shadow=False, dead_time_measurements=0, dead_time_s=
                             max_age_s=3600.0, max_total_mm=0.5)
 
 
-def run(job_doc: dict, parts: int, base: CompensationSettings = BASE, seed: int = 1
-        ) -> tuple[dict[int, list[float]], dict[int, float], dict[int, list], list]:
-    """Deviations (um) per feature of the parts cut, each tool's total, the offsets written
-    per tool, and every decision."""
+def run(job_doc: dict, parts: int, base: CompensationSettings = BASE, seed: int = 1,
+        taper_um_per_part: float = 0.0
+        ) -> tuple[dict[int, list[float]], dict[OffsetEntry, float],
+                   dict[OffsetEntry, list[float]], list]:
+    """Deviations (um) per feature of the parts cut, each offset entry's total, the offsets
+    written per entry, and every decision as (tool, feature, decision). The slender end
+    (feature 4) deflects ``taper_um_per_part`` more with each part (a taper growing as the
+    insert wears)."""
     job = job_from_doc(job_doc)
     comp = JobCompensation(job, base)
-    totals = {t: 0.0 for t in job.tool_numbers()}
-    written: dict[int, list[float]] = {t: [] for t in totals}
-    for t in comp.tools.values():
-        t.controller.observe_cnc_total(0.0, 0.0)
+    totals = dict.fromkeys(comp.entries, 0.0)
+    written: dict[OffsetEntry, list[float]] = {e: [] for e in totals}
+    for c in comp.entries.values():
+        c.controller.observe_cnc_total(0.0, 0.0)
     rng = np.random.default_rng(seed)
     out: dict[int, list[float]] = {f.number: [] for f in job.features}
     decisions, seq, now = [], 0, 0.0
     for k in range(parts):
         for f in job.features:
+            entry = job.entry_of(f)
             dev_um = (WEAR_UM_PER_PART[f.tool] * k + DEFLECTION_UM.get(f.number, 0.0)
-                      + totals[f.tool] * 1000 + rng.normal(0.0, 1.0))
+                      + (taper_um_per_part * k if f.number == 4 else 0.0)
+                      + totals[entry] * 1000 + rng.normal(0.0, 1.0))
             out[f.number].append(dev_um)
             seq, now = seq + 1, now + 1.0
-            entry, d = comp.on_measurement(MeasurementIn(
+            got, d = comp.on_measurement(MeasurementIn(
                 seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now, f.number)
-            tool = entry.tool
-            decisions.append((tool, f.number, d))
+            assert got == entry
+            decisions.append((entry.tool, f.number, d))
             if d.kind is Kind.WRITE:
                 ctrl = comp.entries[entry].controller
-                assert ctrl.check_before_write(d.offset_seq, totals[tool], now) is None
-                totals[tool] += d.offset_mm
-                written[tool].append(d.offset_mm)
+                assert ctrl.check_before_write(d.offset_seq, totals[entry], now) is None
+                totals[entry] += d.offset_mm
+                written[entry].append(d.offset_mm)
                 ctrl.on_write_outcome(d.offset_seq, True, now)
-                ctrl.observe_cnc_total(totals[tool], now)
+                ctrl.observe_cnc_total(totals[entry], now)
     return out, totals, written, decisions
 
 
@@ -69,16 +75,17 @@ def test_every_feature_stays_in_tolerance_and_each_tool_gets_its_own_offsets() -
         worst = max(abs(v) for v in out[f.number])
         assert worst < tol, (f.number, worst, tol)
     for tool in (1, 2):
-        assert written[tool] and totals[tool] == pytest.approx(sum(written[tool]))
+        own = OffsetEntry(tool)
+        assert written[own] and totals[own] == pytest.approx(sum(written[own]))
         # A tool's total carries its own wear, not the other's: 60 parts of wear.
-        assert totals[tool] * 1000 == pytest.approx(-WEAR_UM_PER_PART[tool] * 60, abs=10.0)
+        assert totals[own] * 1000 == pytest.approx(-WEAR_UM_PER_PART[tool] * 60, abs=10.0)
     writes = [(tool, feature) for tool, feature, d in decisions if d.kind is Kind.WRITE]
     assert all(job.feature(feature).tool == tool for tool, feature in writes)
 
 
 def test_in_shadow_mode_the_features_leave_the_tolerance() -> None:
     out, totals, written, _ = run(JOB, parts=60, base=replace(BASE, shadow=True))
-    assert totals == {1: 0.0, 2: 0.0} and written == {1: [], 2: []}
+    assert set(totals.values()) == {0.0} and not any(written.values())
     assert max(out[3]) > 20.0 and max(out[1]) > 15.0  # beyond their tolerances
 
 
@@ -92,7 +99,7 @@ def test_a_deflection_no_empirical_value_takes_holds_the_tool_and_says_which() -
     assert held and {tool for tool, _ in held} == {2}
     assert "features 3 and 4 disagree by +" in held[0][1]
     assert 6.0 < float(held[0][1].split("by ")[1].split(" um")[0]) < 10.0
-    assert written[1]  # the other tool is not held
+    assert written[OffsetEntry(1)]  # the other tool is not held
     # Its default bound, half its narrowest tolerance (15 um), takes the 8 um: no hold.
     _, _, _, decisions = run({**doc, "tools": []}, parts=12)
     assert not [d for _, _, d in decisions if d.code == "features_disagree"]
@@ -108,36 +115,13 @@ def taper_run(entry_of_4: int | None, parts: int = 80, seed: int = 3
               ) -> tuple[dict[int, list[float]], dict, list[str]]:
     """Tool 2 finishes the collar and the slender end; the end deflects more as the insert
     wears, its taper growing 0.25 um a part (20 um over 80 parts) besides the wear of
-    2.5 um a part. Deviations (um) per feature, each entry's total, and the hold codes."""
+    2.5 um a part and its 8 um deflection (no empirical value). Deviations (um) per
+    feature, each entry's total, and the decisions' codes."""
     doc = {**JOB, "features": [
         dict(f, empirical_mm=0.0, **({"entry": entry_of_4} if f["number"] == 4 else {}))
         for f in JOB["features"]]}
-    job = job_from_doc(doc)
-    comp = JobCompensation(job, BASE)
-    totals = dict.fromkeys(comp.entries, 0.0)
-    for c in comp.entries.values():
-        c.controller.observe_cnc_total(0.0, 0.0)
-    rng = np.random.default_rng(seed)
-    out: dict[int, list[float]] = {f.number: [] for f in job.features}
-    codes, seq, now = [], 0, 0.0
-    for k in range(parts):
-        for f in job.features:
-            entry = job.entry_of(f)
-            dev_um = (WEAR_UM_PER_PART[f.tool] * k + (0.25 * k if f.number == 4 else 0.0)
-                      + totals[entry] * 1000 + rng.normal(0.0, 1.0))
-            out[f.number].append(dev_um)
-            seq, now = seq + 1, now + 1.0
-            got, d = comp.on_measurement(MeasurementIn(
-                seq, now, "ok", f.nominal_mm + dev_um / 1000, 0.0008), now, f.number)
-            assert got == entry
-            codes.append(d.code)
-            if d.kind is Kind.WRITE:
-                ctrl = comp.entries[entry].controller
-                assert ctrl.check_before_write(d.offset_seq, totals[entry], now) is None
-                totals[entry] += d.offset_mm
-                ctrl.on_write_outcome(d.offset_seq, True, now)
-                ctrl.observe_cnc_total(totals[entry], now)
-    return out, totals, codes
+    out, totals, _, decisions = run(doc, parts, seed=seed, taper_um_per_part=0.25)
+    return out, totals, [d.code for _, _, d in decisions]
 
 
 def test_a_feature_on_an_offset_entry_of_its_own_is_held_to_its_nominal_as_the_taper_grows(
@@ -146,8 +130,8 @@ def test_a_feature_on_an_offset_entry_of_its_own_is_held_to_its_nominal_as_the_t
     for n, tol_um in ((1, 15), (2, 12), (3, 20), (4, 15)):
         assert max(abs(v) for v in out[n][5:]) < tol_um, (n, max(out[n]))
     t2, t2_12 = totals[OffsetEntry(2)], totals[OffsetEntry(2, 12)]
-    # Each entry carries its own: the end's entry the wear and its taper (20 um more).
-    assert (t2 - t2_12) * 1000 == pytest.approx(0.25 * 80, abs=6.0), totals
+    # Each entry carries its own: the end's entry the wear, its deflection and its taper.
+    assert (t2 - t2_12) * 1000 == pytest.approx(DEFLECTION_UM[4] + 0.25 * 80, abs=6.0), totals
     assert "features_disagree" not in codes
     # On the tool's one entry the taper outgrows what its features may disagree by (half
     # of 30 um): the tool is held and the part leaves its tolerance.
