@@ -51,6 +51,7 @@ class JobService:
         """The job the store marks active that the compensation could not take (a start)."""
         self.selected: int | None = None
         self._feature_set = compensation.feature()  # as the job in force left it
+        self._activating = False
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
         self._parts_done: Listeners[dict[str, Any]] = Listeners("part finished")
         self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
@@ -132,8 +133,8 @@ class JobService:
     def settings_changed(self) -> None:
         """The compensation settings changed (a listener): the single feature follows; a
         feature set directly (the API's feature, the CNC's nominal) ends a stored job."""
-        if self.compensation.feature() == self._feature_set:
-            return  # another setting (shadow mode, tuning): the job is as it was
+        if self._activating or self.compensation.feature() == self._feature_set:
+            return  # the job's own feature going in, or another setting: the job stands
         if self.stored is not None:
             log.warning("job %s no longer in force: a feature was set directly",
                         self.stored.part_number)
@@ -177,9 +178,13 @@ class JobService:
             raise JobError(f"job {job_id}: {err}") from None
         if len(job.features) == 1:  # the compensation judges its feature
             f = job.features[0]
-            await self.compensation.update_feature(
-                by, nominal_mm=f.nominal_mm, tol_upper_mm=f.tol_upper_mm,
-                tol_lower_mm=f.tol_lower_mm)
+            self._activating = True   # its feature is the job's: one rebuild, below
+            try:
+                await self.compensation.update_feature(
+                    by, nominal_mm=f.nominal_mm, tol_upper_mm=f.tol_upper_mm,
+                    tol_lower_mm=f.tol_lower_mm)
+            finally:
+                self._activating = False
         self._store().activate(job_id, by)
         if self.not_taken is not None:  # another job in its place: what was said is past
             self.not_taken, self.store_error = None, ""

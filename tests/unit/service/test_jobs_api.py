@@ -165,6 +165,26 @@ def test_a_one_feature_job_sets_the_compensation_feature_and_a_direct_one_ends_i
     assert client.get("/api/v1/jobs").json()["items"][0]["active"] is False
 
 
+def test_activating_a_one_feature_job_over_another_rebuilds_once(client) -> None:
+    """The job's nominal goes into the compensation's feature while it is put in force: that
+    is no feature set directly (the job before was not ended by it in the store's audit) and
+    the gauge's parts hear of one new job, not two."""
+    jobs = client.gauge.jobs
+    new_jobs: list[str] = []
+    jobs.on_new_job(lambda: new_jobs.append(jobs.job.part_number if jobs.job else ""))
+    two = client.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True})
+    assert two.status_code == 201, two.text
+    one = {**TWO, "part_number": "PIN-1", "features": [dict(TWO["features"][0],
+                                                           nominal_mm=30.002)]}
+    new_jobs.clear()
+    r = client.post("/api/v1/jobs", headers=H, json={"document": one, "activate": True})
+    assert r.status_code == 201, r.text
+    assert new_jobs == ["PIN-1"]
+    actions = [a["action"] for a in jobs.store.audit()]
+    assert "deactivate" not in actions, actions
+    assert client.get("/api/v1/feature").json()["nominal_mm"] == 30.002
+
+
 def test_the_cnc_puts_a_job_in_force_names_the_feature_and_counts_parts(client) -> None:
     """Register map version 4 over real Modbus: what the job does not have is refused whole
     (exception 0x03, nothing changed)."""
