@@ -59,7 +59,7 @@ class Publisher:
         record = make_record(
             seq=self.sequence.next(), wall_time=time.time(), frame_id=frame.frame_id,
             raw=raw, m=m, fused=self.feed.fused(m),
-            feature=comp.feature() if self.jobs.job is None else self.jobs.feature_of(feature),
+            feature=self.jobs.feature_of(feature),  # the job's: its one source
             part_temp_c=comp.part_temp_c, alpha_per_k=comp.alpha_per_k,
             latency_ms=(time.monotonic_ns() - frame.received_ns) / 1e6,
             calibration_id=in_use.info.id,
