@@ -3,8 +3,8 @@
 out), ``MeasurementFeed`` (latest, history, subscribers), ``CalibrationContext`` (the
 calibration in force), ``CompensationService`` (the controller and its settings),
 ``RegisterView`` (what the registers show), ``CncWriteRules`` and ``CncCommands`` (what
-the CNC writes), ``ModbusService`` (their server), ``HealthReport`` (a read-only view), and ``Gauge`` (starts
-and stops them)."""
+the CNC writes), ``ModbusService`` (their server), ``HealthReport`` (a read-only view),
+and ``Gauge`` (starts and stops them)."""
 
 from service.measurement_record import MeasurementRecord
 from service.runtime.gauge import Gauge

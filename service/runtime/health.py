@@ -116,12 +116,10 @@ class HealthReport:
             if ch.controller.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
                 out.append(Problem(f"compensation_{state}", f"compensation of tool {t} {state}"
                                    if several else f"compensation {state}"))
-        if comp.tools.channels and comp.tools.blocked:
-            out.append(Problem("offsets_blocked", f"offsets blocked: {comp.tools.blocked}"))
         study = self.quality[1].blocking() if self.quality else None
-        if comp.controller.writes_blocked and comp.controller.writes_blocked != study:
-            out.append(Problem("offsets_blocked",
-                               f"offsets blocked: {comp.controller.writes_blocked}"))
+        blocked = dict.fromkeys(ch.controller.writes_blocked for _, ch in comp.in_force()
+                                if ch.controller.writes_blocked not in ("", study))
+        out += [Problem("offsets_blocked", f"offsets blocked: {why}") for why in blocked]
         if study:  # its own code: the study, not the master check, blocks
             out.append(Problem("gauge_study", study + ": offsets are only proposed"))
         out += [Problem(code, text) for link in self.plant for code, text in link.problems()]
