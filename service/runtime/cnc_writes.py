@@ -98,7 +98,6 @@ class CncWriteRules:
         return "; ".join(problems)
 
 
-
 class CncCommands:
     """Carries out what the CNC wrote (the rules passed it) and the commands of the API.
 
@@ -183,7 +182,6 @@ class CncCommands:
         elif command is Command.MEASURE_NOW:
             with contextlib.suppress(Exception):  # a free-running camera measures anyway
                 self.trigger()
-        seq = (self.view.bank.get("command_seq") + 1) & 0xFFFF
-        self.view.bank.set_many({"command": 0, "last_command": int(command), "command_seq": seq})
+        self.view.command_done(command)
         log.info("command %s from %s", command.name.lower(), who)
         return decision

@@ -1,6 +1,6 @@
 """What the registers show the CNC: the latest measurement, the offsets of the job's tools,
 the feature and the job in force, and the status and fault bits from a snapshot every
-``REFRESH_S`` (``service.runtime.modbus.status_words``)."""
+``REFRESH_S`` (the pure ``service.runtime.status_words``)."""
 
 from __future__ import annotations
 
@@ -80,6 +80,12 @@ class RegisterView:
         self.bank.set_many({"nominal": mm_to_units(settings.nominal_mm),
                             "tol_upper": mm_to_units(settings.tol_upper_mm),
                             "tol_lower": mm_to_units(settings.tol_lower_mm)})
+
+    def command_done(self, command: int) -> None:
+        """A command carried out: ``command`` cleared, ``last_command`` it, ``command_seq``
+        counted on."""
+        seq = (self.bank.get("command_seq") + 1) & 0xFFFF
+        self.bank.set_many({"command": 0, "last_command": int(command), "command_seq": seq})
 
     def show_jobs(self, jobs: JobService) -> None:
         """Show the job registers (map v4) from ``jobs`` (told of each change:
