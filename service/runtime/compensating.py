@@ -162,11 +162,9 @@ class CompensationService:
 
     @property
     def state(self) -> State:
-        """The controller's state; in a job of several tools, the gravest of the tools' (a
-        stopped tool is the gauge's stop)."""
-        states = [self.channel.controller.state,
-                  *(ch.controller.state for ch in self.tools.channels.values())]
-        return max(states, key=_GRAVITY.index)
+        """The gravest state of the channels in force (a stopped tool is the gauge's stop;
+        the one channel no tool of the job uses does not count)."""
+        return max((ch.controller.state for _, ch in self.in_force()), key=_GRAVITY.index)
 
     def in_force(self) -> list[tuple[int | None, OffsetChannel]]:
         """The offsets' channels of the job in force by tool, for every reader: each tool's

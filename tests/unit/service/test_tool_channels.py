@@ -125,3 +125,19 @@ async def test_a_tool_the_cnc_keeps_no_block_for_is_proposed_only(tmp_path) -> N
     comp.set_writes_blocked("")
     assert "beyond register 65535" in comp.tools.channel(2).controller.writes_blocked
     comp.log.close()
+
+
+def test_readers_see_the_channels_of_the_job_in_force(tmp_path) -> None:
+    """Every reader takes ``in_force``: each tool's channel in a job of several, the one
+    channel otherwise; the gauge's state is the gravest of those, not of the one channel
+    that no tool of the job uses (stopped before the job, say)."""
+    from service.compensation import State
+
+    comp = service(tmp_path / "log.db", {1: FakeCnc(), 2: FakeCnc()}, FakeCnc())
+    assert [t for t, _ in comp.in_force()] == [1, 2]
+    comp.channel.controller.persisted.state = State.STOPPED.value
+    assert comp.state is not State.STOPPED
+    comp.tools.channels[2].controller.persisted.state = State.ALARM.value
+    assert comp.state is State.ALARM
+    comp.set_job(None)
+    assert comp.in_force() == [(None, comp.channel)] and comp.state is State.STOPPED
