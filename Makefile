@@ -113,6 +113,7 @@ bench: setup
 	$(PY) -m tests.bench.whole_part --tight-bound
 	$(PY) -m tests.bench.whole_part --taper 15
 	$(PY) -m tests.bench.whole_part --taper 15 --entries
+	$(PY) -m tests.bench.whole_part --taper 15 --entries --skip 0.3
 	$(PY) -m tests.bench.guard --runs 3 --write
 	$(PY) -m tests.bench.figures
 	@git status --short bench-results docs

@@ -417,7 +417,11 @@ def whole_part() -> str:
                     ("whole_part_taper15_entries", "the same, the slender end on an offset "
                      "entry of its own"),
                     ("whole_part_held_out_taper15_entries", "held-out physics, the same, "
-                     "scored once"))
+                     "scored once"),
+                    ("whole_part_taper15_entries_skip0.3", "tuning physics, the slender end "
+                     "on its own entry, each measurement skipped at 30 %"),
+                    ("whole_part_held_out_taper15_entries_skip0.3", "held-out physics, the "
+                     "same, scored once"))
     rows = ["| physics | feature | tolerance | parts out (worst seed) | mean | sd | Cpk "
             "(worst seed) |", "|---|---|---:|---:|---:|---:|---:|"]
     for what, d in runs:

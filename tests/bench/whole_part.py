@@ -89,10 +89,11 @@ def insert_life(config: LatheConfig, parts: int) -> int:
     return min((b - a for a, b in zip([0, *changes], changes, strict=False)), default=parts)
 
 
-def run(physics: Physics, parts: int, seed: int, job_doc: dict, taper_um: float = 0.0
-        ) -> dict:
+def run(physics: Physics, parts: int, seed: int, job_doc: dict, taper_um: float = 0.0,
+        skip: float = 0.0) -> dict:
     """One run's figures per feature and tool (offsets written per offset entry, named
-    ``T2`` or ``T2 offset 12``)."""
+    ``T2`` or ``T2 offset 12``); each feature's measurement is skipped with probability
+    ``skip`` (the part program measures it now and then only)."""
     job = job_from_doc(job_doc)
     comp = JobCompensation(job, BASE)
     lathes = {1: VirtualLathe(physics.tool1, seed=seed), 2: VirtualLathe(physics.tool2,
@@ -103,6 +104,7 @@ def run(physics: Physics, parts: int, seed: int, job_doc: dict, taper_um: float 
     for t in comp.entries.values():
         t.controller.observe_cnc_total(0.0, 0.0)
     rng = np.random.default_rng(seed + 7)
+    skipping = np.random.default_rng(seed + 11)  # its own: skip=0 leaves the runs as they were
     gauge = Gauge(physics.gauge_sigma_um, "t3", physics.outlier_rate, rng)
     cut: dict[int, list[float]] = {f.number: [] for f in job.features}
     waiting: deque = deque()
@@ -130,6 +132,8 @@ def run(physics: Physics, parts: int, seed: int, job_doc: dict, taper_um: float 
         if len(waiting) <= 1:
             continue
         for i, (n, d) in enumerate(waiting.popleft().items()):
+            if skip and skipping.random() < skip:
+                continue
             seq += 1
             now = k * 60.0 + i  # a part a minute, its features a second apart
             entry, dec = comp.on_measurement(MeasurementIn(
@@ -179,6 +183,8 @@ def main() -> None:
     ap.add_argument("--taper", type=float, default=0.0, metavar="UM",
                     help="the slender end deflects this much more at the end of an insert's "
                     "life")
+    ap.add_argument("--skip", type=float, default=0.0, metavar="P",
+                    help="each feature's measurement skipped with this probability")
     ap.add_argument("--entries", action="store_true",
                     help="the slender end on an offset entry of its own (T2 offset 12)")
     args = ap.parse_args()
@@ -190,11 +196,12 @@ def main() -> None:
     if args.entries:
         doc = {**doc, "features": [dict(f, entry=12) if f["number"] == 4 else f
                                    for f in doc["features"]]}
-    result = summary([run(physics, args.parts, s, doc, args.taper) for s in seeds])
+    result = summary([run(physics, args.parts, s, doc, args.taper, args.skip) for s in seeds])
     print(f"whole part, {'HELD-OUT' if args.held_out else 'tuning'} physics, seeds {seeds}, "
           f"{args.parts} parts{', tight bound' if args.tight_bound else ''}"
           f"{f', taper {args.taper:g} um' if args.taper else ''}"
-          f"{', the slender end on T2 offset 12' if args.entries else ''}")
+          f"{', the slender end on T2 offset 12' if args.entries else ''}"
+          f"{f', measurements skipped at {args.skip:g}' if args.skip else ''}")
     print(f"{'feature':>22} {'out':>4} {'worst':>5} {'mean':>6} {'sd':>5} {'Cpk':>5} "
           f"{'Cpk min':>7}")
     for f in JOB["features"]:
@@ -205,9 +212,10 @@ def main() -> None:
           f"{result['holds']}")
     name = "whole_part" + ("_held_out" if args.held_out else "") + \
         ("_tight_bound" if args.tight_bound else "") + \
-        (f"_taper{args.taper:g}" if args.taper else "") + ("_entries" if args.entries else "")
+        (f"_taper{args.taper:g}" if args.taper else "") + ("_entries" if args.entries else "") + \
+        (f"_skip{args.skip:g}" if args.skip else "")
     save_report({"parts": args.parts, "seeds": seeds, "job": doc,
-                 "taper_um": args.taper,
+                 "taper_um": args.taper, "skip": args.skip,
                  "physics": {"tool1": asdict(physics.tool1), "tool2": asdict(physics.tool2),
                              **{k: v for k, v in asdict(replace(physics)).items()
                                 if not k.startswith("tool")}},
