@@ -188,11 +188,9 @@ class Job:
         return replace(base, **{k: v for k, v in own.items()
                                 if v is not None or k == "plausibility_mm"})
 
-    def max_disagreement_mm(self, entry: OffsetEntry | int) -> float:
-        """How far the deviations of the features on ``entry`` (a T number: the tool's own
-        entry) may differ before it is held."""
-        if not isinstance(entry, OffsetEntry):
-            entry = OffsetEntry(entry)
+    def max_disagreement_mm(self, entry: OffsetEntry) -> float:
+        """How far the deviations of the features on ``entry`` may differ before it is
+        held."""
         set_ = self.tool(entry.tool).max_disagreement_mm
         if set_ is not None:
             return set_

@@ -110,14 +110,15 @@ class HealthReport:
         w = self.writer
         if w is not None and not w.connected and w.outage_since is not None:
             out.append(Problem("plc_unreachable", f"CNC/PLC unreachable: {w.last_error}"))
-        several = len(comp.in_force()) > 1
-        for t, ch in comp.in_force():
+        in_force = comp.in_force()
+        several = len(in_force) > 1
+        for t, ch in in_force:
             state = ch.controller.state.value
             if ch.controller.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
                 out.append(Problem(f"compensation_{state}", f"compensation of tool {t} {state}"
                                    if several else f"compensation {state}"))
         study = self.quality[1].blocking() if self.quality else None
-        blocked = dict.fromkeys(ch.controller.writes_blocked for _, ch in comp.in_force()
+        blocked = dict.fromkeys(ch.controller.writes_blocked for _, ch in in_force
                                 if ch.controller.writes_blocked not in ("", study))
         out += [Problem("offsets_blocked", f"offsets blocked: {why}") for why in blocked]
         if study:  # its own code: the study, not the master check, blocks

@@ -10,7 +10,7 @@ import sqlite3
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from calib_store.outbox import Outbox
 from drivers.camera.base import Camera, CameraError
@@ -25,6 +25,9 @@ from service.runtime.feed import MeasurementFeed
 from service.runtime.health import HealthReport
 from service.runtime.job_service import JobService
 from service.version import package_version
+
+if TYPE_CHECKING:  # imported where MQTT is configured (aiomqtt)
+    from service.plant.mqtt import MqttPublisher
 
 MEASURE_NOW_TIMEOUT_S = 2.0
 
@@ -140,7 +143,7 @@ class PlantLinks:
     events (the MQTT publisher; the OPC UA server's view)."""
 
     links: list[PlantLink] = field(default_factory=list)
-    mqtt: Any = None
+    mqtt: MqttPublisher | None = None
     opcua_values: OpcUaValues | None = None
 
 

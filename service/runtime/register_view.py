@@ -36,6 +36,7 @@ class RegisterView:
         self.bank, self.compensation = bank, compensation
         self.jobs: JobService | None = None
         self._proposed: dict[int | None, int] = {}   # by tool (None: the one channel), units
+        self._offsets_shown: dict[str, int] = {}     # what the offsets' registers hold
 
     def publish(self, record: MeasurementRecord) -> None:
         """The latest measurement."""
@@ -73,7 +74,11 @@ class RegisterView:
                 if ch is not None else mm_to_units(None),
                 f"tool{k}_offset_seq": c.persisted.offset_seq & 0xFFFFFFFF if c else 0,
                 f"tool{k}_cumulative": mm_to_units(c.cumulative_mm if c else None)})
-        self.bank.set_many(update)
+        # Every measurement's decision comes here: write only what changed.
+        changed = {k: v for k, v in update.items() if self._offsets_shown.get(k) != v}
+        if changed:
+            self.bank.set_many(changed)
+            self._offsets_shown.update(changed)
 
     def set_feature(self, settings: CompensationSettings) -> None:
         """Nominal and tolerances as in force."""

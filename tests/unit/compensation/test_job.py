@@ -9,7 +9,7 @@ import re
 import pytest
 
 from service.compensation import CompensationSettings
-from service.compensation.job import Job, JobError, JobFeature, JobTool, job_from_doc
+from service.compensation.job import Job, JobError, JobFeature, JobTool, OffsetEntry, job_from_doc
 
 # The paper's four-segment stepped shaft, finished by two tools (rough sizes).
 SHAFT = {
@@ -44,7 +44,8 @@ def test_settings_for_a_feature_take_its_bands_and_its_tools_law() -> None:
     assert (s.nominal_mm, s.tol_upper_mm, s.tol_lower_mm, s.gain) == (25.0, 0.008, -0.008, 0.4)
     assert s.deadband_mm == 0.001  # the job's default
     assert job.settings_for(job.feature(3), base).gain == 0.3
-    assert job.max_disagreement_mm(1) == pytest.approx(0.008)  # half the narrowest band
+    # half the narrowest band
+    assert job.max_disagreement_mm(OffsetEntry(1)) == pytest.approx(0.008)
 
 
 @pytest.mark.parametrize(("change", "named"), [

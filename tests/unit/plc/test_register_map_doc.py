@@ -12,3 +12,11 @@ def test_document_holds_the_tables_the_code_defines() -> None:
     assert markdown_tables() in text, (
         "docs/modbus-register-map.md differs from drivers/plc/registers.py; regenerate the "
         "tables with: .venv/bin/python -m drivers.plc.registers")
+
+
+def test_every_tool_a_job_may_have_has_its_block() -> None:
+    """The job's bound is the one the register map serves (a tool past it had no block)."""
+    from drivers.plc.registers import TOOL_BLOCKS
+    from service.compensation.job import MAX_TOOLS
+
+    assert TOOL_BLOCKS == MAX_TOOLS
