@@ -152,14 +152,22 @@ async def test_decisions_wait_for_a_broker_that_is_away_and_arrive_once_in_order
     assert await wait_until(lambda: len(sub.on("decision")) >= n, 20), (
         len(sub.on("decision")), n, pub.status())
     seqs = [json.loads(p)["decision_seq"] for p in sub.on("decision")]
-    assert seqs == list(range(1, n + 1))  # every one, once, in order
+    # QoS 1 is "at least once" (docs/mqtt.md): the decision in flight when the broker went
+    # may come again, its acknowledgement lost with the connection. A subscriber keeping the
+    # highest decision_seq gets every one, once, in order; the gauge sends one at a time, so
+    # no more than one again per connection lost.
+    kept = [q for i, q in enumerate(seqs) if q > max(seqs[:i], default=0)]
+    assert kept == list(range(1, n + 1))  # every one, in order
+    again = len(seqs) - len(kept)
+    assert all(q == max(seqs[:i]) for i, q in enumerate(seqs) if i and q <= max(seqs[:i]))
     assert queued_max > 20  # they did wait for the broker
     # The last ones leave the outbox when the broker's acknowledgement is handled, which may
     # come just after the subscriber has them.
     assert await wait_until(lambda: len(pub.outbox) == 0, 5), len(pub.outbox)
     assert pub.counters["connects"] >= 2
-    print(f"\nbroker outage: {n} decisions, {queued_max} queued at most, all delivered once "
-          "in order")
+    assert again <= pub.counters["connects"] - 1, (again, pub.counters)
+    print(f"\nbroker outage: {n} decisions, {queued_max} queued at most, all delivered in "
+          f"order ({again} sent again)")
     await stopped(pub, task)
     sub_task.cancel()
 
