@@ -23,6 +23,7 @@ from service.api.app import create_app
 from service.runtime.plant import OpcUaValues
 from service.serve import Children, build
 from tests.unit.service.conftest import TECHNICIAN, make_settings
+from tests.waiting import until
 
 JOB = {"part_number": "SH-2T", "name": "two tools", "features": [
     {"number": 1, "name": "journal", "nominal_mm": 30.0, "tol_upper_mm": 0.02,
@@ -91,16 +92,16 @@ def test_two_tools_each_corrected_through_its_own_requests(tmp_path) -> None:
                     time.sleep(0.8)
                     cnc.call(t)
             # Once every offset is settled (the CNC reports, the settlers read it) the log's
-            # applied offsets add up to each tool's total.
-            deadline = time.monotonic() + 20
-            while True:
+            # applied offsets add up to each tool's total. A loaded machine settles an offset
+            # left uncertain later: wait for it, however long it takes.
+            def settled() -> dict | None:
                 for t in (1, 2):
                     cnc.call(t)
-                status = client.get("/api/v1/status").json()["compensation"]
-                if all(t["pending_seq"] is None and t["state"] == "active"
-                       for t in status["tools"]) or time.monotonic() > deadline:
-                    break
-                time.sleep(0.5)
+                got = client.get("/api/v1/status").json()["compensation"]
+                return got if all(t["pending_seq"] is None and t["state"] == "active"
+                                  for t in got["tools"]) else None
+
+            status = until(settled, "every offset of both tools settled", step_s=0.5)
             log = client.get("/api/v1/compensation/log", params={"limit": 2000}).json()
             # Every reader shows each tool's own cumulative offset, none the one channel's.
             mirror = RegisterBank()  # a read takes 125 registers at most: two
