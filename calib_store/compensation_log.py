@@ -35,7 +35,7 @@ log = logging.getLogger("shaftgauge.compensation_log")
 
 _COLUMNS = ("id", "wall_time", "last_time", "count", "kind", "code", "reason", "who",
             "measurement_seq", "last_measurement_seq", "deviation_mm", "filtered_mm",
-            "offset_mm", "offset_seq", "before_mm", "after_mm", "shadow", "tool")
+            "offset_mm", "offset_seq", "before_mm", "after_mm", "shadow", "tool", "entry")
 RETRY_S = 1.0
 MAX_BACKLOG = 10_000
 
@@ -84,7 +84,7 @@ class CompensationLog(ArchiveReading):
                                      isolation_level=None)
         self._queue: queue.Queue[_Item | None] = queue.Queue()
         self._backlog: list[_Item] = []   # items whose write failed, tried again
-        self._open_runs: dict[tuple[str, str, bool, int | None], int] = {}
+        self._open_runs: dict[tuple[str, str, bool, int | None, int | None], int] = {}
         self._last_prune = 0.0
         self.problem = ""                 # why the log cannot be written now ("" when it can)
         self.dropped = 0                  # quiet decisions dropped past MAX_BACKLOG
@@ -97,22 +97,24 @@ class CompensationLog(ArchiveReading):
     # ---- submitting ----------------------------------------------------------------------
 
     def submit(self, decision: dict[str, Any], wall_time: float, state: dict[str, Any],
-               quiet: bool = False, durable: bool = False, tool: int | None = None
+               quiet: bool = False, durable: bool = False, tool: int = 1, entry: int = 0
                ) -> concurrent.futures.Future | None:
         """Queue a decision (a dict with the columns of ``_COLUMNS``: ``kind``, ``code``,
-        ``reason``, ``who``, its figures) and the controller's state after it (JSON-ready):
-        the single channel's, or ``tool``'s of a job of several. A ``quiet`` decision joins
-        the open run of its kind, code and tool. With ``durable`` the returned future
+        ``reason``, ``who``, its figures) and the state after it (JSON-ready) of the
+        controller of ``tool``'s offset ``entry`` (0: the tool's own). A ``quiet`` decision
+        joins the open run of its kind, code and entry. With ``durable`` the returned future
         resolves once both are committed (or raises the ``sqlite3.Error`` that stopped it)."""
         fut: concurrent.futures.Future | None = concurrent.futures.Future() if durable else None
         # The state is serialised by the writer thread, once a batch (the last one counts).
-        self._put(_Item("decision", (dict(decision, tool=tool), wall_time, state, quiet), fut))
+        self._put(_Item("decision", (dict(decision, tool=int(tool), entry=int(entry)),
+                                     wall_time, state, quiet), fut))
         return fut
 
     def record(self, decision: dict[str, Any], wall_time: float, state: dict[str, Any],
-               quiet: bool = False, tool: int | None = None) -> None:
+               quiet: bool = False, tool: int = 1, entry: int = 0) -> None:
         """Store a decision and the state after it, and wait until they are committed."""
-        fut = self.submit(decision, wall_time, state, quiet, durable=True, tool=tool)
+        fut = self.submit(decision, wall_time, state, quiet, durable=True, tool=tool,
+                          entry=entry)
         assert fut is not None
         fut.result()
 
@@ -157,13 +159,12 @@ class CompensationLog(ArchiveReading):
                                      (key,)).fetchone()
         return json.loads(row[0]) if row else default
 
-    def load_state(self, tool: int | None = None) -> dict[str, Any] | None:
-        """The controller's last saved state (``tool``'s of a job of several), or None."""
+    def load_state(self, tool: int = 1, entry: int = 0) -> dict[str, Any] | None:
+        """The last saved state of the controller of ``tool``'s offset ``entry`` (0: the
+        tool's own), or None."""
         with self._read_lock:
-            row = self._read.execute(
-                "SELECT state FROM compensation_state WHERE id = 1" if tool is None else
-                "SELECT state FROM tool_states WHERE tool = ?", () if tool is None
-                else (int(tool),)).fetchone()
+            row = self._read.execute("SELECT state FROM entry_states WHERE tool = ? AND "
+                                     "entry = ?", (int(tool), int(entry))).fetchone()
         return json.loads(row[0]) if row else None
 
     def decisions(self, limit: int = 100, before_id: int | None = None,
@@ -232,14 +233,14 @@ class CompensationLog(ArchiveReading):
         self._db.close()
 
     def _write(self, batch: list[_Item]) -> None:
-        states: dict[int | None, dict[str, Any]] = {}  # the last of each tool's counts
+        states: dict[tuple[int, int], dict[str, Any]] = {}  # the last of each entry's counts
         try:
             with transaction(self._db):
                 runs = dict(self._open_runs)
                 for item in batch:
                     if item.kind == "decision":
                         decision, wall_time, state, quiet = item.payload
-                        states[decision["tool"]] = state
+                        states[decision["tool"], decision["entry"]] = state
                         self._insert(decision, wall_time, quiet, runs)
                     elif item.kind == "measurement":
                         self._db.execute(
@@ -249,13 +250,9 @@ class CompensationLog(ArchiveReading):
                     elif item.kind in ("value", "value_once"):
                         self._db.execute("INSERT OR REPLACE INTO gauge_values (key, value) "
                                          "VALUES (?, ?)", item.payload)
-                for tool, state in states.items():
-                    if tool is None:
-                        self._db.execute("INSERT OR REPLACE INTO compensation_state (id, state)"
-                                         " VALUES (1, ?)", (json.dumps(state),))
-                    else:
-                        self._db.execute("INSERT OR REPLACE INTO tool_states (tool, state) "
-                                         "VALUES (?, ?)", (int(tool), json.dumps(state)))
+                for (tool, entry), state in states.items():
+                    self._db.execute("INSERT OR REPLACE INTO entry_states (tool, entry, "
+                                     "state) VALUES (?, ?, ?)", (tool, entry, json.dumps(state)))
                 if self._prune() and runs:  # forget the runs whose rows were pruned
                     ids = list(runs.values())
                     alive = {r[0] for r in self._db.execute(
@@ -293,8 +290,9 @@ class CompensationLog(ArchiveReading):
                 item.future.set_result(None)
 
     def _insert(self, d: dict[str, Any], wall_time: float, quiet: bool,
-                runs: dict[tuple[str, str, bool, int | None], int]) -> None:
-        key = (d["kind"], d.get("code", ""), bool(d.get("shadow")), d.get("tool"))
+                runs: dict[tuple[str, str, bool, int | None, int | None], int]) -> None:
+        key = (d["kind"], d.get("code", ""), bool(d.get("shadow")), d.get("tool"),
+               d.get("entry"))
         if quiet and key in runs:
             self._db.execute(
                 "UPDATE compensation_decisions SET count = count + 1, last_time = ?, "
@@ -307,13 +305,13 @@ class CompensationLog(ArchiveReading):
         cur = self._db.execute(
             "INSERT INTO compensation_decisions (wall_time, last_time, count, kind, code, "
             "reason, who, measurement_seq, last_measurement_seq, deviation_mm, filtered_mm, "
-            "offset_mm, offset_seq, before_mm, after_mm, shadow, tool) "
-            "VALUES (?,?,1,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+            "offset_mm, offset_seq, before_mm, after_mm, shadow, tool, entry) "
+            "VALUES (?,?,1,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
             (wall_time, wall_time, d["kind"], d.get("code", ""), d["reason"], d.get("who", ""),
              d.get("measurement_seq"), d.get("measurement_seq"), d.get("deviation_mm"),
              d.get("filtered_mm"), d.get("offset_mm"), d.get("offset_seq"),
              d.get("before_mm", 0.0), d.get("after_mm", 0.0), int(bool(d.get("shadow"))),
-             d.get("tool")))
+             d.get("tool"), d.get("entry")))
         self.rows_written += 1
         if quiet:
             runs[key] = int(cur.lastrowid)

@@ -13,6 +13,7 @@ whose rules it does not know (a gauge study's gate, say).
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import sqlite3
@@ -184,6 +185,36 @@ def _v4(db: sqlite3.Connection) -> None:
         state TEXT NOT NULL)""")
 
 
+def _single_tool(db: sqlite3.Connection) -> int:
+    """The tool the single channel compensated: the active job's, when one tool finishes all
+    its features; else tool 1 (the settings' single feature, ``Job.single``)."""
+    row = db.execute("SELECT j.document FROM active_job a JOIN jobs j ON j.id = a.job_id"
+                     ).fetchone()
+    try:
+        tools = {int(f["tool"]) for f in json.loads(row[0])["features"]} if row else set()
+    except (ValueError, KeyError, TypeError):
+        tools = set()
+    return tools.pop() if len(tools) == 1 else 1
+
+
+def _v5(db: sqlite3.Connection) -> None:
+    db.execute("ALTER TABLE compensation_decisions ADD COLUMN entry INTEGER")
+    db.execute("""CREATE TABLE entry_states (
+        tool INTEGER NOT NULL,
+        entry INTEGER NOT NULL,
+        state TEXT NOT NULL,
+        PRIMARY KEY (tool, entry))""")
+    # The states as the release before kept them stay in their tables (no longer read).
+    db.execute("INSERT INTO entry_states (tool, entry, state) "
+               "SELECT tool, 0, state FROM tool_states")
+    # The single channel's state and decisions are its tool's own entry's (a state of that
+    # tool's channel in a job of several, if any, is the later: it stays).
+    tool = _single_tool(db)
+    db.execute("INSERT OR IGNORE INTO entry_states (tool, entry, state) "
+               "SELECT ?, 0, state FROM compensation_state WHERE id = 1", (tool,))
+    db.execute("UPDATE compensation_decisions SET tool = ? WHERE tool IS NULL", (tool,))
+
+
 @dataclass(frozen=True)
 class Migration:
     """One step of the schema: to ``version``, what it does, and how."""
@@ -204,6 +235,8 @@ MIGRATIONS = (
               _v3),
     Migration(4, "a compensation state per tool of a job of several tools, and the tool of "
                  "each decision (none: the single channel's, kept as before)", _v4),
+    Migration(5, "one compensation state per offset entry (a tool and its offset number), "
+                 "the single channel's becoming its tool's; the entry of each decision", _v5),
 )
 SCHEMA_VERSION = MIGRATIONS[-1].version
 

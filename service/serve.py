@@ -24,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import uvicorn
@@ -41,6 +42,7 @@ from drivers.plc.registers import RegisterBank, WordOrder
 from drivers.plc.tls import TlsFiles, client_context
 from service.api.app import create_app
 from service.calibrate.session import CalibrationSessions
+from service.compensation.job import OffsetEntry
 from service.config import CameraSettings, Settings
 from service.https import https_files
 from service.measure.diameter import MeasureParams
@@ -51,6 +53,7 @@ from service.runtime.archive import MeasurementArchive
 from service.runtime.calibration import CalibrationContext, MasterPolicy
 from service.runtime.cnc_writes import CncCommands, CncWriteRules
 from service.runtime.compensating import CompensationService, RuntimeSettings
+from service.runtime.entry_channels import Transports
 from service.runtime.feed import MeasurementFeed, SequenceCounter
 from service.runtime.form_watch import FormWatch
 from service.runtime.gauge import Gauge
@@ -58,6 +61,7 @@ from service.runtime.health import HealthReport
 from service.runtime.job_service import JobService
 from service.runtime.metrics import GaugeMetrics
 from service.runtime.modbus import ModbusService
+from service.runtime.offset_channel import OffsetTransport
 from service.runtime.pipeline import FramePipeline
 from service.runtime.plant import make_plant_links
 from service.runtime.publish import Publisher
@@ -262,7 +266,7 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
         offsets = PlcOffsetMap(plc.offset_address, plc.ack_address, plc.total_address,
                                plc.unit_id, WordOrder(plc.word_order), plc.stride())
         if plc.stride():
-            offsets.for_tool(SIM_PLC_TOOLS)  # ValueError now, not at a job's first offset
+            offsets.for_offset(SIM_PLC_TOOLS)  # ValueError now, not at a job's first offset
         writer = OffsetWriter(plc.host, plc.port, offsets, ack_timeout_s=plc.ack_timeout_s,
             sslctx=client_context(TlsFiles(plc.tls.certfile, plc.tls.keyfile, plc.tls.cafile))
             if plc.tls else None)
@@ -277,6 +281,17 @@ def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:
     return wire(settings, camera, store, comp_log, writer, store_error, jobs), extras
 
 
+def pull_transport(cnc: PullCnc, entry: OffsetEntry) -> OffsetTransport:
+    """An entry's transport over the pull handshake: its request names tool and entry."""
+    return cnc.entry(entry.tool, entry.number or 0)
+
+
+def push_transport(writer: OffsetWriter, entry: OffsetEntry) -> OffsetTransport:
+    """An entry's transport to a CNC the gauge writes to: its offset number's block (a
+    tool's own entry: its T number's)."""
+    return writer.offset(entry.number or entry.tool)
+
+
 def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
          comp_log: CompensationLog | None, writer: OffsetWriter | PullCnc | None,
          store_error: str = "", job_store: JobStore | None = None) -> Gauge:
@@ -289,16 +304,19 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
                              "so modbus.enabled must be true")
         writer = PullCnc(bank, settings.modbus.host, settings.modbus.port,
                          ack_timeout_s=settings.plc.ack_timeout_s)
+    transport: Transports | None = None
+    if isinstance(writer, PullCnc):
+        transport = partial(pull_transport, writer)
+    elif isinstance(writer, OffsetWriter):
+        transport = partial(push_transport, writer)
     sp = settings.spindle
     context = CalibrationContext(store, MasterPolicy(ms.master_interval_h, ms.axis_sigma_mm,
                                                      ms.track_axis), store_error,
                                  SpindleAngles(sp.deg_per_frame, sp.zero_deg)
                                  if sp.source == "encoder" else None)
     compensation = CompensationService(
-        RuntimeSettings(settings.compensation, ts.part_temp_c, ts.alpha_per_k), writer,
-        comp_log, reset_command=settings.modbus.reset_command, store_error=store_error,
-        tool_transport=writer.tool if isinstance(writer, PullCnc) or (
-            isinstance(writer, OffsetWriter) and writer.map.tool_stride) else None)
+        RuntimeSettings(settings.compensation, ts.part_temp_c, ts.alpha_per_k), transport,
+        comp_log, reset_command=settings.modbus.reset_command, store_error=store_error)
     feed = MeasurementFeed(ms.history, ms.fuse_frames)
     compensation.on_decision(feed.decisions.publish)
     context.on_change(compensation.set_calibration)
@@ -313,8 +331,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     modbus = ModbusService(settings.modbus, bank, registers, rules.check, commands.take)
     compensation.on_decision(registers.decided)
     compensation.on_settings(registers.set_feature)
-    sequence = SequenceCounter(comp_log, compensation.controller.persisted
-                               .last_measurement_seq + 1)
+    sequence = SequenceCounter(comp_log, compensation.last_measurement_seq() + 1)
     jobs = JobService(job_store, compensation, store_error)
     compensation.on_settings(lambda _: jobs.settings_changed())
     rules.jobs = commands.jobs = jobs

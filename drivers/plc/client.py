@@ -88,6 +88,7 @@ class OffsetWriter:
         self.connected = False
         self.last_error = ""
         self.outage_since: float | None = None
+        self._blocks: dict[int, PushBlock] = {}
 
     # ---- connection --------------------------------------------------------------------
 
@@ -168,10 +169,16 @@ class OffsetWriter:
                 self._mark_down(f"reading the acknowledgement failed: {err}")
                 return None
 
-    def tool(self, number: int) -> PushTool:
-        """The transport of tool ``number``: its own block of the CNC's registers
-        (``PlcOffsetMap.for_tool``; ValueError when the CNC keeps none a tool)."""
-        return PushTool(self, self.map.for_tool(number), number)
+    def offset(self, number: int) -> PushBlock:
+        """The transport of offset number ``number`` (a tool's own entry: its T number): its
+        block of the CNC's registers (``PlcOffsetMap.for_offset``; the one block when the
+        CNC keeps one, the same transport for every number; ValueError when the blocks would
+        not fit)."""
+        block = self.map.for_offset(number)
+        key = block.offset_address
+        if key not in self._blocks:
+            self._blocks[key] = PushBlock(self, block)
+        return self._blocks[key]
 
     async def read_cnc(self, block: PlcOffsetMap | None = None) -> CncReading | None:
         """The CNC's side of the exchange (request sequence, acknowledgement, total wear
@@ -253,19 +260,19 @@ class OffsetWriter:
             return result(Outcome.APPLIED, "acknowledged and verified")
 
 
-class PushTool:
-    """One tool's transport over the writer's connection: its own block of registers (one
-    request at a time on the connection, as every request)."""
+class PushBlock:
+    """One block's transport over the writer's connection (one request at a time on the
+    connection, as every request)."""
 
-    def __init__(self, writer: OffsetWriter, block: PlcOffsetMap, number: int) -> None:
-        self.writer, self.block, self.number = writer, block, number
+    def __init__(self, writer: OffsetWriter, block: PlcOffsetMap) -> None:
+        self.writer, self.block = writer, block
 
     async def read_cnc(self) -> CncReading | None:
-        """The CNC's side of the exchange in the tool's block."""
+        """The CNC's side of the exchange in the block."""
         return await self.writer.read_cnc(self.block)
 
     async def write_offset(self, offset_mm: float, seq: int) -> WriteResult:
-        """Write one offset into the tool's block, exactly once (``OffsetWriter``)."""
+        """Write one offset into the block, exactly once (``OffsetWriter``)."""
         return await self.writer.write_offset(offset_mm, seq, self.block)
 
 

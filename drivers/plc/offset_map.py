@@ -11,8 +11,9 @@ those of the simulated PLC (``shaftgauge sim-plc``).
 | ack_address        | 2 | sequence number last applied, uint32   | CNC |
 | total_address      | 2 | wear offset applied in total, int32, 0.1 um | CNC (for display) |
 
-A job of several tools: tool ``n``'s block is the same at ``n * tool_stride`` further (0: the
-CNC keeps one tool's block, and the offsets of a job of several tools are only proposed).
+A job of several offset entries: offset number ``n``'s block (a tool's own entry: its T
+number's) is the same at ``(n - 1) * tool_stride`` further (0: the CNC keeps one block, and
+the offsets of a job of several entries are only proposed).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ class PlcOffsetMap:
     unit_id: int = 1
     word_order: WordOrder = WordOrder.BIG
     tool_stride: int = 0
-    """Registers from one tool's block to the next (0: one block, the single tool's)."""
+    """Registers from one offset number's block to the next (0: one block)."""
 
     def span(self) -> int:
         """Registers from the block's first to its last, inclusive."""
@@ -40,20 +41,18 @@ class PlcOffsetMap:
         return max(self.offset_address + 4, self.ack_address + 2, self.total_address + 2) \
             - min(starts)
 
-    def for_tool(self, tool: int) -> PlcOffsetMap:
-        """Tool ``tool``'s block (0: the single tool's, this one). ValueError when the CNC
-        keeps no block a tool, or the blocks would overlap."""
-        if tool == 0:
+    def for_offset(self, number: int) -> PlcOffsetMap:
+        """The block of offset number ``number`` (a T number for a tool's own entry; 1 and
+        below: this one, the first). With one block (``tool_stride`` 0) every number's is
+        this one. ValueError when the blocks would overlap, or lie beyond the registers."""
+        if number <= 1 or self.tool_stride == 0:
             return self
-        if self.tool_stride <= 0:
-            raise ValueError("the CNC keeps one offset block (plc.tool_stride = 0): no tool's "
-                             "own")
         if self.tool_stride < self.span():
             raise ValueError(f"plc.tool_stride {self.tool_stride} is shorter than a block "
-                             f"({self.span()} registers): the tools' blocks would overlap")
-        shift = tool * self.tool_stride
+                             f"({self.span()} registers): the entries' blocks would overlap")
+        shift = (number - 1) * self.tool_stride
         if max(self.offset_address, self.ack_address, self.total_address) + shift > 65533:
-            raise ValueError(f"tool {tool}'s block would lie beyond register 65535")
+            raise ValueError(f"offset {number}'s block would lie beyond register 65535")
         return replace(self, offset_address=self.offset_address + shift,
                        ack_address=self.ack_address + shift,
                        total_address=self.total_address + shift, tool_stride=0)

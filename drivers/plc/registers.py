@@ -18,10 +18,17 @@ part counter, each written by the CNC, and the tool in the pull handshake (``req
 them 0, computes the same checks). A CNC written for version 3 reads and writes what it did,
 and the gauge behaves as it did for a job with one tool.
 
-Version 5 adds a block for each tool of the job in force (``TOOL_BLOCKS``, in the job's
-order of tools): its T number, the offset its controller proposed last, that offset's
-sequence number and its cumulative offset. In a job of several tools the gauge-wide
-``proposed_offset`` and ``cumulative_offset`` read *no value*: each tool's are in its block.
+Version 5 makes the offset entry the unit of correction (a tool and the offset number the
+correction goes to: Fanuc's offset number, Siemens' D, LinuxCNC's wear entry). The pull
+request names its entry (``request_entry``, 0 the tool's own) and the report the entry it
+was called for (``cnc_entry``); both add into their block's check word, so a CNC written for
+version 4 computes the same checks for a tool's own entry and refuses (a torn request to it)
+one for another entry. A version 5 CNC says so in ``cnc_version``; the gauge posts a request
+for another entry only to one that does. A block for each offset entry of the job in force
+(``ENTRY_BLOCKS``, in the job's order of entries) gives its tool, its offset number, the offset
+its controller proposed last, that offset's sequence number and its cumulative offset. In a
+job of several entries the gauge-wide ``proposed_offset`` and ``cumulative_offset`` read *no
+value*: each entry's are in its block.
 """
 
 from __future__ import annotations
@@ -76,22 +83,27 @@ def _r(name: str, address: int, kind: RegisterType, unit: str, description: str,
 
 U16, I32, U32 = RegisterType.U16, RegisterType.I32, RegisterType.U32
 
-TOOL_BLOCKS = 16
-"""Tools with a block of their own: as many as a job may have (``MAX_TOOLS``)."""
-TOOL_BLOCK_BASE = 51
-TOOL_BLOCK_WORDS = 7
+ENTRY_BLOCKS = 16
+"""Offset entries with a block of their own: as many as a job may have (``MAX_ENTRIES``)."""
+ENTRY_BLOCK_BASE = 54
+ENTRY_BLOCK_WORDS = 8
+CNC_VERSION = 5
+"""What a CNC whose subroutine applies offset entries writes into ``cnc_version``."""
 
 
-def _tool_block(k: int) -> tuple[Register, ...]:
-    """The block of the job's ``k``-th tool."""
-    a = TOOL_BLOCK_BASE + TOOL_BLOCK_WORDS * (k - 1)
+def _entry_block(k: int) -> tuple[Register, ...]:
+    """The block of the job's ``k``-th offset entry."""
+    a = ENTRY_BLOCK_BASE + ENTRY_BLOCK_WORDS * (k - 1)
     return (
-        _r(f"tool{k}_number", a, U16, "T number", f"the job's tool {k} (in its order of "
-           "tools); 0 none"),
-        _r(f"tool{k}_proposed", a + 1, I32, "0.1 um", "the offset its controller proposed "
+        _r(f"entry{k}_tool", a, U16, "T number", f"the tool of the job's offset entry {k} (in "
+           "its order of entries); 0 none"),
+        _r(f"entry{k}_number", a + 1, U16, "offset number", "the offset number its "
+           "corrections go to (Fanuc's offset, Siemens' D, LinuxCNC's wear entry); 0 the "
+           "tool's own"),
+        _r(f"entry{k}_proposed", a + 2, I32, "0.1 um", "the offset its controller proposed "
            "last (also in shadow mode); no value none yet"),
-        _r(f"tool{k}_offset_seq", a + 3, U32, "count", "sequence number of that offset"),
-        _r(f"tool{k}_cumulative", a + 5, I32, "0.1 um", "its cumulative offset since its "
+        _r(f"entry{k}_offset_seq", a + 4, U32, "count", "sequence number of that offset"),
+        _r(f"entry{k}_cumulative", a + 6, I32, "0.1 um", "its cumulative offset since its "
            "last reset"),
     )
 
@@ -133,7 +145,8 @@ REGISTERS: tuple[Register, ...] = (
        "to, high word (as the CNC reported it)"),
     _r("request_base_lo", 33, U16, "see below", "pull: ... low word"),
     _r("request_check", 34, U16, "-", "pull: (request_seq + request_offset + "
-       "request_base_hi + request_base_lo + request_tool + 0x5A5A) mod 65536"),
+       "request_base_hi + request_base_lo + request_tool + request_entry + 0x5A5A) mod "
+       "65536"),
     _r("cnc_ack", 35, U16, "count", "pull, written by the CNC: the request sequence it "
        "settled last; 0 none", writable=True),
     _r("cnc_result", 36, U16, "code", "pull, written by the CNC: 1 applied, 2 not "
@@ -143,7 +156,8 @@ REGISTERS: tuple[Register, ...] = (
     _r("cnc_total_lo", 38, U16, "see below", "pull, written by the CNC: ... low word",
        writable=True),
     _r("cnc_check", 39, U16, "-", "pull, written by the CNC last: (cnc_ack + cnc_result + "
-       "cnc_total_hi + cnc_total_lo + cnc_tool + 0xA5A5) mod 65536", writable=True),
+       "cnc_total_hi + cnc_total_lo + cnc_tool + cnc_entry + 0xA5A5) mod 65536",
+       writable=True),
     # Form and position, with the spindle's angle (spindle.source = "encoder").
     _r("runout_tir", 40, I32, "0.1 um", "run-out of the surface under the laser: TIR, "
        "twice its eccentricity (what a dial indicator reads); no value while not known"),
@@ -165,8 +179,18 @@ REGISTERS: tuple[Register, ...] = (
     _r("cnc_tool", 50, U16, "T number", "pull, written by the CNC with its report: the tool "
        "it was called for, whose total and answer the report gives; 0 from a version 3 CNC",
        writable=True),
-    # Each tool of the job in force (version 5): written by the gauge.
-    *(reg for k in range(1, TOOL_BLOCKS + 1) for reg in _tool_block(k)),
+    # Offset entries (version 5).
+    _r("request_entry", 51, U16, "offset number", "pull: the offset entry of the tool the "
+       "request is for (Fanuc's offset number, Siemens' D, LinuxCNC's wear entry); 0 the "
+       "tool's own"),
+    _r("cnc_entry", 52, U16, "offset number", "pull, written by the CNC with its report: the "
+       "offset entry it was called for; 0 the tool's own (and from a version 4 CNC)",
+       writable=True),
+    _r("cnc_version", 53, U16, "-", "pull, written by the CNC: 5 when its subroutine applies "
+       "offset entries (requests for another entry than a tool's own are posted only then); "
+       "0 from a version 4 CNC", writable=True),
+    # Each offset entry of the job in force (version 5): written by the gauge.
+    *(reg for k in range(1, ENTRY_BLOCKS + 1) for reg in _entry_block(k)),
 )
 
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}
@@ -319,16 +343,16 @@ def markdown_tables() -> str:
     ``docs/modbus-register-map.md`` must contain; a test checks it)."""
     lines = ["| address | name | type | unit | access | meaning |",
              "|---:|---|---|---|---|---|"]
-    first_of_rest = TOOL_BLOCK_BASE + TOOL_BLOCK_WORDS
+    first_of_rest = ENTRY_BLOCK_BASE + ENTRY_BLOCK_WORDS
     for r in REGISTERS:
-        if r.address >= first_of_rest:  # the blocks of tools 2 and on: one line
+        if r.address >= first_of_rest:  # the blocks of entries 2 and on: one line
             continue
         span = str(r.address) if r.kind.words == 1 else f"{r.address}-{r.address + 1}"
         lines.append(f"| {span} | `{r.name}` | {r.kind.value} | {r.unit} | "
                      f"{'read/write' if r.writable else 'read'} | {r.description} |")
-    lines.append(f"| {first_of_rest}-{SIZE - 1} | `tool2_*` ... `tool{TOOL_BLOCKS}_*` | | | "
-                 f"read | the same block for the job's tools 2 to {TOOL_BLOCKS}, "
-                 f"{TOOL_BLOCK_WORDS} registers each |")
+    lines.append(f"| {first_of_rest}-{SIZE - 1} | `entry2_*` ... `entry{ENTRY_BLOCKS}_*` | | "
+                 f"| read | the same block for the job's offset entries 2 to {ENTRY_BLOCKS}, "
+                 f"{ENTRY_BLOCK_WORDS} registers each |")
     for title, flags in (("status", StatusBit), ("faults", FaultBit)):
         lines += ["", f"`{title}` bits:", "", "| bit | name |", "|---:|---|"]
         lines += [f"| {int(f).bit_length() - 1} | `{f.name.lower()}` |" for f in flags]

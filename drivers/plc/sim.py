@@ -10,9 +10,9 @@ they read 0. Every write received and every offset applied goes into a log (in m
 given, a JSON-lines file) so tests can prove that nothing was applied twice. Its applied total
 and last sequence persist in a state file, as a real CNC keeps its offsets across power cycles.
 
-With ``tools`` it keeps a block for each of tools 1 to ``tools`` as well, ``tool_stride``
-registers apart (``PlcOffsetMap.for_tool``): each tool's offsets, total and acknowledgement
-apart from the others'.
+With ``tools`` it keeps a block for each of offset numbers 1 to ``tools`` (a tool's own entry:
+its T number), ``tool_stride`` registers apart (``PlcOffsetMap.for_offset``; number 1's is the
+first): each entry's offsets, total and acknowledgement apart from the others'.
 """
 
 from __future__ import annotations
@@ -63,7 +63,8 @@ class SimPlc:
     sslctx : ssl.SSLContext, optional
         Speak Modbus/TCP Security (``drivers.plc.tls.server_context``), as a CNC that does.
     tools : int
-        Tools with a block of their own (1 to ``tools``, ``offsets.tool_stride`` apart).
+        Offset numbers with a block of their own (1 to ``tools``, ``offsets.tool_stride``
+        apart; 0 or 1: the first block only).
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 5021,
@@ -74,7 +75,7 @@ class SimPlc:
         self.host, self.port = host, port
         self.sslctx = sslctx
         self.map = offsets or PlcOffsetMap()
-        self.blocks = {t: self.map.for_tool(t) for t in range(int(tools) + 1)}
+        self.blocks = {n: self.map.for_offset(n) for n in range(1, max(1, int(tools)) + 1)}
         self.ack_delay_s = ack_delay_s
         self.never_ack = never_ack
         self.log_path, self.state_path = log_path, state_path
@@ -82,10 +83,10 @@ class SimPlc:
         self.tools = {t: _Tool() for t in self.blocks}
         if state_path and state_path.exists():
             state = json.loads(state_path.read_text())
-            self.tools[0] = _Tool(state["total_units"], state["last_seq"])
-            for t, kept in state.get("tools", {}).items():
-                if int(t) in self.tools:
-                    self.tools[int(t)] = _Tool(kept["total_units"], kept["last_seq"])
+            self.tools[1] = _Tool(state["total_units"], state["last_seq"])
+            for n, kept in state.get("offsets", {}).items():
+                if int(n) in self.tools:
+                    self.tools[int(n)] = _Tool(kept["total_units"], kept["last_seq"])
         self._regs: list[int] | None = None
         self._start = 0
         self._server: ModbusTcpServer | None = None
@@ -96,13 +97,13 @@ class SimPlc:
 
     @property
     def total_units(self) -> int:
-        """The single tool's applied total, 0.1 um."""
-        return self.tools[0].total_units
+        """The first block's applied total, 0.1 um."""
+        return self.tools[1].total_units
 
     @property
     def last_seq(self) -> int:
-        """The single tool's last applied sequence."""
-        return self.tools[0].last_seq
+        """The first block's last applied sequence."""
+        return self.tools[1].last_seq
 
     def _device(self) -> SimDevice:
         blocks = []
@@ -138,7 +139,7 @@ class SimPlc:
         value = from_words(words[:2], RegisterType.I32, self.map.word_order)
         seq = from_words(words[2:], RegisterType.U32, self.map.word_order)
         self.tools[tool].request_seq = seq
-        named = {"tool": tool} if tool else {}
+        named = {"offset": tool} if tool > 1 else {}
         if seq == 0:
             self._record({"event": "cleared", "seq": seq, "value_units": value, **named})
             return None
@@ -150,10 +151,10 @@ class SimPlc:
         task.add_done_callback(self._tasks.discard)
         return None
 
-    async def _apply(self, seq: int, value: int, start: int, tool: int = 0) -> None:
+    async def _apply(self, seq: int, value: int, start: int, tool: int = 1) -> None:
         if self.ack_delay_s:
             await asyncio.sleep(self.ack_delay_s)
-        state, named = self.tools[tool], ({"tool": tool} if tool else {})
+        state, named = self.tools[tool], ({"offset": tool} if tool > 1 else {})
         if state.request_seq != seq:
             self._record({"event": "cancelled", "seq": seq, "value_units": value, **named})
             return
@@ -167,23 +168,24 @@ class SimPlc:
             self._keep()
         self._publish(start)
 
-    def set_total_by_hand(self, total_units: int, tool: int = 0) -> None:
-        """An operator sets the wear offset at the panel (zeroed at an insert change): the
-        total changes without a request (call on the server's loop)."""
-        self.tools[tool].total_units = int(total_units)
+    def set_total_by_hand(self, total_units: int, offset: int = 1) -> None:
+        """An operator sets offset number ``offset``'s wear offset at the panel (zeroed at
+        an insert change): the total changes without a request (call on the server's
+        loop)."""
+        self.tools[offset].total_units = int(total_units)
         self._record({"event": "set_by_hand", "total_units": int(total_units),
-                      **({"tool": tool} if tool else {})})
+                      **({"offset": offset} if offset > 1 else {})})
         self._keep()
         self._publish(self._start)
 
     def _keep(self) -> None:
         if self.state_path:
             tmp = self.state_path.with_suffix(".tmp")
-            single = self.tools[0]
+            first = self.tools[1]
             tmp.write_text(json.dumps({
-                "total_units": single.total_units, "last_seq": single.last_seq,
-                "tools": {str(t): {"total_units": s.total_units, "last_seq": s.last_seq}
-                          for t, s in self.tools.items() if t}}))
+                "total_units": first.total_units, "last_seq": first.last_seq,
+                "offsets": {str(n): {"total_units": s.total_units, "last_seq": s.last_seq}
+                            for n, s in self.tools.items() if n > 1}}))
             tmp.replace(self.state_path)
 
     def _publish(self, start: int) -> None:

@@ -24,9 +24,9 @@ MAX_TOOL_NUMBER = 9999
 """T numbers as a lathe's tool table holds them (LinuxCNC's wear entries are 10000 + n)."""
 MAX_ENTRIES = 16
 """Offset entries a job corrects (tools' own and features' own together)."""
-MAX_ENTRY_NUMBER = 99_999
+MAX_ENTRY_NUMBER = 65_535
 """Offset numbers as CNCs number them (Fanuc's 1-999, Siemens' D 1-32000, LinuxCNC's wear
-entries 10000 + n)."""
+entries 10000 + n), within a register of the map (``request_entry``)."""
 MAX_TEXT = 80
 """The longest part number or name, characters (what a drawing's title block holds; the
 exports cut them further to their own fields)."""
@@ -96,15 +96,16 @@ class OffsetEntry:
 
 @dataclass(frozen=True)
 class JobTool:
-    """A tool's entry: its number, where its wear is kept, and its law.
+    """A tool of the job: its number, where its wear is kept, and its law.
 
     Attributes
     ----------
     number : int
         The T number.
     wear_entry : int or None
-        The tool-table entry its wear offset goes to (LinuxCNC's ``10000 + n`` with the
-        ``index_lathe_tool_with_wear`` remap); None: the tool's own entry.
+        The offset entry its features' corrections go to when they name none (LinuxCNC's
+        wear entry ``10000 + n`` with the ``index_lathe_tool_with_wear`` remap, Fanuc's
+        offset number); None: the tool's own entry.
     gain, trend_gain : float or None
         The tool's law (see ``CompensationSettings``); None: the job's defaults.
     max_disagreement_mm : float or None
@@ -163,10 +164,13 @@ class Job:
         """The features ``tool`` finishes."""
         return tuple(f for f in self.features if f.tool == tool)
 
-    @staticmethod
-    def entry_of(feature: JobFeature) -> OffsetEntry:
-        """The offset entry ``feature``'s correction goes to."""
-        return OffsetEntry(feature.tool, feature.entry)
+    def entry_of(self, feature: JobFeature) -> OffsetEntry:
+        """The offset entry ``feature``'s correction goes to: the one it names, else its
+        tool's (``tools[].wear_entry``, else the tool's own)."""
+        if feature.entry is not None:
+            return OffsetEntry(feature.tool, feature.entry)
+        return OffsetEntry(feature.tool, next((t.wear_entry for t in self.tools
+                                               if t.number == feature.tool), None))
 
     def entries(self) -> tuple[OffsetEntry, ...]:
         """The offset entries the job corrects, in the order they first appear."""
@@ -257,8 +261,8 @@ class Job:
                 p.append(f"{where}.number: tool {t.number} is listed twice")
             if t.number not in self.tool_numbers():
                 p.append(f"{where}.number: tool {t.number} finishes no feature")
-            if t.wear_entry is not None and not 1 <= t.wear_entry <= 99_999:
-                p.append(f"{where}.wear_entry: 1 to 99999, not {t.wear_entry}")
+            if t.wear_entry is not None and not 1 <= t.wear_entry <= MAX_ENTRY_NUMBER:
+                p.append(f"{where}.wear_entry: 1 to {MAX_ENTRY_NUMBER}, not {t.wear_entry}")
             own = {"gain": t.gain, "trend_gain": t.trend_gain}
             law = law_problems(base.gain if t.gain is None else t.gain,
                                base.trend_gain if t.trend_gain is None else t.trend_gain)

@@ -94,8 +94,10 @@ class Decision:
     who: str = ""
     """Who asked, for a person's or the CNC's command (``api:technician``, ``modbus``)."""
     tool: int | None = None
-    """The tool whose controller decided, in a job of several tools (None: the single
-    channel's)."""
+    """The tool of the offset entry whose controller decided (None: not yet named, a
+    controller on its own)."""
+    entry: int | None = None
+    """That entry's offset number (None: the tool's own)."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""

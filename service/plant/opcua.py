@@ -70,11 +70,12 @@ CHARACTERISTIC = {"CharacteristicIdentifier": _INT, "Name": _STRING, "Nominal": 
 """A feature of the job in force, in OPC 40210's names where they fit (lengths in mm; the
 tolerances as deviations from the nominal; ``ResultEvaluation``: ``InTolerance``,
 ``AboveTolerance``, ``BelowTolerance``, or ``NotMeasured``)."""
-TOOL = {"ToolNumber": _INT, "State": _STRING, "CumulativeOffset": _DOUBLE,
-        "LastOffset": _DOUBLE, "InJob": _BOOL}
-"""A tool of the job in force (``Tools/Tool<n>``, n its T number): its compensation's state
-and offsets, mm. In a job of several tools the gauge-wide ``CumulativeOffset`` and
-``LastOffset`` have no value (NaN): each tool's are here."""
+TOOL = {"ToolNumber": _INT, "OffsetNumber": _INT, "State": _STRING,
+        "CumulativeOffset": _DOUBLE, "LastOffset": _DOUBLE, "InJob": _BOOL}
+"""An offset entry of the job in force (``Tools/Tool<t>`` for tool t's own entry,
+``Tools/Tool<t>_<n>`` for its offset number n; ``OffsetNumber`` 0: the tool's own): its
+compensation's state and offsets, mm. In a job of several entries the gauge-wide
+``CumulativeOffset`` and ``LastOffset`` have no value (NaN): each entry's are here."""
 GROUPS = {"Characteristics": ("Characteristic", CHARACTERISTIC), "Tools": ("Tool", TOOL)}
 """The objects made as the job in force has them: folder -> (object name's stem, variables);
 one that leaves the job stays with ``InJob`` false."""
@@ -247,7 +248,7 @@ class OpcUaServer:
         self.last_refused_certificate = ""
         self._nodes: dict[str, Any] = {}
         self._written: dict[Any, Any] = {}
-        self._members: dict[tuple[str, int], dict[str, Any]] = {}   # (folder, number)
+        self._members: dict[tuple[str, int | str], dict[str, Any]] = {}  # (folder, key)
         self._folders: dict[str, Any] = {}
         self._idx = 0
         self.calls = {"MeasureNow": 0, "ResetCompensation": 0}
@@ -352,9 +353,9 @@ class OpcUaServer:
         self.calls["ResetCompensation"] += 1
         return [ua.Variant(await self.view.reset("opcua:technician"), _STRING)]
 
-    async def _member(self, folder: str, number: int) -> dict[str, Any]:
-        """A feature's or a tool's object (``Characteristic<n>``, ``Tool<n>``), made when it
-        is first seen."""
+    async def _member(self, folder: str, number: int | str) -> dict[str, Any]:
+        """A feature's or an entry's object (``Characteristic<n>``, ``Tool<key>``), made when
+        it is first seen."""
         nodes = self._members.get((folder, number))
         if nodes is None:
             stem, table = GROUPS[folder]
@@ -377,9 +378,9 @@ class OpcUaServer:
         """Write the gauge's current values into the variables that changed."""
         values = self.view.values()
         for folder, (_, table) in GROUPS.items():
-            members: dict[int, dict[str, Any]] = values.get(folder) or {}
+            members: dict[int | str, dict[str, Any]] = values.get(folder) or {}
             known = {n for f, n in self._members if f == folder}
-            for number in sorted({*members, *known}):
+            for number in sorted({*members, *known}, key=str):
                 nodes = await self._member(folder, number)
                 got = {**members.get(number, {}), "InJob": number in members}
                 for name, vtype in table.items():

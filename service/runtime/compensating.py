@@ -1,7 +1,7 @@
-"""The compensation in the running service: the only owner of the controller (through its
-offset channel), its settings and the part temperature (kept across restarts), the offset
-hold, and the gate a master check puts on writes. Every change goes through a method here and
-runs under the channel's lock."""
+"""The compensation in the running service: the only owner of its settings and the part
+temperature (kept across restarts), of the offsets' channels of the job in force (one for
+each offset entry, ``EntryChannels``), the offset hold, and the gate a master check puts on
+writes. Every change goes through a method here and runs under the channels' locks."""
 
 from __future__ import annotations
 
@@ -18,19 +18,21 @@ from calib_store.compensation_log import CompensationLog
 from calib_store.store import NotStoredError
 from drivers.plc.client import WriteResult
 from service.compensation import (
-    CompensationController,
     CompensationSettings,
-    ControllerState,
     Decision,
     MeasurementIn,
     State,
 )
-from service.compensation.job import Job, JobFeature
-from service.compensation.tools import ToolCompensation
+from service.compensation.job import Job, JobFeature, OffsetEntry
 from service.measurement_record import Feature, MeasurementRecord
-from service.offset_channel import OffsetChannel, OffsetTransport
+from service.runtime.entry_channels import (
+    SETTINGS_ENTRY,
+    EntryChannels,
+    Transports,
+    own_settings,
+)
 from service.runtime.listeners import Listeners
-from service.runtime.tool_channels import NO_TOOL_IN_HANDSHAKE, ToolChannels
+from service.runtime.offset_channel import OffsetChannel
 
 log = logging.getLogger("shaftgauge.compensation")
 
@@ -89,46 +91,40 @@ def restored_settings(from_file: RuntimeSettings, log_: CompensationLog | None
 
 
 class CompensationService:
-    """Owns the controller, its settings, the part temperature, the hold and the master gate.
+    """Owns the settings, the offsets' channels of the job in force (``EntryChannels``), the
+    part temperature, the hold and the master gate.
 
     Parameters
     ----------
     from_file : RuntimeSettings
         The config file's settings (the stored ones win unless these changed since).
-    writer : OffsetTransport or None
-        The CNC's offset registers (None: nothing is ever written).
+    transport : callable or None
+        Offset entry -> its transport (``PullCnc.entry``, ``OffsetWriter.offset``; None:
+        nothing is ever written).
     log_ : CompensationLog or None
-        Decisions, state and runtime settings.
+        Decisions, each entry's state and the runtime settings.
     reset_command : bool
         Whether a reset from the CNC's command register is carried out.
     store_error : str
         Why there is no log (changes are then refused: they could not be kept).
-    tool_transport : callable or None
-        Tool number -> its transport, where the handshake names the tool (``PullCnc.tool``,
-        ``OffsetWriter.tool`` with ``plc.tool_stride``): a job of several tools then has a
-        channel per tool (``ToolChannels``).
     """
 
-    def __init__(self, from_file: RuntimeSettings, writer: OffsetTransport | None,
+    def __init__(self, from_file: RuntimeSettings, transport: Transports | None,
                  log_: CompensationLog | None, reset_command: bool = False,
-                 store_error: str = "",
-                 tool_transport: Callable[[int], OffsetTransport] | None = None) -> None:
+                 store_error: str = "") -> None:
         self.from_file = from_file
         self.log = log_
         self.store_error = store_error
         self.reset_command = reset_command
         current = restored_settings(from_file, log_)
+        self._settings = current.compensation
         self.part_temp_c, self.alpha_per_k = current.part_temp_c, current.alpha_per_k
-        state = ControllerState.from_dict(log_.load_state() if log_ else None)
-        self.channel = OffsetChannel(CompensationController(current.compensation, state),
-                                     writer, log_, on_decision=self._decided)
-        self._job: Job | None = None  # the job in force (set_job): tuning is checked against it
-        self.tools = ToolChannels(tool_transport, log_, self._decided, blocked=""
-                                  if tool_transport is not None or writer is None
-                                  else NO_TOOL_IN_HANDSHAKE,
-                                  writes=self.channel.writes)
         self._decisions: Listeners[Decision] = Listeners("decision")
         self._settings_changed: Listeners[CompensationSettings] = Listeners("settings change")
+        self.entries = EntryChannels(transport, log_, self._decided,
+                                     writes=Listeners("offset write"))
+        self._calibration_id: int | None = None
+        self.entries.set_job(None, self._settings, None)
         self._hold: OffsetHold | None = None
         self._queue: asyncio.Queue[tuple[MeasurementIn, JobFeature | None]] | None = None
         self.dropped = 0
@@ -145,47 +141,51 @@ class CompensationService:
         self._settings_changed.add(listener)
         listener(self.settings)
 
+    def on_write(self, listener: Callable[[WriteResult], None]) -> None:
+        """Call ``listener(result)`` after every offset write, of any entry."""
+        self.entries.writes.add(listener)
+
     def _decided(self, d: Decision) -> None:
         self._decisions.tell(d)
 
     # ---- read-only views -----------------------------------------------------------------
 
     @property
-    def controller(self) -> CompensationController:
-        """The controller (read it; change it through this service)."""
-        return self.channel.controller
+    def settings(self) -> CompensationSettings:
+        """The compensation settings in force (each entry's controller has them under its
+        features and law)."""
+        return self._settings
 
     @property
-    def settings(self) -> CompensationSettings:
-        """The compensation settings in force."""
-        return self.channel.controller.settings
+    def job(self) -> Job | None:
+        """The job in force (None: the settings' single feature)."""
+        return self.entries.job
 
     @property
     def state(self) -> State:
-        """The gravest state of the channels in force (a stopped tool is the gauge's stop;
-        the one channel no tool of the job uses does not count)."""
+        """The gravest state of the entries in force (a stopped entry is the gauge's
+        stop)."""
         return max((ch.controller.state for _, ch in self.in_force()), key=_GRAVITY.index)
 
-    def in_force(self) -> list[tuple[int | None, OffsetChannel]]:
-        """The offsets' channels of the job in force by tool, for every reader: each tool's
-        in a job of several, else the one channel (with its tool's number, None without a
-        job)."""
-        if self.tools.channels:
-            return sorted(self.tools.channels.items())
-        tools = self._job.tool_numbers() if self._job is not None else ()
-        return [(tools[0] if len(tools) == 1 else None, self.channel)]
+    def in_force(self) -> list[tuple[OffsetEntry, OffsetChannel]]:
+        """The offsets' channels of the job in force by entry, for every reader."""
+        return self.entries.in_force()
+
+    def last_measurement_seq(self) -> int:
+        """The latest measurement any entry in force took (-1: none)."""
+        return max(ch.controller.persisted.last_measurement_seq for _, ch in self.in_force())
+
+    def log_problem(self) -> str:
+        """Why the decision log cannot be written now ("" when it can)."""
+        return self.log.problem if self.log is not None else ""
 
     def last_write(self) -> WriteResult | None:
         """The latest offset write of any channel in force."""
         written = [ch for _, ch in self.in_force() if ch.last_write is not None]
         return max(written, key=lambda ch: ch.last_write_s).last_write if written else None
 
-    def on_write(self, listener: Callable[[WriteResult], None]) -> None:
-        """Call ``listener(result)`` after every offset write, of any channel."""
-        self.channel.writes.add(listener)  # the tools' channels share them
-
     def feature(self) -> Feature:
-        """Nominal and tolerance in force."""
+        """Nominal and tolerance of the settings (the single feature's)."""
         s = self.settings
         return Feature(s.nominal_mm, s.tol_lower_mm, s.tol_upper_mm)
 
@@ -195,51 +195,25 @@ class CompensationService:
         return h.why if h is not None and time.monotonic() < h.until_s else None
 
     def status(self) -> dict[str, Any]:
-        """The compensation's part of the service status: the one channel's offsets, or
-        (a job of several tools) each tool's under ``tools`` and none at the top."""
-        c = self.channel.controller
-        p = c.persisted
-        one = not self.tools.channels
-        return {"state": self.state.value, "shadow": c.settings.shadow,
-                **{k: v if one else None for k, v in (
-                    ("cumulative_offset_mm", c.cumulative_mm), ("cnc_total_mm", p.cnc_total_mm),
-                    ("baseline_mm", p.baseline_mm),
-                    ("cnc_offset_from_baseline_mm", p.cnc_offset_mm()),
-                    ("offset_seq", p.offset_seq), ("pending_seq", p.pending_seq))},
-                "max_total_mm": c.settings.max_total_mm, "held": self.offset_hold(),
+        """The compensation's part of the service status: each entry's under ``entries``;
+        at the top, the one entry's offsets when the job has one (None with several)."""
+        entries = self.entries.status()
+        one = entries[0] if len(entries) == 1 else {}
+        return {"state": self.state.value, "shadow": self.settings.shadow,
+                **{k: one.get(k) for k in (
+                    "cumulative_offset_mm", "cnc_total_mm", "baseline_mm",
+                    "cnc_offset_from_baseline_mm", "offset_seq", "pending_seq")},
+                "max_total_mm": self.settings.max_total_mm, "held": self.offset_hold(),
                 "log_rows": None if self.log is None else self.log.rows_written,
-                "tools": self.tools.status()}
+                "entries": entries}
 
     # ---- the measurements ----------------------------------------------------------------
 
-    @staticmethod
-    def cannot_take(job: Job) -> str:
-        """Why the running service cannot correct ``job`` ("" when it can): a feature on an
-        offset entry other than its tool's own needs a handshake that names the entry, which
-        the CNC links do not have yet (the controllers do: ``JobCompensation``)."""
-        for i, f in enumerate(job.features):
-            if f.entry is not None:
-                return (f"features[{i}].entry: offset entries other than a tool's own are not "
-                        "carried by the CNC handshake yet; leave it out (the tool's own "
-                        "entry)")
-        return ""
-
     def set_job(self, job: Job | None) -> None:
-        """The job in force: one whose features one tool finishes has each measurement
-        judged against its feature and taken into the tool's law (``ToolCompensation``); one
-        of several tools, a channel per tool (``ToolChannels``); otherwise the settings'
-        single feature, as before."""
-        why = self.cannot_take(job) if job is not None else ""
-        if why:
-            raise ValueError(why)
-        tools = job.tool_numbers() if job is not None else ()
-        self.tools.set_job(job, self.settings, self.channel.controller.calibration_id)
-        self._job = job
-        if job is None or len(job.features) < 2 or len(tools) != 1:
-            self.channel.tool = None
-            return
-        self.channel.tool = ToolCompensation(job, tools[0], self.settings,
-                                             controller=self.channel.controller)
+        """The job in force (None: the settings' single feature): a channel for each of its
+        offset entries, each measurement judged against its feature and taken into its
+        entry's law."""
+        self.entries.set_job(job, self.settings, self._calibration_id)
 
     def submit(self, record: MeasurementRecord, received_s: float, held: str | None = None,
                feature: JobFeature | None = None) -> None:
@@ -253,8 +227,8 @@ class CompensationService:
             self._queue.get_nowait()
             self.dropped += 1
         hold = self._hold.code if self.offset_hold() and self._hold else held
-        if self.channel.log_problem:  # an offset that cannot be logged is not written, nor
-            hold = "log_unwritable"   # proposed anew with each measurement meanwhile
+        if self.log_problem():  # an offset that cannot be logged is not written, nor
+            hold = "log_unwritable"  # proposed anew with each measurement meanwhile
         self._queue.put_nowait((MeasurementIn(
             record.seq, received_s, ("held_for_" + hold) if hold else record.status,
             record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id),
@@ -266,8 +240,7 @@ class CompensationService:
         while True:
             m, feature = await self._queue.get()
             try:
-                if feature is None or not await self.tools.judge(m, feature):
-                    await self.channel.on_measurement(m, feature)
+                await self.entries.judge(m, feature)
             except asyncio.CancelledError:
                 raise
             except Exception:
@@ -303,32 +276,36 @@ class CompensationService:
 
     def set_calibration(self, calibration_id: int) -> None:
         """Only measurements made with this calibration count from now on."""
-        self.channel.set_calibration(calibration_id)
-        self.tools.set_calibration(calibration_id)
+        self._calibration_id = calibration_id
+        self.entries.set_calibration(calibration_id)
 
     def set_writes_blocked(self, why: str) -> None:
         """Offsets are only proposed while ``why`` is not empty (a master check)."""
-        self.channel.set_writes_blocked(why)
-        self.tools.set_writes_blocked(why)
+        self.entries.set_writes_blocked(why)
 
     async def update_settings(self, settings: CompensationSettings, who: str) -> Decision:
         """New compensation settings (ValueError naming the bad one), stored before they are
         in force (NotStoredError, nothing changed, when they cannot be), and logged with who
-        changed what. Tuning that a feature of the stored job in force could not hold (a null
-        band wider than its tolerance) is refused naming the feature: the job is checked with
-        the same rules when it is stored."""
-        job = self._job
-        problems = job.tuning_problems(settings) if job is not None and not job.is_single \
-            else []
+        changed what, by every entry. Tuning that a feature of the job in force could not
+        hold (a null band wider than its tolerance) is refused naming the feature: the job
+        is checked with the same rules when it is stored."""
+        job = self.job
+        problems = settings.problems()
+        if job is not None and not job.is_single:
+            problems += job.tuning_problems(settings)
+        for _, ch in self.in_force():
+            try:
+                ch.controller.check_settings(own_settings(job, ch.entry or SETTINGS_ENTRY,
+                                                          settings))
+            except ValueError as err:
+                problems.append(str(err))
         if problems:
-            raise ValueError("; ".join(problems))
-        d = await self.channel.update_settings(settings, who, lambda: self._save(RuntimeSettings(
-            settings, self.part_temp_c, self.alpha_per_k)))
-        if self.channel.tool is not None:
-            self.channel.tool.rebase(settings)
-        await self.tools.update_settings(settings, who)
+            raise ValueError("; ".join(dict.fromkeys(problems)))
+        await self._save(RuntimeSettings(settings, self.part_temp_c, self.alpha_per_k))
+        self._settings = settings
+        decisions = await self.entries.update_settings(settings, who)
         self._settings_changed.tell(settings)
-        return d
+        return decisions[0]
 
     async def update_feature(self, who: str, **changes: float | None) -> Decision:
         """Change some of nominal and tolerances (ValueError while inconsistent)."""
@@ -343,32 +320,28 @@ class CompensationService:
         def apply() -> None:
             self.part_temp_c, self.alpha_per_k = part_temp_c, alpha
 
-        await self.channel.note_settings(
+        await self.in_force()[0][1].note_settings(
             f"temperature changed (part_temp_c={part_temp_c!r}, alpha_per_k={alpha!r})", who,
             lambda: self._save(RuntimeSettings(self.settings, part_temp_c, alpha)), apply)
 
     async def reset(self, source: str, who: str, tool: int | None = None) -> Decision:
-        """Reset compensation: ``tool``'s of a job of several tools, or (None) the single
-        channel's and every tool's. From the CNC's command register (``source`` "modbus")
-        it is refused and logged unless ``reset_command`` allows it; a reset moves the
-        reference of the cumulative limit to where the CNC's total stands. KeyError when
-        ``tool`` has no compensation of its own."""
+        """Reset compensation: ``tool``'s entries, or (None) every entry's. From the CNC's
+        command register (``source`` "modbus") it is refused and logged unless
+        ``reset_command`` allows it; a reset moves the reference of the cumulative limit to
+        where the CNC's total stands. KeyError when ``tool`` has no compensation."""
         if source == "modbus" and not self.reset_command:
-            return await self.channel.refuse_reset(
+            return await self.in_force()[0][1].refuse_reset(
                 who, "resets from the CNC's command register are off (modbus.reset_command); "
                 "a technician resets over the API")
         return await self._command("reset", who, tool)
 
     async def acknowledge(self, who: str, tool: int | None = None) -> Decision:
-        """Acknowledge an out-of-tolerance alarm (``tool``'s, or every one's)."""
+        """Acknowledge an out-of-tolerance alarm (``tool``'s entries', or every one's)."""
         return await self._command("acknowledge", who, tool)
 
     async def _command(self, action: str, who: str, tool: int | None) -> Decision:
-        if tool is not None:
-            return (await self.tools.command(action, who, tool))[0]
-        d = await self.channel.command(action, who)
-        await self.tools.command(action, who)
-        return d
+        decisions = [await ch.command(action, who) for ch in self.entries.select(tool)]
+        return decisions[0]
 
     async def _save(self, settings: RuntimeSettings) -> None:
         """Store ``settings`` as the runtime settings (NotStoredError when they cannot be)."""

@@ -67,8 +67,7 @@ class Gauge:
             self._tasks += self.pipeline.start()
             self._tasks += [
                 loop.create_task(comp.run(), name="compensation"),
-                loop.create_task(comp.channel.run_settler(), name="settler"),
-                loop.create_task(comp.tools.run_settlers(), name="tool-settlers"),
+                loop.create_task(comp.entries.run_settlers(), name="settlers"),
                 loop.create_task(comp.follow_master_gate(
                     lambda: self.context.master_status()["blocking"]
                     or self.studies.blocking()), name="master-gate")]

@@ -63,7 +63,7 @@ class HealthReport:
     def ready(self) -> bool:
         """Healthy, and what it decides can be kept: a store it cannot write (a full disk)
         makes the gauge unready (``/readyz``), while it goes on measuring (the heartbeat)."""
-        return self.healthy() and not self.compensation.channel.log_problem
+        return self.healthy() and not self.compensation.log_problem()
 
     def problems(self) -> list[Problem]:
         """What is wrong now (empty when all is well)."""
@@ -99,9 +99,9 @@ class HealthReport:
         if self.jobs is not None and self.jobs.store_error:
             out.append(Problem("job", self.jobs.store_error))
         comp = self.compensation
-        if comp.channel.log_problem:
-            lost = comp.channel.store.lost_measurements if comp.channel.store else 0
-            out.append(Problem("log_unwritable", comp.channel.log_problem
+        if comp.log_problem():
+            lost = comp.log.lost_measurements if comp.log else 0
+            out.append(Problem("log_unwritable", comp.log_problem()
                                + ": offsets are neither proposed nor written meanwhile"
                                + (f"; {lost} archived measurements lost" if lost else "")))
         hold = comp.offset_hold()
@@ -112,10 +112,10 @@ class HealthReport:
             out.append(Problem("plc_unreachable", f"CNC/PLC unreachable: {w.last_error}"))
         in_force = comp.in_force()
         several = len(in_force) > 1
-        for t, ch in in_force:
+        for e, ch in in_force:
             state = ch.controller.state.value
             if ch.controller.state in (State.ALARM, State.STOPPED, State.UNCERTAIN):
-                out.append(Problem(f"compensation_{state}", f"compensation of tool {t} {state}"
+                out.append(Problem(f"compensation_{state}", f"compensation of {e} {state}"
                                    if several else f"compensation {state}"))
         study = self.quality[1].blocking() if self.quality else None
         blocked = dict.fromkeys(ch.controller.writes_blocked for _, ch in in_force
@@ -151,7 +151,6 @@ class HealthReport:
     def snapshot(self) -> StatusSnapshot:
         """The registers' view of the moment."""
         latest = self.feed.latest
-        c = self.compensation.controller
         w = self.writer
         runout, watch = self._position()
         form = self.form_position()
@@ -163,7 +162,7 @@ class HealthReport:
             latest_in_tolerance=None if latest is None else latest.in_tolerance,
             age_s=self.feed.measurement_age_s(),
             max_age_s=self.settings.measurement.max_age_s,
-            shadow=c.settings.shadow, compensation=self.compensation.state,
+            shadow=self.compensation.settings.shadow, compensation=self.compensation.state,
             plc_configured=w is not None, plc_connected=w is not None and w.connected,
             plc_outage=w is not None and w.outage_since is not None,
             writes_blocked=bool(self.context.master_status()["blocking"]),

@@ -3,10 +3,9 @@ laser, and the records of the parts as they are finished. One owner of all three
 
 With no stored job active, the job is today's one feature: the compensation settings'
 nominal and tolerance, finished by tool 1 (``Job.single``). A stored job of one feature sets
-the compensation's feature when activated. A job of several features is measured feature by
-feature and recorded part by part; when one tool finishes them all, each measurement goes
-into that tool's law against its own feature (``CompensationService.set_job``); a job of
-several tools has a controller per tool (``ToolChannels``).
+the compensation's feature when activated. Every job is measured feature by feature and
+recorded part by part; each measurement goes into its feature's offset entry's law against
+its own feature (``CompensationService.set_job``, a channel an entry).
 """
 
 from __future__ import annotations
@@ -142,10 +141,6 @@ class JobService:
         else:
             self._rebuild()
 
-    def several_tools(self) -> bool:
-        """Whether the job's features are finished by several tools."""
-        return self._job is not None and len(self._job.tool_numbers()) > 1
-
     def _store(self) -> JobStore:
         if self.store is None:
             raise NotStoredError(f"not stored, nothing changed: the store cannot be used "
@@ -157,9 +152,6 @@ class JobService:
         """Store a job document as its part number's next version (JobError naming the field
         of a bad one; NotStoredError when it cannot be stored)."""
         job = job_from_doc(document, self.compensation.settings)
-        why = self.compensation.cannot_take(job)
-        if why:
-            raise JobError(why)
         jid = self._store().add(job.to_doc(), by, note, activate=False)
         if activate:
             await self.activate(jid, by)
@@ -288,7 +280,6 @@ class JobService:
                     "version": None if self.stored is None else self.stored.version,
                     "features": len(job.features), "tools": len(job.tool_numbers())},
                 "feature_selected": self.selected,
-                "offsets_held": self.compensation.tools.blocked or None
-                if self.several_tools() else None,
+                "offsets_held": self.compensation.entries.blocked() or None,
                 "refused_diameters": self.refused, "last_refused": self.last_refused or None,
                 "store_error": self.store_error or None}

@@ -64,13 +64,14 @@ class StatusCollector(Collector):
         yield from (diameter, deviation, parts)
 
     def _offsets(self) -> Metric:
-        """Each tool's cumulative offset (label ``tool``: its T number, empty without a job;
-        as many label sets as the job in force has tools)."""
+        """Each offset entry's cumulative offset (labels ``tool``, its T number, and
+        ``entry``, its offset number or empty for the tool's own; as many label sets as the
+        job in force has entries)."""
         cumulative = GaugeMetricFamily("shaftgauge_cumulative_offset_mm", "Acknowledged "
-                                       "tool-wear offset since reset, by tool",
-                                       labels=["tool"])
-        for tool, ch in self.health.compensation.in_force():
-            cumulative.add_metric(["" if tool is None else str(tool)],
+                                       "tool-wear offset since reset, by offset entry",
+                                       labels=["tool", "entry"])
+        for e, ch in self.health.compensation.in_force():
+            cumulative.add_metric([str(e.tool), "" if e.number is None else str(e.number)],
                                   ch.controller.cumulative_mm)
         return cumulative
 

@@ -17,7 +17,7 @@ from drivers.camera.base import Camera, CameraError
 from drivers.plc.client import OffsetWriter
 from drivers.plc.pull import PullCnc
 from service.compensation import Decision, Kind
-from service.compensation.job import JobFeature
+from service.compensation.job import JobFeature, OffsetEntry
 from service.config import Settings
 from service.measurement_record import MeasurementRecord
 from service.runtime.compensating import CompensationService
@@ -51,11 +51,16 @@ class LastOffset:
 
     def __init__(self) -> None:
         self.offset_mm: float | None = None
-        self.by_tool: dict[int | None, float] = {}   # None: the one channel's
+        self.by_entry: dict[tuple[int | None, int | None], float] = {}  # (tool, entry)
 
     def __call__(self, d: Decision) -> None:
         if d.kind is Kind.APPLIED and d.offset_mm is not None:
-            self.offset_mm = self.by_tool[d.tool] = d.offset_mm
+            self.offset_mm = self.by_entry[d.tool, d.entry] = d.offset_mm
+
+
+def entry_key(e: OffsetEntry) -> int | str:
+    """An entry's name under ``Tools`` (``Tool<key>``): its T number, ``<T>_<offset>``."""
+    return e.tool if e.number is None else f"{e.tool}_{e.number}"
 
 
 def characteristic(f: JobFeature, latest: MeasurementRecord | None) -> dict[str, Any]:
@@ -84,22 +89,24 @@ class OpcUaValues:
     def values(self) -> dict[str, Any]:
         """The variables' values by name (``service.plant.opcua.MONITORING`` and
         ``COMPENSATION``)."""
-        r, c, w = self.feed.latest, self.compensation.controller, self.writer
+        r, w = self.feed.latest, self.writer
         plc = "none" if w is None else ("connected" if w.connected else
                                         "unreachable" if w.outage_since is not None else
                                         "idle")
         in_force = self.compensation.in_force()
-        several = len(in_force) > 1
+        one = in_force[0][1].controller if len(in_force) == 1 else None
         out: dict[str, Any] = {
             "CameraState": self.camera.status().state.value, "PlcState": plc,
             "State": self.compensation.state.value,
-            "CumulativeOffset": None if several else c.cumulative_mm,
-            "LastOffset": None if several else self.last_offset.offset_mm,
-            "Shadow": c.settings.shadow,
-            "Tools": {t: {"ToolNumber": t, "State": ch.controller.state.value,
-                          "CumulativeOffset": ch.controller.cumulative_mm,
-                          "LastOffset": self.last_offset.by_tool.get(ch.tool_number)}
-                      for t, ch in in_force if t is not None}}
+            "CumulativeOffset": None if one is None else one.cumulative_mm,
+            "LastOffset": None if one is None else self.last_offset.offset_mm,
+            "Shadow": self.compensation.settings.shadow,
+            "Tools": {entry_key(e): {"ToolNumber": e.tool, "OffsetNumber": e.number or 0,
+                                     "State": ch.controller.state.value,
+                                     "CumulativeOffset": ch.controller.cumulative_mm,
+                                     "LastOffset": self.last_offset.by_entry.get(
+                                         (e.tool, e.number))}
+                      for e, ch in in_force}}
         f = self.form()
         out.update({name: f[key] for name, key in (
             ("RunoutTir", "tir_mm"), ("RunoutPhase", "eccentricity_deg"), ("Ront", "ront_mm"),

@@ -68,7 +68,7 @@ class Publisher:
         self.feed.publish(record, m, frame, in_use.geometry)
         runout = in_use.runout.runout if in_use.runout is not None else None
         held = "runout" if runout is not None and runout.tir_mm > self.max_tir_mm else None
-        if refused and self.jobs.job is not None and len(self.jobs.job.features) > 1:
+        if refused:
             held = "no_feature"  # a diameter that fits none of the features moves no tool
         comp.submit(record, frame.received_ns / 1e9, held=held, feature=feature)
 

@@ -1,4 +1,4 @@
-"""What the registers show the CNC: the latest measurement, the offsets of the job's tools,
+"""What the registers show the CNC: the latest measurement, the offsets of the job's entries,
 the feature and the job in force, and the status and fault bits from a snapshot every
 ``REFRESH_S`` (the pure ``service.runtime.status_words``)."""
 
@@ -8,7 +8,7 @@ import asyncio
 import logging
 from collections.abc import Callable
 
-from drivers.plc.registers import TOOL_BLOCKS, FaultBit, RegisterBank, mm_to_units
+from drivers.plc.registers import ENTRY_BLOCKS, FaultBit, RegisterBank, mm_to_units
 from service.compensation import CompensationSettings, Decision
 from service.measurement_record import MeasurementRecord
 from service.runtime.compensating import CompensationService
@@ -29,13 +29,13 @@ class RegisterView:
     bank : RegisterBank
         The registers the Modbus server serves.
     compensation : CompensationService
-        Whose channels in force each tool's block shows.
+        Whose channels in force each entry's block shows.
     """
 
     def __init__(self, bank: RegisterBank, compensation: CompensationService) -> None:
         self.bank, self.compensation = bank, compensation
         self.jobs: JobService | None = None
-        self._proposed: dict[int | None, int] = {}   # by tool (None: the one channel), units
+        self._proposed: dict[tuple[int | None, int | None], int] = {}  # (tool, entry): units
         self._offsets_shown: dict[str, int] = {}     # what the offsets' registers hold
 
     def publish(self, record: MeasurementRecord) -> None:
@@ -52,28 +52,28 @@ class RegisterView:
     def decided(self, d: Decision) -> None:
         """A compensation decision: the offsets' registers."""
         if d.offset_mm is not None:
-            self._proposed[d.tool] = mm_to_units(d.offset_mm)
+            self._proposed[d.tool, d.entry] = mm_to_units(d.offset_mm)
         self._show_offsets()
 
     def _show_offsets(self) -> None:
-        """Each tool's block from the channels in force (map v5); the gauge-wide registers
-        from the one channel, or *no value* in a job of several tools."""
+        """Each entry's block from the channels in force (map v5); the gauge-wide registers
+        from the one entry's, or *no value* in a job of several entries."""
         in_force = self.compensation.in_force()
-        one = self.compensation.channel.controller
-        several = len(in_force) > 1
-        update = {"cumulative_offset": mm_to_units(None if several else one.cumulative_mm),
-                  "offset_seq": one.persisted.offset_seq & 0xFFFFFFFF,
-                  "proposed_offset": mm_to_units(None) if several else
-                  self._proposed.get(None, mm_to_units(None))}
-        for k in range(1, TOOL_BLOCKS + 1):
-            tool, ch = in_force[k - 1] if k <= len(in_force) else (None, None)
-            c = ch.controller if ch is not None else None
+        none = mm_to_units(None)
+        blocks = [(e, ch.controller, self._proposed.get((e.tool, e.number), none))
+                  for e, ch in in_force]
+        _, one, proposed = blocks[0] if len(blocks) == 1 else (None, None, none)
+        update = {"cumulative_offset": mm_to_units(None if one is None else one.cumulative_mm),
+                  "offset_seq": max(c.persisted.offset_seq for _, c, _ in blocks) & 0xFFFFFFFF,
+                  "proposed_offset": proposed}
+        for k in range(1, ENTRY_BLOCKS + 1):
+            e, c, proposed = blocks[k - 1] if k <= len(blocks) else (None, None, none)
             update.update({
-                f"tool{k}_number": tool or 0,
-                f"tool{k}_proposed": self._proposed.get(ch.tool_number, mm_to_units(None))
-                if ch is not None else mm_to_units(None),
-                f"tool{k}_offset_seq": c.persisted.offset_seq & 0xFFFFFFFF if c else 0,
-                f"tool{k}_cumulative": mm_to_units(c.cumulative_mm if c else None)})
+                f"entry{k}_tool": e.tool if e else 0,
+                f"entry{k}_number": (e.number or 0) if e else 0,
+                f"entry{k}_proposed": proposed,
+                f"entry{k}_offset_seq": c.persisted.offset_seq & 0xFFFFFFFF if c else 0,
+                f"entry{k}_cumulative": mm_to_units(c.cumulative_mm if c else None)})
         # Every measurement's decision comes here: write only what changed.
         changed = {k: v for k, v in update.items() if self._offsets_shown.get(k) != v}
         if changed:
@@ -99,8 +99,8 @@ class RegisterView:
         self.job_changed()
 
     def job_changed(self) -> None:
-        """The job in force or the feature named changed: its registers and tool blocks."""
-        self._show_offsets()  # the job's tools, each in its block
+        """The job in force or the feature named changed: its registers and entry blocks."""
+        self._show_offsets()  # the job's entries, each in its block
         jobs = self.jobs
         if jobs is not None:
             self.bank.set_many({"job": 0 if jobs.stored is None else jobs.stored.id & 0xFFFF,

@@ -5,8 +5,11 @@ let switching = false;  // a shadow-mode change is on its way: leave the switch 
 
 const QUIET = ["held", "refused", "proposed"];  // a run of these is one row (with a count)
 
-function kindText(kind, count, tool) {
-  const what = tool == null ? kind : `T${tool} ${kind}`;
+// An offset entry as the CNC names it: T2 (the tool's own), T2 offset 10012.
+const entryName = (e) => e.entry == null ? `T${e.tool}` : `T${e.tool} offset ${e.entry}`;
+
+function kindText(kind, count, d) {
+  const what = d.tool == null ? kind : `${entryName(d)} ${kind}`;
   return count > 1 ? `${what} \u00d7${count}` : what;
 }
 
@@ -14,7 +17,7 @@ function row(d) {
   const tr = document.createElement("tr");
   const count = d.count ?? 1;
   const cells = [clock(d.last_time ?? d.wall_time ?? d.time ?? d.time_s),
-                 kindText(d.kind, count, d.tool),
+                 kindText(d.kind, count, d),
                  d.offset_mm == null ? "" : (d.offset_mm * 1000).toFixed(1),
                  d.deviation_mm == null ? "" : (d.deviation_mm * 1000).toFixed(1), d.reason];
   cells.forEach((c, i) => {
@@ -27,15 +30,20 @@ function row(d) {
   tr.dataset.code = d.code ?? "";
   tr.dataset.count = count;
   tr.dataset.tool = d.tool ?? "";
+  tr.dataset.entry = d.entry ?? "";
   return tr;
 }
 
-// A job of several tools: a row a tool (its state, offsets and exchange with the CNC).
-function showTools(tools, shadow) {
-  $("comp-tools-card").hidden = !tools.length;
-  $("comp-tools").replaceChildren(...tools.map((t) => {
+// Several entries in the job: each in its row, none at the top.
+const several = (c) => (c.entries ?? []).length > 1;
+
+// A job of several offset entries: a row an entry (its state, offsets and exchange).
+function showEntries(entries, shadow) {
+  const rows = entries.length > 1 ? entries : [];
+  $("comp-tools-card").hidden = !rows.length;
+  $("comp-tools").replaceChildren(...rows.map((t) => {
     const tr = document.createElement("tr");
-    const cells = [`T${t.tool}`, t.features.join(", "), t.state, um(t.cumulative_offset_mm),
+    const cells = [entryName(t), t.features.join(", "), t.state, um(t.cumulative_offset_mm),
                    t.cnc_total_mm != null ? um(t.cnc_total_mm)
                      : t.writes_blocked ? "\u2013" : "not read yet", handshake(t),
                    t.writes_blocked ? "proposed only: " + t.writes_blocked
@@ -46,6 +54,7 @@ function showTools(tools, shadow) {
       tr.append(td);
     });
     tr.dataset.tool = t.tool;
+    tr.dataset.entry = t.entry ?? "";
     tr.dataset.state = t.state;
     return tr;
   }));
@@ -59,23 +68,22 @@ function handshake(c) {
 }
 
 function showCnc(c) {
-  const several = (c.tools ?? []).length > 0;  // each tool's, in its row
-  $("comp-cnc-total").textContent = several ? "each tool's, below"
+  $("comp-cnc-total").textContent = several(c) ? "each entry's, below"
     : c.cnc_total_mm == null ? "not read yet" : um(c.cnc_total_mm);
-  $("comp-handshake").textContent = several ? "each tool's, below" : handshake(c);
+  $("comp-handshake").textContent = several(c) ? "each entry's, below" : handshake(c);
 }
 
 export async function loadCompensation() {
   const c = await api("/compensation");
   showCnc(c);
   $("comp-state").textContent = c.state;
-  $("comp-cumulative").textContent = (c.tools ?? []).length ? "each tool's, below"
+  $("comp-cumulative").textContent = several(c) ? "each entry's, below"
     : um(c.cumulative_offset_mm);
-  $("comp-cnc").textContent = (c.tools ?? []).length ? "each tool's, below"
+  $("comp-cnc").textContent = several(c) ? "each entry's, below"
     : c.cnc_total_mm == null || c.baseline_mm == null ? "not read yet"
     : `${um(c.cnc_total_mm - c.baseline_mm)} of ±${um(c.settings.max_total_mm)}`;
   if (!switching) $("shadow").checked = c.settings.shadow;
-  showTools(c.tools ?? [], c.settings.shadow);
+  showEntries(c.entries ?? [], c.settings.shadow);
   const kinds = $("comp-filter").value;
   const log = await api("/compensation/log?limit=100" + (kinds ? "&kinds=" + kinds : ""));
   $("decisions").replaceChildren(...log.items.map(row));
@@ -88,26 +96,27 @@ export function onDecision(d) {
   const body = $("decisions");
   const top = body.firstElementChild;
   if (top && QUIET.includes(d.kind) && top.dataset.kind === d.kind &&
-      top.dataset.code === (d.code ?? "") && top.dataset.tool === String(d.tool ?? "")) {  // the run goes on: count it, show the latest
+      top.dataset.code === (d.code ?? "") && top.dataset.tool === String(d.tool ?? "") &&
+      top.dataset.entry === String(d.entry ?? "")) {  // the run goes on: count it, show the latest
     top.replaceWith(row({ ...d, count: Number(top.dataset.count) + 1,
                           wall_time: Date.now() / 1000 }));
     return;
   }
   body.prepend(row({ ...d, wall_time: Date.now() / 1000 }));
   while (body.children.length > 100) body.lastChild.remove();
-  // The one channel's figure; in a job of several tools each tool's is in its row.
-  if (d.tool == null && $("comp-tools-card").hidden) $("comp-cumulative").textContent = um(d.after_mm);
+  // The one entry's figure; in a job of several entries each one's is in its row.
+  if ($("comp-tools-card").hidden) $("comp-cumulative").textContent = um(d.after_mm);
 }
 
 export function onStatus(st) {
   const held = st.compensation.held;
   $("comp-held").textContent = held ? "held: " + held
-    : (st.compensation.tools ?? []).length ? "each tool's, below"
+    : several(st.compensation) ? "each entry's, below"
     : st.compensation.shadow ? "proposed only (shadow mode)" : "written to the CNC";
   $("comp-state").textContent = st.compensation.state;
   showCnc(st.compensation);
-  showTools(st.compensation.tools ?? [], st.compensation.shadow);
-  if ((st.compensation.tools ?? []).length) $("comp-cumulative").textContent = "each tool's, below";
+  showEntries(st.compensation.entries ?? [], st.compensation.shadow);
+  if (several(st.compensation)) $("comp-cumulative").textContent = "each entry's, below";
   if (!switching) $("shadow").checked = st.compensation.shadow;  // the service's word counts
 }
 

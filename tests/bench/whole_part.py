@@ -1,7 +1,7 @@
 """The whole part: a stepped shaft of four features finished by two tools, each tool on a
 virtual lathe of its own (``drivers.sim.lathe``: its own wear, break-in, acceleration,
 warm-up and insert changes, the operator zeroing the tool's offset), corrected by one
-controller per tool (``service.compensation.tools``, the real state machines) over 500
+controller per tool (``service.compensation.entries``, the real state machines) over 500
 parts.
 
 Each part: both tools cut their features with their CNC totals in force; a feature's
@@ -40,7 +40,7 @@ import numpy as np
 from drivers.sim.lathe import LatheConfig, VirtualLathe
 from service.compensation import CompensationSettings, Kind, MeasurementIn
 from service.compensation.job import OffsetEntry, job_from_doc
-from service.compensation.tools import JobCompensation
+from service.compensation.entries import JobCompensation
 from tests.bench.closed_loop import Gauge, insert_change
 from tests.bench.results import save_report
 

@@ -19,7 +19,7 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
-from service.offset_channel import OffsetChannel
+from service.runtime.offset_channel import OffsetChannel
 
 # The window law with the tuning these handshakes were written with (a write when the third
 # measurement fills the window); the exchange does not depend on the law.

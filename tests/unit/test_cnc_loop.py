@@ -30,7 +30,7 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
-from service.offset_channel import OffsetChannel
+from service.runtime.offset_channel import OffsetChannel
 
 # The window law with the tuning these handshakes were written with (the figures below are
 # its corrections); the handshakes do not depend on the law.
@@ -117,7 +117,7 @@ class Loop:
                                                         0.001))
 
     async def settler_tick(self) -> None:
-        """What ``run_settler`` does once."""
+        """What ``EntryChannels.run_settlers`` does once."""
         self.now += 1.0
         if self.channel.controller.state is State.UNCERTAIN:
             await self.channel.settle()

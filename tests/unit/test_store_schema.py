@@ -66,7 +66,9 @@ def test_a_store_of_an_earlier_release_opens_with_every_row_kept(fixture: Path, 
     assert len(kept) == 1 and _counts(kept[0]) == before
 
 
-def test_the_store_of_the_release_with_jobs_gains_a_state_per_tool(tmp_path) -> None:
+def test_the_store_of_the_release_with_jobs_gains_a_state_per_entry(tmp_path) -> None:
+    """The release before a state per tool: its single channel's state becomes its tool's
+    own entry's (tool 1: the settings' single feature), its decisions that tool's."""
     (fixture,) = (f for f in FIXTURES if f.name.startswith("2026-12-06.2-"))
     path = tmp_path / "shaftgauge.db"
     shutil.copy(fixture, path)
@@ -75,11 +77,35 @@ def test_the_store_of_the_release_with_jobs_gains_a_state_per_tool(tmp_path) -> 
     db.close()
     log_ = CompensationLog(path)
     try:
-        assert log_.load_state() == json.loads(single) and log_.load_state(1) is None
-        assert {r["tool"] for r in log_.decisions(limit=1000)} == {None}
+        assert log_.load_state(1) == json.loads(single) and log_.load_state(2) is None
+        assert {r["tool"] for r in log_.decisions(limit=1000)} == {1}
     finally:
         log_.close()
-    assert _counts(path)["tool_states"] == 0 and _counts(path)["parts"] > 0
+    assert _counts(path)["entry_states"] == 1 and _counts(path)["parts"] > 0
+
+
+def test_the_store_of_the_release_with_a_state_per_tool_keeps_each_tools(tmp_path) -> None:
+    """The release before offset entries (a job of two tools in force): each tool's state
+    is its own entry's, every row kept, the old tables as they were."""
+    (fixture,) = (f for f in FIXTURES if f.name.startswith("2026-12-07-"))
+    path = tmp_path / "shaftgauge.db"
+    shutil.copy(fixture, path)
+    before = _counts(path)
+    db = sqlite3.connect(str(path))
+    tools = dict(db.execute("SELECT tool, state FROM tool_states").fetchall())
+    db.close()
+    assert sorted(tools) == [1, 2]
+    log_ = CompensationLog(path)
+    try:
+        for t, state in tools.items():
+            assert log_.load_state(t) == json.loads(state)
+            assert log_.load_state(t, 10000 + t) is None
+        assert None not in {r["tool"] for r in log_.decisions(limit=1000)}
+    finally:
+        log_.close()
+    after = _counts(path)
+    assert {t: after[t] for t in before} == before and after["entry_states"] == 2
+    assert len(list(tmp_path.glob("shaftgauge.db.v4-*.bak"))) == 1
 
 
 def test_a_new_store_is_made_at_the_latest_version_without_a_backup(tmp_path) -> None:

@@ -36,8 +36,8 @@ from service.compensation import (
     MeasurementIn,
 )
 from service.compensation.job import Job, JobFeature
-from service.compensation.tools import ToolCompensation
-from service.offset_channel import OffsetChannel
+from service.compensation.entries import EntryCompensation
+from service.runtime.offset_channel import OffsetChannel
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN_SIM = ROOT / "deploy" / "linuxcnc" / "run-sim.sh"
@@ -423,7 +423,7 @@ def make_job_parts(gauge: Gauge, cnc: LinuxCnc, shadow: bool, parts: int = 20) -
     decisions: dict[int, list[Decision]] = {1: [], 2: []}
     channels = {}
     for t in (1, 2):
-        tool = ToolCompensation(JOB, t, settings)
+        tool = EntryCompensation(JOB, t, settings)
         channels[t] = OffsetChannel(tool.controller, gauge.transport.tool(t), None,
                                     on_decision=decisions[t].append, tool=tool)
     try:

@@ -18,9 +18,10 @@ class Log(CompensationLog):
     """The log as the offset channel feeds it: decisions and states from the controller."""
 
     def submit(self, decision, wall_time, state, durable=False,  # type: ignore[override]
-               tool=None):
+               tool=1, entry=0):
         return super().submit(decision.as_dict(), wall_time, asdict(state),
-                              quiet=decision.kind in QUIET_KINDS, durable=durable, tool=tool)
+                              quiet=decision.kind in QUIET_KINDS, durable=durable, tool=tool,
+                              entry=entry)
 
     def record(self, decision, wall_time, state):  # type: ignore[override]
         self.submit(decision, wall_time, state, durable=True).result()
@@ -64,25 +65,27 @@ def test_a_significant_decision_ends_the_runs(tmp_path) -> None:
     log.close()
 
 
-def test_each_tool_keeps_its_own_state_and_runs(tmp_path) -> None:
-    """A job of several tools: each tool's state apart from the single channel's, each
-    decision named by its tool, and a tool's quiet run not joined by another's."""
+def test_each_entry_keeps_its_own_state_and_runs(tmp_path) -> None:
+    """Each offset entry's state apart from the others' (a tool's own and another offset of
+    the same tool too), each decision named by its entry, and an entry's quiet run not
+    joined by another's."""
     log = Log(tmp_path / "g.db")
     for i in range(4):
         log.submit(held(seq=i), time.time(), ControllerState(last_measurement_seq=i))
         log.submit(held(seq=i), time.time(), ControllerState(last_measurement_seq=10 + i),
-                   tool=1)
-        log.submit(held(seq=i), time.time(), ControllerState(last_measurement_seq=20 + i),
                    tool=2)
+        log.submit(held(seq=i), time.time(), ControllerState(last_measurement_seq=20 + i),
+                   tool=2, entry=10012)
     rows = log.decisions(limit=10)
-    assert sorted((r["tool"] or 0, r["count"]) for r in rows) == [(0, 4), (1, 4), (2, 4)]
+    assert sorted((r["tool"], r["entry"], r["count"]) for r in rows) == [
+        (1, 0, 4), (2, 0, 4), (2, 10012, 4)]
     assert log.load_state()["last_measurement_seq"] == 3
-    assert log.load_state(1)["last_measurement_seq"] == 13
-    assert log.load_state(2)["last_measurement_seq"] == 23
-    assert log.load_state(3) is None
+    assert log.load_state(2)["last_measurement_seq"] == 13
+    assert log.load_state(2, 10012)["last_measurement_seq"] == 23
+    assert log.load_state(3) is None and log.load_state(2, 10013) is None
     log.close()
     again = Log(tmp_path / "g.db")
-    assert again.load_state(2)["last_measurement_seq"] == 23
+    assert again.load_state(2, 10012)["last_measurement_seq"] == 23
     again.close()
 
 

@@ -44,8 +44,10 @@ def test_settings_for_a_feature_take_its_bands_and_its_tools_law() -> None:
     assert (s.nominal_mm, s.tol_upper_mm, s.tol_lower_mm, s.gain) == (25.0, 0.008, -0.008, 0.4)
     assert s.deadband_mm == 0.001  # the job's default
     assert job.settings_for(job.feature(3), base).gain == 0.3
-    # half the narrowest band
-    assert job.max_disagreement_mm(OffsetEntry(1)) == pytest.approx(0.008)
+    # half the narrowest band; tool 1's features go to its wear entry (``wear_entry``)
+    assert job.entry_of(job.feature(1)) == OffsetEntry(1, 10001)
+    assert job.max_disagreement_mm(OffsetEntry(1, 10001)) == pytest.approx(0.008)
+    assert job.entries()[1] == OffsetEntry(2)
 
 
 @pytest.mark.parametrize(("change", "named"), [

@@ -11,7 +11,7 @@ import pytest
 
 from service.compensation import CompensationSettings, Kind, MeasurementIn
 from service.compensation.job import JobError, OffsetEntry, job_from_doc
-from service.compensation.tools import JobCompensation
+from service.compensation.entries import JobCompensation
 
 WEAR_UM_PER_PART = {1: 1.2, 2: 2.5}
 DEFLECTION_UM = {4: 8.0}  # the slender end cuts larger
@@ -151,5 +151,5 @@ def test_offset_entries_in_the_job_document() -> None:
                                for f in JOB["features"]]}
     with pytest.raises(JobError, match=r"features\[3\].entry: offset 12 is tool 1's too"):
         job_from_doc(bad)
-    with pytest.raises(JobError, match=r"features\[0\].entry: 1 to 99999, not 0"):
+    with pytest.raises(JobError, match=r"features\[0\].entry: 1 to 65535, not 0"):
         job_from_doc({**JOB, "features": [dict(JOB["features"][0], entry=0)]})

@@ -25,7 +25,7 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
-from service.offset_channel import OffsetChannel
+from service.runtime.offset_channel import OffsetChannel
 from tests.unit.test_cnc_loop import LIVE, Loop
 
 

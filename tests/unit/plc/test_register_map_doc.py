@@ -14,9 +14,11 @@ def test_document_holds_the_tables_the_code_defines() -> None:
         "tables with: .venv/bin/python -m drivers.plc.registers")
 
 
-def test_every_tool_a_job_may_have_has_its_block() -> None:
-    """The job's bound is the one the register map serves (a tool past it had no block)."""
-    from drivers.plc.registers import TOOL_BLOCKS
-    from service.compensation.job import MAX_TOOLS
+def test_every_entry_a_job_may_have_has_its_block() -> None:
+    """The job's bounds are those the register map serves (an entry past it had no block,
+    an offset number past 16 bits no register)."""
+    from drivers.plc.registers import ENTRY_BLOCKS
+    from service.compensation.job import MAX_ENTRIES, MAX_ENTRY_NUMBER, MAX_TOOLS
 
-    assert TOOL_BLOCKS == MAX_TOOLS
+    assert ENTRY_BLOCKS == MAX_ENTRIES >= MAX_TOOLS
+    assert MAX_ENTRY_NUMBER <= 0xFFFF

@@ -236,7 +236,7 @@ def test_master_correction_and_a_failed_check_block_offsets(client) -> None:
     problems = client.get("/api/v1/status").json()["problems"]
     assert "offsets_blocked" in [p["code"] for p in problems], problems
     assert any("failed" in p["text"] for p in problems if p["code"] == "offsets_blocked")
-    assert client.gauge.compensation.controller.writes_blocked
+    assert all(ch.controller.writes_blocked for _, ch in client.gauge.compensation.in_force())
     # two masters of equal size cannot give a scale
     bad = client.post("/api/v1/master/correction", headers={H: TECHNICIAN},
                       json={"masters": [{"certified_mm": 30.0, "measured_mm": 30.0},
@@ -274,7 +274,7 @@ def test_the_predictive_law_is_chosen_over_the_api(client) -> None:
     r = client.put("/api/v1/compensation", headers={H: ADMIN},
                    json={"law": "predictive", "gain": 0.4, "trend_gain": 0.2})
     assert r.status_code == 200, r.text
-    s = client.gauge.compensation.controller.settings
+    s = client.gauge.compensation.in_force()[0][1].controller.settings
     assert (s.law, s.gain, s.trend_gain) == ("predictive", 0.4, 0.2)
     bad = client.put("/api/v1/compensation", headers={H: ADMIN}, json={"law": "pid"})
     assert bad.status_code == 422 and "law" in bad.text

@@ -35,7 +35,7 @@ def test_a_frame_in_flight_keeps_its_calibration(tmp_path) -> None:
     assert rec.calibration_id == info.id != new_id
     assert rec.diameter_mm == rec.raw_diameter_mm == 30.0  # not the new calibration's correction
     assert queue[0].calibration_id == info.id
-    d = comp.controller.on_measurement(replace(queue[0], time_s=1.0), 1.0)
+    d = comp.in_force()[0][1].controller.on_measurement(replace(queue[0], time_s=1.0), 1.0)
     assert d.code == "other_calibration", d
     publish(replace(frame, frame_id=2), m, ctx.in_use)
     assert gauge.feed.latest.calibration_id == new_id and gauge.feed.latest.diameter_mm == 30.005

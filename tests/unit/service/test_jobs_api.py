@@ -38,8 +38,9 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     assert job["version"] == 1 and job["active"] and job["created_by"].startswith("technician")
     st = client.get("/api/v1/status").json()["job"]
     assert st["job"]["features"] == 2 and st["offsets_held"] is None
-    tools = client.get("/api/v1/status").json()["compensation"]["tools"]
-    assert [(t["tool"], t["features"]) for t in tools] == [(1, [1]), (2, [2])]
+    entries = client.get("/api/v1/status").json()["compensation"]["entries"]
+    assert [(e["tool"], e["entry"], e["features"]) for e in entries] == [
+        (1, None, [1]), (2, None, [2])]
     m = latest_with(client, lambda m: m["feature"] == 1 and m["status"] == "ok")
     assert abs(m["deviation_mm"]) < 0.01
     client.gauge.camera.diameter_mm = 25.0  # the laser on the seat
@@ -267,7 +268,7 @@ def test_a_job_the_controller_cannot_take_is_refused_whole_and_the_last_stays(cl
     assert r.status_code == 422 and "tools[0].trend_gain" in r.json()["detail"], r.text
     st = client.get("/api/v1/status").json()
     assert st["job"]["job"]["id"] == first.json()["id"]
-    assert [t["tool"] for t in st["compensation"]["tools"]] == [1, 2]
+    assert [e["tool"] for e in st["compensation"]["entries"]] == [1, 2]
     assert [j["active"] for j in client.get("/api/v1/jobs").json()["items"]] == [True]
     for text in ("SH\r1", "SH\x001", "\ud800"):  # JSON escapes it: a lone surrogate too
         body = json.dumps({"document": {**TWO, "part_number": text}})
@@ -276,13 +277,21 @@ def test_a_job_the_controller_cannot_take_is_refused_whole_and_the_last_stays(cl
         assert r.status_code == 422 and "part_number" in r.json()["detail"], r.text
 
 
-def test_a_job_on_offset_entries_the_handshake_cannot_name_is_refused_before_it_is_stored(
-        client) -> None:
-    doc = {**TWO, "features": [dict(f, entry=12) if i == 1 else f
-                               for i, f in enumerate(TWO["features"])]}
+def test_a_job_on_offset_entries_is_taken_and_each_entry_reported(client) -> None:
+    """A feature on an offset entry of its own: the job is stored and in force, its entry
+    has its own compensation, named as the CNC names it, in the status and /metrics."""
+    doc = {**TWO, "features": [*TWO["features"], dict(
+        TWO["features"][1], number=3, name="pin", nominal_mm=20.0, entry=12)]}
     r = client.post("/api/v1/jobs", headers=H, json={"document": doc, "activate": True})
-    assert r.status_code == 422 and "features[1].entry" in r.json()["detail"], r.text
-    assert client.get("/api/v1/jobs").json()["items"] == []
+    assert r.status_code == 201, r.text
+    entries = client.get("/api/v1/status").json()["compensation"]["entries"]
+    assert [(e["tool"], e["entry"], e["features"]) for e in entries] == [
+        (1, None, [1]), (2, None, [2]), (2, 12, [3])]
+    metrics = client.get("/metrics").text
+    assert 'shaftgauge_cumulative_offset_mm{entry="12",tool="2"}' in metrics, metrics[-800:]
+    bad = {**doc, "features": [*doc["features"][:2], dict(doc["features"][2], entry=70000)]}
+    r = client.post("/api/v1/jobs", headers=H, json={"document": bad})
+    assert r.status_code == 422 and "features[2].entry" in r.json()["detail"], r.text
 
 
 def test_a_start_on_a_stored_job_it_cannot_take_falls_back_and_says_so(tmp_path) -> None:

@@ -88,7 +88,8 @@ def test_a_failed_study_blocks_offset_writes_and_says_why(quality) -> None:
     problems = {p["code"]: p["text"] for p in c.get("/api/v1/status").json()["problems"]}
     assert "gauge_study" in problems and "only proposed" in problems["gauge_study"]
     g = c.gauge
-    assert wait_for(lambda: bool(g.compensation.controller.writes_blocked), 5)
+    assert wait_for(lambda: all(ch.controller.writes_blocked
+                               for _, ch in g.compensation.in_force()), 5)
     _, faults, _ = status_words(g.health.snapshot())
     assert FaultBit.GAUGE_STUDY_FAILED in faults
     assert FaultBit.MASTER_CHECK_DUE not in faults

@@ -24,7 +24,7 @@ from service.compensation.records import (
 from service.compensation.settings import CompensationSettings
 
 
-class ToolCompensation:
+class EntryCompensation:
     """One offset entry's compensation (a tool's own, or another offset of the same insert):
     a ``CompensationController`` with the tool's law and limits, judging each measurement
     against its feature's nominal and bands."""
@@ -83,11 +83,11 @@ class JobCompensation:
     def __init__(self, job: Job, base: CompensationSettings,
                  states: dict[OffsetEntry, ControllerState] | None = None) -> None:
         self.job = job
-        self.entries = {e: ToolCompensation(job, e, base, (states or {}).get(e))
+        self.entries = {e: EntryCompensation(job, e, base, (states or {}).get(e))
                         for e in job.entries()}
 
     @property
-    def tools(self) -> dict[int, ToolCompensation]:
+    def tools(self) -> dict[int, EntryCompensation]:
         """Each tool's own entry's compensation, by T number."""
         return {e.tool: c for e, c in self.entries.items() if e.number is None}
 

@@ -31,8 +31,8 @@ from service.compensation import (
     MeasurementIn,
     State,
 )
-from service.compensation.job import JobFeature
-from service.compensation.tools import ToolCompensation
+from service.compensation.entries import EntryCompensation
+from service.compensation.job import JobFeature, OffsetEntry
 from service.runtime.listeners import Listeners
 
 log = logging.getLogger("shaftgauge.compensation")
@@ -67,9 +67,9 @@ class OffsetTransport(Protocol):
 
 
 class OffsetChannel:
-    """Drives one controller with one offset writer (None: nothing is ever written): the
-    single feature's, or one tool's of a job (``tool``, judging each measurement against its
-    feature).
+    """Drives one offset entry's controller with its transport (None: nothing is ever
+    written), judging each measurement against its feature (``compensation``; None: against
+    the controller's own settings, the settings' feature when no job is in force).
 
     Serialised by an asyncio lock: measurements, write outcomes, settings and people's
     commands are handled one at a time, in order. Every change of the controller goes
@@ -80,11 +80,12 @@ class OffsetChannel:
                  store: CompensationLog | None = None,
                  on_decision: Callable[[Decision], None] | None = None,
                  clock: Callable[[], float] = time.monotonic,
-                 tool: ToolCompensation | None = None, tool_number: int | None = None
-                 ) -> None:
+                 compensation: EntryCompensation | None = None,
+                 entry: OffsetEntry | None = None) -> None:
         self.controller, self.writer, self.store = controller, writer, store
-        self.tool = tool
-        self.tool_number = tool_number  # a tool's own channel in a job of several
+        self.compensation = compensation
+        self.entry = entry if entry is not None else (
+            compensation.entry if compensation is not None else None)
         self.on_decision = on_decision
         self.clock = clock
         self.last_write: WriteResult | None = None
@@ -101,14 +102,15 @@ class OffsetChannel:
     def _submit(self, decision: Decision, durable: bool = False
                 ) -> concurrent.futures.Future | None:
         assert self.store is not None
+        e = self.entry or OffsetEntry(1)
         return self.store.submit(decision.as_dict(), time.time(),
                                  asdict(self.controller.persisted),
                                  quiet=decision.kind in QUIET_KINDS, durable=durable,
-                                 tool=self.tool_number)
+                                 tool=e.tool, entry=e.number or 0)
 
     def _named(self, decision: Decision) -> Decision:
-        return decision if self.tool_number is None else replace(decision,
-                                                                 tool=self.tool_number)
+        e = self.entry
+        return decision if e is None else replace(decision, tool=e.tool, entry=e.number)
 
     def _note(self, decision: Decision) -> Decision:
         """Hand a decision to the log (without waiting), the log file and the listeners."""
@@ -121,8 +123,8 @@ class OffsetChannel:
         level = logging.WARNING if decision.kind in (Kind.ALARM, Kind.STOPPED, Kind.UNCERTAIN,
                                                      Kind.NOT_APPLIED, Kind.LIMIT) \
             else logging.DEBUG
-        log.log(level, "compensation%s %s: %s", "" if decision.tool is None else
-                f" of tool {decision.tool}", decision.kind.value, decision.reason)
+        log.log(level, "compensation%s %s: %s", "" if self.entry is None else
+                f" of {self.entry}", decision.kind.value, decision.reason)
         if self.on_decision is not None:
             self.on_decision(decision)
         return decision
@@ -144,11 +146,12 @@ class OffsetChannel:
 
     async def on_measurement(self, m: MeasurementIn, feature: JobFeature | None = None
                              ) -> list[Decision]:
-        """Judge a measurement (of ``feature``, one of the tool's); write an offset when the
-        controller asks for one."""
+        """Judge a measurement (of ``feature``, one of the entry's; None: a measurement of no
+        feature, which the controller refuses or holds); write an offset when the controller
+        asks for one."""
         async with self._lock:
-            if self.tool is not None and feature is not None:
-                order = self.tool.on_measurement(m, self.clock(), feature)
+            if self.compensation is not None and feature is not None:
+                order = self.compensation.on_measurement(m, self.clock(), feature)
             else:
                 order = self.controller.on_measurement(m, self.clock())
             if order.kind is not Kind.WRITE:
@@ -216,21 +219,10 @@ class OffsetChannel:
             d = self.controller.observe_cnc_total(cnc.total_mm, self.clock())
             return None if d is None else self._note(d)
 
-    async def run_settler(self, period_s: float = 1.0) -> None:
-        """Settle unknown offsets as soon as the CNC's registers tell, and read the CNC every
-        ``CNC_REFRESH_S`` (every ``period_s`` while compensation waits for its baseline);
-        runs until cancelled. First, an offset left unsettled by the last run is offered again
-        where the transport can (``resume``)."""
-        try:
-            await self.resume()
-        except Exception:  # settling below still works without it
-            log.exception("offering an unsettled offset again failed")
-        while True:
-            await self.tick()
-            await asyncio.sleep(period_s)
-
     async def tick(self) -> None:
-        """One step of ``run_settler``: settle an unknown offset, or read the CNC when due."""
+        """One step of settling (``EntryChannels.run_settlers``): settle an unknown offset,
+        or read the CNC every ``CNC_REFRESH_S`` (every step while compensation waits for its
+        baseline)."""
         try:
             if self.controller.state is State.UNCERTAIN:
                 await self.settle()
