@@ -39,8 +39,8 @@ import numpy as np
 
 from drivers.sim.lathe import LatheConfig, VirtualLathe
 from service.compensation import CompensationSettings, Kind, MeasurementIn
-from service.compensation.job import OffsetEntry, job_from_doc
 from service.compensation.entries import JobCompensation
+from service.compensation.job import OffsetEntry, job_from_doc
 from tests.bench.closed_loop import Gauge, insert_change
 from tests.bench.results import save_report
 

@@ -35,8 +35,8 @@ from service.compensation import (
     Kind,
     MeasurementIn,
 )
-from service.compensation.job import Job, JobFeature
 from service.compensation.entries import EntryCompensation
+from service.compensation.job import Job, JobFeature
 from service.runtime.offset_channel import OffsetChannel
 
 ROOT = Path(__file__).resolve().parents[3]

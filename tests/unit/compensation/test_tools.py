@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from service.compensation import CompensationSettings, Kind, MeasurementIn
-from service.compensation.job import JobError, OffsetEntry, job_from_doc
 from service.compensation.entries import JobCompensation
+from service.compensation.job import JobError, OffsetEntry, job_from_doc
 
 WEAR_UM_PER_PART = {1: 1.2, 2: 2.5}
 DEFLECTION_UM = {4: 8.0}  # the slender end cuts larger
