@@ -9,8 +9,9 @@ after each part (what the lathe cuts follows LinuxCNC's tool table).
 
 Commands: {"do": "ready"} (estop reset, machine on, homed, MDI mode, tool 1 loaded with G43);
 {"do": "mdi", "lines": [...]}; {"do": "run", "path": ...} (a program, to its end);
-{"do": "call", "tool": 1} (the shipped subroutine, answering
-its #<_value>); {"do": "tool", "number": 1} (its X offset); {"do": "pin", "name": ...}.
+{"do": "call", "tool": 1, "entry": 0} (the shipped subroutine, answering
+its #<_value>); {"do": "tool", "number": 1} (a tool-table entry's X offset);
+{"do": "pin", "name": ...}.
 """
 
 import json
@@ -71,10 +72,10 @@ def handle(req):
     if what == "mdi":
         return {"ok": True, "done": [mdi(line) for line in req["lines"]], "errors": errors()}
     if what == "call":
-        mdi(f"o<shaftgauge_comp> call [{req.get('tool', 1)}]")
-        mdi("M68 E7 Q#<_value>")  # E0-E5 carry the report
+        mdi(f"o<shaftgauge_comp> call [{req.get('tool', 1)}] [{req.get('entry', 0)}]")
+        mdi("M68 E9 Q#<_value>")  # E0-E7 carry the report
         time.sleep(0.05)
-        return {"ok": True, "value": hal.get_value("motion.analog-out-07"), "errors": errors()}
+        return {"ok": True, "value": hal.get_value("motion.analog-out-09"), "errors": errors()}
     if what == "run":  # a program to its end
         command.mode(linuxcnc.MODE_AUTO)
         command.wait_complete()

@@ -14,8 +14,9 @@ host=${2:-127.0.0.1}
 port=${3:-5020}
 mkdir -p "$run/nc"
 run=$(cd "$run" && pwd)
-cp "$here/sim/shaftgauge-sim.ini" "$here/sim/headless-display" "$here/shaftgauge.hal" \
-   "$here/shaftgauge-nets.hal" "$here/shaftgauge_link.py" "$run/"
+cp "$here/sim/shaftgauge-sim.ini" "$here/sim/headless-display" "$here/sim/toplevel.py" \
+   "$here/sim/remap.py" "$here/shaftgauge.hal" "$here/shaftgauge-nets.hal" \
+   "$here/shaftgauge_link.py" "$run/"
 cp "$here"/nc/*.ngc "$run/nc/"
 [ -f "$run/lathe.tbl" ] || cp "$here/sim/lathe.tbl" "$run/"
 sed -e "s/^TCP_IP=.*/TCP_IP=$host/" -e "s/^TCP_PORT=.*/TCP_PORT=$port/" \

@@ -1,6 +1,6 @@
 """A job of two tools through ``shaftgauge serve`` and its simulated PLC over the push
-handshake: the seat, cut large, moves only tool 2's block of the CNC's registers; tool 1's
-and the single tool's stay as they were."""
+handshake: the seat, cut large, moves only tool 2's block of the CNC's registers (offset
+number 2's); tool 1's (the first) stays as it was."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def applied(svc) -> list[tuple[int | None, int]]:
     log = svc.data / "sim-plc.log"
     events = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() \
         else []
-    return [(e.get("tool"), e["value_units"]) for e in events if e["event"] == "applied"]
+    return [(e.get("offset", 1), e["value_units"]) for e in events if e["event"] == "applied"]
 
 
 def test_the_seat_cut_large_moves_only_its_tools_block(tmp_path) -> None:
@@ -37,7 +37,8 @@ def test_the_seat_cut_large_moves_only_its_tools_block(tmp_path) -> None:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not applied(svc):
             time.sleep(0.5)
-        tools = {t["tool"]: t for t in svc.get("/api/v1/status").json()["compensation"]["tools"]}
+        status = svc.get("/api/v1/status").json()["compensation"]
+        tools = {t["tool"]: t for t in status["entries"]}
     finally:
         stop_service(svc)
     moved = applied(svc)

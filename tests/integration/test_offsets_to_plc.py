@@ -165,29 +165,33 @@ async def test_an_offset_that_cannot_be_logged_is_not_written(sim_plc_factory, s
     await writer.close()
 
 
-async def test_each_tool_has_its_own_block(sim_plc_factory, tmp_path) -> None:
-    """A job of several tools over the push handshake: tool n's offsets go to its own block
-    (``tool_stride`` registers on), each with its own acknowledgement and total, kept across
-    the CNC's restart."""
+async def test_each_offset_number_has_its_own_block(sim_plc_factory, tmp_path) -> None:
+    """A job of several entries over the push handshake: offset number n's offsets go to its
+    own block (``(n - 1) * tool_stride`` registers on; number 1's is the first), each with
+    its own acknowledgement and total, kept across the CNC's restart. A CNC with one block
+    gives every number the same transport (the channels then refuse to share it)."""
     plc = sim_plc_factory(None, "--tools", "3", "--tool-stride", "10")
     writer = OffsetWriter("127.0.0.1", plc.port, PlcOffsetMap(tool_stride=10))
-    one, two = writer.tool(1), writer.tool(2)
+    one, two = writer.offset(1), writer.offset(2)
+    assert one is writer.offset(1) and one.block == writer.map
     assert (await one.write_offset(-0.004, 1)).outcome is Outcome.APPLIED
     assert (await two.write_offset(0.003, 1)).outcome is Outcome.APPLIED  # its own sequence
     assert (await two.write_offset(0.001, 2)).outcome is Outcome.APPLIED
-    r1, r2, single = await one.read_cnc(), await two.read_cnc(), await writer.read_cnc()
+    r1, r2, r3 = await one.read_cnc(), await two.read_cnc(), await writer.offset(3).read_cnc()
     assert (r1.ack_seq, round(r1.total_mm * 1e4)) == (1, -40)
     assert (r2.ack_seq, round(r2.total_mm * 1e4)) == (2, 40)
-    assert (single.ack_seq, single.total_mm) == (0, 0.0)  # the single tool's block untouched
-    applied = [(e.get("tool"), e["seq"]) for e in plc_log(sim_plc_factory.log)
+    assert (r3.ack_seq, r3.total_mm) == (0, 0.0)  # offset 3's block untouched
+    applied = [(e.get("offset", 1), e["seq"]) for e in plc_log(sim_plc_factory.log)
                if e["event"] == "applied"]
     assert applied == [(1, 1), (2, 1), (2, 2)]
     await writer.close()
     plc.stop()
     plc = sim_plc_factory(plc.port, "--tools", "3", "--tool-stride", "10")
     writer = OffsetWriter("127.0.0.1", plc.port, PlcOffsetMap(tool_stride=10))
-    r2 = await writer.tool(2).read_cnc()
+    r2 = await writer.offset(2).read_cnc()
     assert (r2.ack_seq, round(r2.total_mm * 1e4)) == (2, 40)
     await writer.close()
-    with pytest.raises(ValueError, match="one offset block"):
-        OffsetWriter("127.0.0.1", plc.port).tool(1)
+    single = OffsetWriter("127.0.0.1", plc.port)
+    assert single.offset(1) is single.offset(2)  # one block: one transport
+    with pytest.raises(ValueError, match="shorter than a block"):
+        OffsetWriter("127.0.0.1", plc.port, PlcOffsetMap(tool_stride=3)).offset(2)

@@ -13,9 +13,9 @@ from pymodbus.client import ModbusTcpClient
 from drivers.plc.pull import REPORT, Result, settle_request, write_report
 from drivers.plc.registers import (
     BY_NAME,
+    ENTRY_BLOCK_BASE,
+    ENTRY_BLOCK_WORDS,
     NO_VALUE,
-    SIZE,
-    TOOL_BLOCK_BASE,
     UM_PER_UNIT,
     RegisterBank,
 )
@@ -45,7 +45,7 @@ class PollingCnc:
 
     def call(self, tool: int) -> None:
         """The subroutine called for ``tool``: settle its request, report its total."""
-        regs = self.client.read_holding_registers(0, count=TOOL_BLOCK_BASE, device_id=1)
+        regs = self.client.read_holding_registers(0, count=ENTRY_BLOCK_BASE, device_id=1)
         assert not regs.isError(), regs
         mirror = RegisterBank()
         mirror.write_words(0, regs.registers)
@@ -60,7 +60,7 @@ class PollingCnc:
         tool_at = BY_NAME["cnc_tool"].address
         first = BY_NAME[REPORT[0]].address
         assert not self.client.write_register(tool_at, tool, device_id=1).isError()
-        block = out.words(first, len(REPORT) - 1)
+        block = out.words(first, BY_NAME["cnc_check"].address - first + 1)
         assert not self.client.write_registers(first, block, device_id=1).isError()
 
     def cut_mm(self, tool: int) -> float:
@@ -99,36 +99,36 @@ def test_two_tools_each_corrected_through_its_own_requests(tmp_path) -> None:
                     cnc.call(t)
                 got = client.get("/api/v1/status").json()["compensation"]
                 return got if all(t["pending_seq"] is None and t["state"] == "active"
-                                  for t in got["tools"]) else None
+                                  for t in got["entries"]) else None
 
             status = until(settled, "every offset of both tools settled", step_s=0.5)
             log = client.get("/api/v1/compensation/log", params={"limit": 2000}).json()
             # Every reader shows each tool's own cumulative offset, none the one channel's.
             mirror = RegisterBank()  # a read takes 125 registers at most: two
             mirror.write_words(0, cnc.client.read_holding_registers(
-                0, count=TOOL_BLOCK_BASE, device_id=1).registers)
-            mirror.write_words(TOOL_BLOCK_BASE, cnc.client.read_holding_registers(
-                TOOL_BLOCK_BASE, count=SIZE - TOOL_BLOCK_BASE, device_id=1).registers)
+                0, count=ENTRY_BLOCK_BASE, device_id=1).registers)
+            mirror.write_words(ENTRY_BLOCK_BASE, cnc.client.read_holding_registers(
+                ENTRY_BLOCK_BASE, count=3 * ENTRY_BLOCK_WORDS, device_id=1).registers)
             metrics = client.get("/metrics").text
             plant = OpcUaValues(gauge.feed, gauge.compensation, gauge.camera,
                                 gauge.writer).values()
         finally:
             cnc.client.close()
-    status_tools = {t["tool"]: t for t in status["tools"]}
+    status_tools = {t["tool"]: t for t in status["entries"]}
     assert status["cumulative_offset_mm"] is None and plant["CumulativeOffset"] is None
     assert mirror.get("cumulative_offset") == NO_VALUE == mirror.get("proposed_offset")
-    assert mirror.get("tool3_number") == 0
+    assert mirror.get("entry3_tool") == 0
     for k, t in ((1, 1), (2, 2)):
         units = cnc.total[t]  # what the CNC applied, from a total of 0
         assert units != 0
-        assert mirror.get(f"tool{k}_number") == t
-        assert mirror.get(f"tool{k}_cumulative") == units, (t, units)
+        assert mirror.get(f"entry{k}_tool") == t and mirror.get(f"entry{k}_number") == 0
+        assert mirror.get(f"entry{k}_cumulative") == units, (t, units)
         assert round(status_tools[t]["cumulative_offset_mm"] * 1e4) == units
         assert round(plant["Tools"][t]["CumulativeOffset"] * 1e4) == units
-        line = f'shaftgauge_cumulative_offset_mm{{tool="{t}"}} '
+        line = f'shaftgauge_cumulative_offset_mm{{entry="",tool="{t}"}} '
         value = next(x for x in metrics.splitlines() if x.startswith(line))
         assert round(float(value.split()[-1]) * 1e4) == units, value
-    assert [t["tool"] for t in status["tools"]] == [1, 2]
+    assert [t["tool"] for t in status["entries"]] == [1, 2]
     for t in (1, 2):
         assert cnc.applied[t], f"tool {t}: nothing applied ({status})"
         # Corrected towards its own nominal: the cut is within the dead band's reach.

@@ -53,7 +53,9 @@ NOT_MEASURED = {
     "1.5 um": "the gauge's noise in the LinuxCNC loop test",
     "2.5 um": "the tool wear a part in the LinuxCNC loop test",
     "0.4 um": "the embedded default's simulated tool wear a minute",
-    "0.8 um": "the embedded default's second simulated tool's wear a minute",
+    "0.8 um": "the embedded default's second simulated tool's wear a minute; the pin's "
+              "taper a part in the LinuxCNC entries test",
+    "1.2 um": "the insert's wear a part in the LinuxCNC entries test",
 }
 
 

@@ -36,7 +36,7 @@ from service.compensation import (
     MeasurementIn,
 )
 from service.compensation.entries import EntryCompensation
-from service.compensation.job import Job, JobFeature
+from service.compensation.job import Job, JobFeature, JobTool, OffsetEntry
 from service.runtime.offset_channel import OffsetChannel
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -425,7 +425,7 @@ def make_job_parts(gauge: Gauge, cnc: LinuxCnc, shadow: bool, parts: int = 20) -
     for t in (1, 2):
         tool = EntryCompensation(JOB, t, settings)
         channels[t] = OffsetChannel(tool.controller, gauge.transport.tool(t), None,
-                                    on_decision=decisions[t].append, tool=tool)
+                                    on_decision=decisions[t].append, compensation=tool)
     try:
         time.sleep(0.3)
         for ch in channels.values():
@@ -561,3 +561,108 @@ def test_an_insert_change_zeroed_by_hand_leaves_the_tolerance_and_comes_back(lat
     assert not any(d.kind in (Kind.ALARM, Kind.STOPPED) for d in decisions)
     assert sum(d.offset_mm for d in applied) + hand_mm == pytest.approx(
         2.0 * (cnc.tool_x_mm() - x0), abs=1e-9)
+
+
+ENTRY_PART = """; one insert, two offset entries: T202 (tool 2 with wear entry 10002) finishes
+; the collar, T212 (wear entry 10012) the slender pin, whose deflection grows as it wears
+G7 G18 G21 G90 G94
+T202 M6
+o<shaftgauge_comp> call [2] [10002]
+G0 X30 Z2
+G1 Z-10 F1500
+G0 X44
+G0 Z2
+T212 M6
+o<shaftgauge_comp> call [2] [10012]
+G0 X26 Z-10
+G1 Z-20 F1500
+G0 X44
+G0 Z2
+M2
+"""
+
+ENTRY_JOB = Job("SHAFT-E", "one insert, two entries", (
+    JobFeature(1, "collar", 30.0, 0.020, -0.020, tool=2),
+    JobFeature(2, "pin", 26.0, 0.020, -0.020, tool=2, entry=10012)),
+    (JobTool(2, wear_entry=10002),))
+TAPER_UM_PER_PART = 0.8  # the pin springs away more as the insert wears: 16 um in 20 parts
+
+
+def test_two_entries_of_one_insert_each_moved_only_by_its_own_offsets(lathe) -> None:
+    """The LinuxCNC way of two offsets on one insert (``index_lathe_tool_with_wear``: T202 is
+    tool 2 with wear entry 10002, T212 with 10012): the collar and the pin each on their own
+    entry. The insert wears 1.2 um a part and the pin's taper grows 0.8 um a part: one
+    correction for both would leave the pin 16 um behind. Each entry's channel posts its own
+    requests (naming tool and entry), the shipped subroutine applies each to its entry, both
+    features stay in tolerance, each wear entry moved by exactly its own applied offsets and
+    the tool's geometry (T2) not at all."""
+    gauge, cnc = lathe
+    program = cnc.run_dir / "nc" / "entry_part.ngc"
+    program.write_text(ENTRY_PART)
+    watcher = asyncio.run_coroutine_threadsafe(gauge.transport.watch(), gauge.loop)
+    answer = cnc.ask(do="run", path=str(program))  # each entry's total reported
+    assert answer["ok"] and not answer["errors"], answer
+    settings = CompensationSettings(nominal_mm=30.0, tol_upper_mm=0.02, tol_lower_mm=-0.02,
+                                    shadow=False, law="predictive", gain=0.4,
+                                    trend_gain=0.2, deadband_mm=0.002,
+                                    dead_time_measurements=0, dead_time_s=0.0)
+    entries = ENTRY_JOB.entries()
+    assert entries == (OffsetEntry(2, 10002), OffsetEntry(2, 10012))
+    decisions: dict[OffsetEntry, list[Decision]] = {e: [] for e in entries}
+    channels = {}
+    for e in entries:
+        comp = EntryCompensation(ENTRY_JOB, e, settings)
+        channels[e] = OffsetChannel(comp.controller, gauge.transport.entry(e.tool, e.number),
+                                    None, on_decision=decisions[e].append, compensation=comp)
+    slots = (2, 10002, 10012)
+    try:
+        time.sleep(0.3)
+        for ch in channels.values():
+            gauge.run(ch.refresh())  # each entry's total: the baseline of its limit
+        x0 = {s: cnc.ask(do="tool", number=s)["x"] for s in slots}
+        rng = np.random.default_rng(31)
+        deviations: dict[int, list[float]] = {1: [], 2: []}
+        seq = 0
+        for k in range(20):
+            answer = cnc.ask(do="run", path=str(program))
+            assert answer["ok"] and not answer["errors"], answer
+            time.sleep(0.15)  # the report through mb2hal
+            for ch in channels.values():  # the settler: the CNC's answers, each entry's total
+                gauge.run(ch.settle())
+                gauge.run(ch.refresh())
+            for f in ENTRY_JOB.features:
+                slot = ENTRY_JOB.entry_of(f).number
+                offset = 2.0 * (cnc.ask(do="tool", number=slot)["x"] - x0[slot])
+                cut = f.nominal_mm + 0.0012 * (k + 1) + offset + rng.normal(0.0, 0.001) + (
+                    TAPER_UM_PER_PART / 1000 * (k + 1) if f.number == 2 else 0.0)
+                deviations[f.number].append((cut - f.nominal_mm) * 1000.0)
+                seq += 1
+                gauge.run(channels[ENTRY_JOB.entry_of(f)].on_measurement(MeasurementIn(
+                    seq, time.monotonic(), "ok", cut + rng.normal(0.0, 0.0015), 0.0015), f))
+        answer = cnc.ask(do="run", path=str(program))  # the last offers taken
+        assert answer["ok"] and not answer["errors"], answer
+        time.sleep(0.3)
+        for ch in channels.values():
+            gauge.run(ch.settle())
+        change = {s: cnc.ask(do="tool", number=s)["x"] - x0[s] for s in slots}
+    finally:
+        watcher.cancel()
+        cnc.ask(do="mdi", lines=["T1 M6 G43", "o<shaftgauge_comp> call [1]"])
+    applied = {e: [d for d in ds if d.kind is Kind.APPLIED] for e, ds in decisions.items()}
+    print(f"\nFIGURES one insert, two entries: "
+          f"{ {n: [round(d, 1) for d in v] for n, v in deviations.items()} } um; applied "
+          f"{ {str(e): [round(d.offset_mm * 1000, 1) for d in a] for e, a in applied.items()} }"
+          f"; X change (um) "
+          f"{ {s: round(x * 1000, 4) for s, x in change.items()} }")
+    for n, devs in deviations.items():
+        assert all(-20.0 <= d <= 20.0 for d in devs), (n, devs)
+    assert change[2] == 0.0  # the tool's geometry: no offset goes there
+    for e in entries:
+        assert applied[e], f"{e} was never compensated"
+        assert len({d.offset_seq for d in applied[e]}) == len(applied[e])
+        assert sum(d.offset_mm for d in applied[e]) == pytest.approx(2.0 * change[e.number],
+                                                                     abs=1e-9)
+        assert not [d for d in decisions[e] if d.kind in (Kind.NOT_APPLIED, Kind.ALARM,
+                                                          Kind.STOPPED)]
+    # The pin's entry took more than the collar's: the taper is its own.
+    assert change[10012] < change[10002] < 0
