@@ -330,7 +330,6 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     commands = CncCommands(settings.modbus, compensation, registers, camera.software_trigger)
     modbus = ModbusService(settings.modbus, bank, registers, rules.check, commands.take)
     compensation.on_decision(registers.decided)
-    compensation.on_settings(registers.set_feature)
     sequence = SequenceCounter(comp_log, compensation.last_measurement_seq() + 1)
     jobs = JobService(job_store, compensation, store_error)
     compensation.on_settings(lambda _: jobs.settings_changed())

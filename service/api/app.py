@@ -93,7 +93,7 @@ def create_app(gauge: Gauge, manage_lifecycle: bool = True) -> FastAPI:
                                            {"spc": g.spc.events}))
     api.include_router(calibrations.router(g.context, keys))
     api.include_router(compensation.router(g.compensation, g.log, g.commands.run_command, keys,
-                                           g.context.store_error))
+                                           g.jobs, g.context.store_error))
     api.include_router(master.router(g.context, g.compensation, g.feed,
                                      g.settings.measurement, keys))
     api.include_router(sessions.router(g.sessions, g.context, g.compensation, keys))

@@ -15,14 +15,16 @@ from service.api.models import CommandIn, CompensationIn, FeatureIn, ShadowIn, T
 from service.compensation import CompensationSettings, Decision, Kind
 from service.config import ApiSettings
 from service.runtime.compensating import CompensationService
+from service.runtime.job_service import JobService
 
 RunCommand = Callable[..., Awaitable[Decision | None]]
 
 
 def router(comp: CompensationService, log: CompensationLog | None, run_command: RunCommand,
-           api: ApiSettings, store_error: str = "") -> APIRouter:
+           api: ApiSettings, jobs: JobService, store_error: str = "") -> APIRouter:
     """Changes go through the compensation service (``run_command`` also acknowledges the
-    command in the registers); the decision log is read from the store."""
+    command in the registers); the decision log is read from the store; the feature is the
+    job's, through its owner (``JobService``)."""
     r = APIRouter(tags=["compensation"])
     technician = Depends(requires(api, "technician"))
     admin = Depends(requires(api, "admin"))
@@ -38,13 +40,17 @@ def router(comp: CompensationService, log: CompensationLog | None, run_command: 
 
     @r.get("/feature", summary="Nominal diameter and tolerance of the current feature")
     def feature() -> dict:
-        s = comp.settings
-        return {"nominal_mm": s.nominal_mm, "tol_upper_mm": s.tol_upper_mm,
-                "tol_lower_mm": s.tol_lower_mm}
+        f = jobs.feature_in_view()  # the job's: named, measured last, or its first
+        return {"nominal_mm": f.nominal_mm, "tol_upper_mm": f.tol_upper_mm,
+                "tol_lower_mm": f.tol_lower_mm}
 
-    @r.put("/feature", summary="Set the feature (technician)")
+    @r.put("/feature", summary="Set the feature directly: a job of one feature (technician)")
     async def set_feature(body: FeatureIn, caller: Caller = technician) -> dict:
-        return await apply(replace(comp.settings, **body.model_dump()), caller)
+        try:
+            d = await jobs.set_feature(f"api:{caller}", **body.model_dump())
+        except ValueError as err:
+            raise HTTPException(422, str(err)) from None
+        return {"settings": asdict(comp.settings), "decision": d.as_dict()}
 
     @r.get("/compensation", summary="Compensation settings and state")
     def compensation() -> dict:

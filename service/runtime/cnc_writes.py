@@ -144,10 +144,11 @@ class CncCommands:
 
     async def _feature_from_cnc(self, changes: dict[str, float | None], who: str) -> None:
         try:
-            await self.compensation.update_feature(who, **changes)
+            assert self.jobs is not None  # wired before the server starts
+            await self.jobs.set_feature(who, **changes)
         except (ValueError, NotStoredError) as err:  # changed meanwhile, or not storable
             log.warning("feature from %s not taken: %s", who, err)
-            self.view.set_feature(self.compensation.settings)  # the registers show what is in force
+            self.view.job_changed()  # the registers show what is in force
 
     async def _job_from_cnc(self, job_id: int | None, feature: int | None, who: str) -> None:
         """The job, then the feature, the CNC wrote (checked before the write was taken)."""

@@ -2,8 +2,8 @@
 laser, and the records of the parts as they are finished. One owner of all three.
 
 With no stored job active, the job is today's one feature: the compensation settings'
-nominal and tolerance, finished by tool 1 (``Job.single``). A stored job of one feature sets
-the compensation's feature when activated. Every job is measured feature by feature and
+nominal and tolerance, finished by tool 1 (``Job.single``); a stored job in force leaves the
+settings as they are, whatever its number of features. Every job is measured feature by feature and
 recorded part by part; each measurement goes into its feature's offset entry's law against
 its own feature (``CompensationService.set_job``, a channel an entry).
 """
@@ -18,6 +18,7 @@ from typing import Any
 
 from calib_store.job_store import JobInfo, JobStore
 from calib_store.store import NotStoredError
+from service.compensation import Decision
 from service.compensation.job import Job, JobError, JobFeature, job_from_doc
 from service.measurement_record import Feature, MeasurementRecord
 from service.quality.parts import PartAssembler, PartRecord
@@ -49,8 +50,8 @@ class JobService:
         self.not_taken: JobInfo | None = None
         """The job the store marks active that the compensation could not take (a start)."""
         self.selected: int | None = None
-        self._feature_set = compensation.feature()  # as the job in force left it
-        self._activating = False
+        self._feature_set = compensation.feature()  # the settings' single feature, as seen
+        self._in_view: int | None = None  # the feature measured last (the registers show it)
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
         self._parts_done: Listeners[dict[str, Any]] = Listeners("part finished")
         self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
@@ -104,6 +105,7 @@ class JobService:
         self._job = job
         self._feature_set = self.compensation.feature()
         self.selected = None
+        self._in_view = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
         self._new_jobs.tell(None)
@@ -132,7 +134,7 @@ class JobService:
     def settings_changed(self) -> None:
         """The compensation settings changed (a listener): the single feature follows; a
         feature set directly (the API's feature, the CNC's nominal) ends a stored job."""
-        if self._activating or self.compensation.feature() == self._feature_set:
+        if self.compensation.feature() == self._feature_set:
             return  # the job's own feature going in, or another setting: the job stands
         if self.stored is not None:
             log.warning("job %s no longer in force: a feature was set directly",
@@ -140,6 +142,17 @@ class JobService:
             self.deactivate("a feature set directly")
         else:
             self._rebuild()
+
+    async def set_feature(self, who: str, **changes: float | None) -> Decision:
+        """A feature set directly (the API's, the CNC's nominal registers): the settings'
+        single feature, changed, becomes the job in force; a stored job ends (ValueError
+        while inconsistent, NotStoredError when it cannot be kept: nothing changed)."""
+        d = await self.compensation.update_feature(who, **changes)
+        if self.stored is not None:  # the same feature as before ends it too
+            log.warning("job %s no longer in force: a feature was set directly",
+                        self.stored.part_number)
+            self.deactivate("a feature set directly")
+        return d
 
     def _store(self) -> JobStore:
         if self.store is None:
@@ -168,15 +181,6 @@ class JobService:
         except ValueError as err:
             self.compensation.set_job(self._job)
             raise JobError(f"job {job_id}: {err}") from None
-        if len(job.features) == 1:  # the compensation judges its feature
-            f = job.features[0]
-            self._activating = True   # its feature is the job's: one rebuild, below
-            try:
-                await self.compensation.update_feature(
-                    by, nominal_mm=f.nominal_mm, tol_upper_mm=f.tol_upper_mm,
-                    tol_lower_mm=f.tol_lower_mm)
-            finally:
-                self._activating = False
         self._store().activate(job_id, by)
         if self.not_taken is not None:  # another job in its place: what was said is past
             self.not_taken, self.store_error = None, ""
@@ -229,6 +233,16 @@ class JobService:
             self.last_refused = found.reason
         return found.feature, found.reason
 
+    def feature_in_view(self) -> Feature:
+        """The feature the CNC's registers show: the one named, else the one measured last,
+        else the job's first (none without a job)."""
+        job = self._job
+        if job is None:
+            return Feature(None, 0.0, 0.0)
+        number = self.selected if self.selected is not None else self._in_view
+        return self.feature_of(job.feature(number) if number is not None
+                               else job.features[0])
+
     @staticmethod
     def feature_of(feature: JobFeature | None) -> Feature:
         """What a measurement of ``feature`` is compared with."""
@@ -249,6 +263,9 @@ class JobService:
         """A published measurement (a feed listener): into the part under way."""
         if record.feature is not None:
             self.latest[record.feature] = record
+            if record.feature != self._in_view:
+                self._in_view = record.feature
+                self._changed()  # the registers show the feature under the laser
         if self.parts is None or record.feature is None or record.status != "ok" \
                 or record.diameter_mm is None or record.uncertainty_mm is None:
             return

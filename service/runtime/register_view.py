@@ -9,8 +9,8 @@ import logging
 from collections.abc import Callable
 
 from drivers.plc.registers import ENTRY_BLOCKS, FaultBit, RegisterBank, mm_to_units
-from service.compensation import CompensationSettings, Decision
-from service.measurement_record import MeasurementRecord
+from service.compensation import Decision
+from service.measurement_record import Feature, MeasurementRecord
 from service.runtime.compensating import CompensationService
 from service.runtime.job_service import JobService
 from service.runtime.status_words import StatusSnapshot, form_words, status_words
@@ -80,11 +80,11 @@ class RegisterView:
             self.bank.set_many(changed)
             self._offsets_shown.update(changed)
 
-    def set_feature(self, settings: CompensationSettings) -> None:
-        """Nominal and tolerances as in force."""
-        self.bank.set_many({"nominal": mm_to_units(settings.nominal_mm),
-                            "tol_upper": mm_to_units(settings.tol_upper_mm),
-                            "tol_lower": mm_to_units(settings.tol_lower_mm)})
+    def set_feature(self, feature: Feature) -> None:
+        """Nominal and tolerances of the feature in view (``JobService.feature_in_view``)."""
+        self.bank.set_many({"nominal": mm_to_units(feature.nominal_mm),
+                            "tol_upper": mm_to_units(feature.tol_upper_mm),
+                            "tol_lower": mm_to_units(feature.tol_lower_mm)})
 
     def command_done(self, command: int) -> None:
         """A command carried out: ``command`` cleared, ``last_command`` it, ``command_seq``
@@ -99,10 +99,12 @@ class RegisterView:
         self.job_changed()
 
     def job_changed(self) -> None:
-        """The job in force or the feature named changed: its registers and entry blocks."""
+        """The job in force or the feature named or measured changed: its registers, the
+        feature's nominal and tolerances, and the entry blocks."""
         self._show_offsets()  # the job's entries, each in its block
         jobs = self.jobs
         if jobs is not None:
+            self.set_feature(jobs.feature_in_view())
             self.bank.set_many({"job": 0 if jobs.stored is None else jobs.stored.id & 0xFFFF,
                                 "feature": jobs.selected or 0})
 

@@ -150,13 +150,18 @@ def test_a_bad_job_is_refused_naming_the_field_and_versions_are_kept(client) -> 
     assert actions == ["add", "add"]
 
 
-def test_a_one_feature_job_sets_the_compensation_feature_and_a_direct_one_ends_it(
-        client) -> None:
+def test_a_one_feature_job_is_the_feature_and_a_direct_one_ends_it(client) -> None:
+    """The job is the only source of features: a stored job of one feature is what the API
+    and the registers show, and the settings keep their own single feature (no write into
+    them: one path for every job)."""
+    before = client.get("/api/v1/compensation").json()["settings"]["nominal_mm"]
     one = {**TWO, "part_number": "PIN-1", "features": [dict(TWO["features"][0],
                                                            nominal_mm=30.002)]}
     jid = client.post("/api/v1/jobs", headers=H, json={"document": one}).json()["id"]
     assert client.post(f"/api/v1/jobs/{jid}/activate", headers=H).status_code == 200
     assert client.get("/api/v1/feature").json()["nominal_mm"] == 30.002
+    assert client.get("/api/v1/compensation").json()["settings"]["nominal_mm"] == before
+    assert client.gauge.modbus.bank.get("nominal") == 300020
     assert client.get("/api/v1/status").json()["job"]["offsets_held"] is None
     # A feature set directly (as a map-v3 CNC does) ends the stored job.
     client.put("/api/v1/feature", headers=H, json={"nominal_mm": 30.0, "tol_upper_mm": 0.02,
@@ -167,9 +172,8 @@ def test_a_one_feature_job_sets_the_compensation_feature_and_a_direct_one_ends_i
 
 
 def test_activating_a_one_feature_job_over_another_rebuilds_once(client) -> None:
-    """The job's nominal goes into the compensation's feature while it is put in force: that
-    is no feature set directly (the job before was not ended by it in the store's audit) and
-    the gauge's parts hear of one new job, not two."""
+    """The job before is not ended by a feature set directly (the store's audit) and the
+    gauge's parts hear of one new job, not two."""
     jobs = client.gauge.jobs
     new_jobs: list[str] = []
     jobs.on_new_job(lambda: new_jobs.append(jobs.job.part_number if jobs.job else ""))
