@@ -377,14 +377,14 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
 
     def rows_match_the_status() -> bool:  # each tool's own cumulative offset, as served
         tools = httpx.get(service.url + "/api/v1/status",
-                          timeout=10).json()["compensation"]["tools"]
+                          timeout=10).json()["compensation"]["entries"]
         shown = [page.locator("#comp-tools tr").nth(i).locator("td").nth(3).inner_text()
                  for i in range(2)]
         return shown == [f"{t['cumulative_offset_mm'] * 1000:.1f} µm" for t in tools]
 
     until(rows_match_the_status, "each tool's row showing its cumulative offset")
     for gauge_wide in ("#comp-cumulative", "#comp-cnc-total", "#comp-handshake"):
-        expect(page.locator(gauge_wide)).to_have_text("each tool's, below",
+        expect(page.locator(gauge_wide)).to_have_text("each entry's, below",
                                                       timeout=UI_WAIT_MS)
     expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=UI_WAIT_MS)
     shot(page, "compensation-tools")

@@ -285,14 +285,17 @@ async def test_each_feature_of_the_job_is_a_characteristic(served) -> None:
 
 
 async def test_each_tool_of_the_job_shows_its_own_offsets(served) -> None:
-    """A job of two tools: ``Tools/Tool<n>`` by T number, each with its cumulative offset;
-    the gauge-wide one has no value."""
+    """A job of two tools and an offset entry: ``Tools/Tool<t>`` by T number,
+    ``Tool<t>_<n>`` for its offset number n, each with its cumulative offset; the gauge-wide
+    one has no value."""
     _, gauge, url = served
     gauge.values.update(CumulativeOffset=None, Tools={
         1: {"ToolNumber": 1, "State": "active", "CumulativeOffset": 0.0012,
             "LastOffset": 0.0004},
         12: {"ToolNumber": 12, "State": "alarm", "CumulativeOffset": -0.0031,
-             "LastOffset": None}})
+             "LastOffset": None},
+        "12_10012": {"ToolNumber": 12, "OffsetNumber": 10012, "State": "active",
+                     "CumulativeOffset": 0.0025, "LastOffset": 0.0005}})
     async with Client(url) as client:
         t12 = await _made(client, "Shaftgauge", "Tools", "Tool12")
         idx = await client.get_namespace_index("urn:shaftgauge")
@@ -302,6 +305,10 @@ async def test_each_tool_of_the_job_shows_its_own_offsets(served) -> None:
         assert math.isnan(await (await t12.get_child(f"{idx}:LastOffset")).read_value())
         t1 = await _node(client, "Shaftgauge", "Tools", "Tool1", "CumulativeOffset")
         assert await t1.read_value() == pytest.approx(0.0012)
+        pin = await _made(client, "Shaftgauge", "Tools", "Tool12_10012")
+        assert await (await pin.get_child(f"{idx}:OffsetNumber")).read_value() == 10012
+        assert await (await pin.get_child(f"{idx}:CumulativeOffset")).read_value() \
+            == pytest.approx(0.0025)
         whole = await _node(client, "Shaftgauge", "Compensation", "CumulativeOffset")
         assert math.isnan(await whole.read_value())
 

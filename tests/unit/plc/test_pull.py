@@ -176,6 +176,64 @@ def test_two_tools_take_the_request_block_in_turn() -> None:
     asyncio.run(go())
 
 
+def test_two_entries_of_one_tool_take_the_block_in_turn_each_with_its_total() -> None:
+    """Map v5: a request names its entry; the CNC called for the tool's own entry leaves a
+    request for another of its entries, and the other way round; each entry reads its own
+    total and answers, and a second entry's request waits behind the first's."""
+    async def go() -> None:
+        bank = RegisterBank()
+        gauge = PullCnc(bank, ack_timeout_s=0.0)
+        own, pin = gauge.tool(2), gauge.entry(2, 10012)
+        write_report(bank, 0, Result.NONE, 700, tool=2)
+        gauge.look()  # the watcher's look at each report
+        write_report(bank, 0, Result.NONE, -40, tool=2, entry=10012)  # and says: version 5
+        assert gauge.knows_entries()
+        assert (await pin.read_cnc()).total_mm == pytest.approx(-0.004)
+        assert (await own.read_cnc()).total_mm == pytest.approx(0.07)
+        assert (await pin.write_offset(-0.0012, 3)).outcome is Outcome.UNKNOWN
+        r = await own.write_offset(0.0009, 5)
+        assert r.outcome is Outcome.UNKNOWN and "queued behind tool 2 offset 10012's" in \
+            r.message
+        assert (bank.get("request_tool"), bank.get("request_entry")) == (2, 10012)
+        # Called for the tool's own entry, the CNC leaves the pin's request; for the pin's,
+        # it applies it to the pin's total only.
+        assert settle_request(bank, 700, None, tool=2) == (Result.NONE, 700, None)
+        assert settle_request(bank, -40, None, tool=2, entry=10012) == (
+            Result.APPLIED, -52, 3)
+        write_report(bank, 3, Result.APPLIED, -52, tool=2, entry=10012)
+        gauge.look()
+        assert (bank.get("request_seq"), bank.get("request_entry")) == (5, 0)
+        assert (await pin.read_cnc()).ack_seq == 3
+        assert (await own.read_cnc()).total_mm == pytest.approx(0.07)  # untouched
+
+    asyncio.run(go())
+
+
+def test_a_version_4_cnc_is_never_sent_another_entry_and_never_applies_one() -> None:
+    """A CNC whose subroutine is of map v4 (``cnc_version`` 0) gets no request for an entry
+    other than a tool's own: refused at once, naming the version needed. Were one posted, a
+    v4 CNC reads it as torn (its check leaves the entry out) and applies nothing; a request
+    for a tool's own entry has the checks a v4 CNC computes."""
+    async def go() -> None:
+        bank = RegisterBank()
+        gauge = PullCnc(bank, ack_timeout_s=0.0)
+        write_report(bank, 0, Result.NONE, 700, tool=2)
+        assert not gauge.knows_entries()
+        r = await gauge.entry(2, 10012).write_offset(-0.001, 1)
+        assert r.outcome is Outcome.NOT_APPLIED and "cnc_version 0" in r.message
+        assert bank.get("request_seq") == 0  # nothing posted
+        assert (await gauge.tool(2).write_offset(-0.001, 2)).outcome is Outcome.UNKNOWN
+
+    asyncio.run(go())
+    bank = RegisterBank()
+    PullCnc(bank).post(pull.Request(4, -10, 700, tool=2, entry=10012))
+    seq, off, hi, lo, chk, tool = (bank.get(n) for n in pull.REQUEST[:6])
+    assert chk != (seq + off + hi + lo + tool + pull.REQUEST_KEY) & 0xFFFF  # v4: torn
+    PullCnc(bank).post(pull.Request(4, -10, 700, tool=2))
+    seq, off, hi, lo, chk, tool = (bank.get(n) for n in pull.REQUEST[:6])
+    assert chk == (seq + off + hi + lo + tool + pull.REQUEST_KEY) & 0xFFFF  # v4: whole
+
+
 def test_a_version_3_cnc_computes_the_same_checks_for_one_tool() -> None:
     """Tool 0 adds nothing to the check words: a CNC written for map v3 reads the request
     and writes its report as it did."""
