@@ -111,6 +111,12 @@ class JobTool:
     max_disagreement_mm : float or None
         Its features' deviations may differ this much before the tool is held (a taper, a
         deflection): None: half the narrowest tolerance among them.
+    programming : {'diameter', 'radius'} or None
+        Whether its entries hold diameter or radius values (a CNC's tool table may keep one
+        tool's offsets in radius); None: the settings' ``programming``.
+    offset_sign : {+1, -1} or None
+        +1 when a positive offset in its entries makes the part larger (an external
+        diameter), -1 when smaller (a bore); None: the settings' ``offset_sign``.
     """
 
     number: int
@@ -118,6 +124,8 @@ class JobTool:
     gain: float | None = None
     trend_gain: float | None = None
     max_disagreement_mm: float | None = None
+    programming: str | None = None
+    offset_sign: int | None = None
 
 
 @dataclass(frozen=True)
@@ -182,13 +190,15 @@ class Job:
 
     def settings_for(self, feature: JobFeature, base: CompensationSettings
                      ) -> CompensationSettings:
-        """``base`` with this feature's nominal, tolerance and bands, and its tool's law."""
+        """``base`` with this feature's nominal, tolerance and bands, its tool's law and its
+        entries' convention (diameter or radius, sign)."""
         tool = self.tool(feature.tool)
         own = {"nominal_mm": feature.nominal_mm, "tol_upper_mm": feature.tol_upper_mm,
                "tol_lower_mm": feature.tol_lower_mm, "deadband_mm": feature.deadband_mm,
                "mean_value_band_mm": feature.mean_value_band_mm,
                "plausibility_mm": feature.plausibility_mm, "gain": tool.gain,
-               "trend_gain": tool.trend_gain}
+               "trend_gain": tool.trend_gain, "programming": tool.programming,
+               "offset_sign": tool.offset_sign}
         return replace(base, **{k: v for k, v in own.items()
                                 if v is not None or k == "plausibility_mm"})
 
@@ -253,7 +263,7 @@ class Job:
                              "offset entry corrects one tool")
             # The feature's nominal, tolerance and bands, in force (the base is checked)
             p += [f"{where}.{q}" for q in self.settings_for(f, base).problems()
-                  if not q.startswith(("gain", "trend_gain"))]  # the tool's, said below
+                  if not q.startswith(("gain", "trend_gain", "programming", "offset_sign"))]
         listed = [t.number for t in self.tools]
         for i, t in enumerate(self.tools):
             where = f"tools[{i}]"
@@ -268,6 +278,11 @@ class Job:
                                base.trend_gain if t.trend_gain is None else t.trend_gain)
             p += [f"{where}.{name}: {bound}" for name, bound in law.items()
                   if own[name] is not None]
+            if t.programming not in (None, "diameter", "radius"):
+                p.append(f"{where}.programming: 'diameter' or 'radius', not "
+                         f"{_shown(t.programming)}")
+            if t.offset_sign not in (None, 1, -1):
+                p.append(f"{where}.offset_sign: +1 or -1, not {t.offset_sign}")
             if t.max_disagreement_mm is not None and not (
                     math.isfinite(t.max_disagreement_mm)
                     and 0 < t.max_disagreement_mm <= BOUNDS["tol_upper_mm"]):

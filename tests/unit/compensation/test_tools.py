@@ -153,3 +153,37 @@ def test_offset_entries_in_the_job_document() -> None:
         job_from_doc(bad)
     with pytest.raises(JobError, match=r"features\[0\].entry: 1 to 65535, not 0"):
         job_from_doc({**JOB, "features": [dict(JOB["features"][0], entry=0)]})
+
+
+def test_an_entrys_convention_is_its_tools_radius_and_sign() -> None:
+    """The entry holds what the CNC keeps: a tool whose table is in radius gets half the
+    offset for the same deviation, one whose positive offset cuts smaller (a bore's) the
+    opposite sign; the rest of the job keeps the settings' (diameter, +1)."""
+    doc = {**JOB, "tools": [{"number": 1, "programming": "radius"},
+                            {"number": 2, "offset_sign": -1}]}
+    job = job_from_doc(doc)
+    assert (job.settings_for(job.feature(1), BASE).programming,
+            job.settings_for(job.feature(3), BASE).offset_sign) == ("radius", -1)
+    assert job.settings_for(job.feature(3), BASE).programming == "diameter"
+
+    def first_offset(d: dict, feature: int) -> float:
+        comp = JobCompensation(job_from_doc(d), BASE)
+        for c in comp.entries.values():
+            c.controller.observe_cnc_total(0.0, 0.0)
+        f = comp.job.feature(feature)
+        for seq in range(1, 30):  # 10 um large every part
+            _, dec = comp.on_measurement(MeasurementIn(seq, float(seq), "ok",
+                                                       f.nominal_mm + 0.010, 0.001),
+                                         float(seq), feature)
+            if dec.kind is Kind.WRITE:
+                return dec.offset_mm
+        raise AssertionError("no offset")
+
+    plain = first_offset(JOB, 1)
+    assert plain < 0
+    assert first_offset(doc, 1) == pytest.approx(plain / 2)  # radius: half
+    assert first_offset(doc, 3) == pytest.approx(-first_offset(JOB, 3))  # the other sign
+    for bad, where in (({"number": 1, "programming": "dia"}, r"tools\[0\]\.programming"),
+                       ({"number": 1, "offset_sign": 2}, r"tools\[0\]\.offset_sign")):
+        with pytest.raises(JobError, match=where):
+            job_from_doc({**JOB, "tools": [bad]})
