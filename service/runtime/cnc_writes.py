@@ -38,9 +38,9 @@ class CncWriteRules:
         self.jobs: JobService | None = None
 
     def _check_jobs(self, entries: list[tuple[str, int]]) -> str:
-        """Why the job, feature or tool written cannot be taken ("" when it can)."""
+        """Why the job, feature, tool or entry written cannot be taken ("" when it can)."""
         values = dict(entries)
-        if self.jobs is None or not {"job", "feature", "cnc_tool"} & values.keys():
+        if self.jobs is None or not {"job", "feature", "cnc_tool", "cnc_entry"} & values.keys():
             return ""
         job = self.jobs.job
         if values.get("job"):
@@ -67,6 +67,13 @@ class CncWriteRules:
                     + ("any job: none is in force" if job is None else
                        f"job {job.part_number!r} (its tools: "
                        f"{', '.join(str(t) for t in job.tool_numbers())})"))
+        entry = values.get("cnc_entry")
+        numbers = sorted({e.number for e in job.entries() if e.number}) if job else []
+        if entry and self.jobs.stored is not None and entry not in numbers:
+            return (f"cnc_entry: offset entry {entry} is not in "
+                    + ("any job: none is in force" if job is None else
+                       f"job {job.part_number!r} (its entries other than tools' own: "
+                       f"{', '.join(map(str, numbers)) or 'none'})"))
         return ""
 
     def check(self, entries: list[tuple[str, int]]) -> str:

@@ -214,6 +214,11 @@ def test_the_cnc_puts_a_job_in_force_names_the_feature_and_counts_parts(client) 
         assert bad.isError() and bad.exception_code == 3
         assert c.read_holding_registers(tool, count=1, device_id=1).registers == [0]
         assert not c.write_register(tool, 2, device_id=1).isError()
+        entry = BY_NAME["cnc_entry"].address  # and for an offset entry it lacks
+        bad = c.write_registers(entry, [12, 5], device_id=1)
+        assert bad.isError() and bad.exception_code == 3
+        assert c.read_holding_registers(entry, count=2, device_id=1).registers == [0, 0]
+        assert not c.write_registers(entry, [0, 5], device_id=1).isError()  # a tool's own
         assert not c.write_register(feature, 0, device_id=1).isError()  # recognise again
         assert not c.write_register(counter, 41, device_id=1).isError()
         latest_with(client, lambda m: m["feature"] == 1)
