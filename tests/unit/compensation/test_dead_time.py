@@ -1,0 +1,54 @@
+"""The dead time measured from the gauge's own offsets, against the dead time the simulated
+loop has: recovered from a few steps, not from one, and never moved by one outlier."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.compensation.dead_time import DeadTimeEstimator
+
+
+def loop(dead: int, parts: int = 80, seed: int = 3, outlier_at: int | None = None,
+         gain: float = 0.8, noise_um: float = 1.0) -> DeadTimeEstimator:
+    """Parts of a tool wearing 1 um a part, measured ``dead`` measurements after the cut,
+    corrected now and then (every 3 to 7 measurements) by ``gain`` times what the last
+    measurement showed, as a loop correcting wear does: steps of varying size."""
+    rng = np.random.default_rng(seed)
+    est = DeadTimeEstimator()
+    total, cut, due = 0.0, [], 4
+    for k in range(parts):
+        cut.append(0.001 * k + total + rng.normal(0.0, noise_um / 1000))
+        if k < dead:
+            continue
+        y = cut[k - dead]  # the part cut ``dead`` parts ago reaches the gauge
+        if outlier_at is not None and k == outlier_at:
+            y += 0.015
+        est.measured(y, 60.0 * k)
+        due -= 1
+        if due == 0:
+            step = -gain * y
+            total += step
+            est.applied(step)
+            due = int(rng.integers(3, 8))
+    return est
+
+
+@pytest.mark.parametrize("dead", [0, 1, 2, 4, 7])
+def test_the_dead_time_of_the_loop_is_recovered(dead: int) -> None:
+    got = loop(dead).estimate()
+    assert got is not None and got.measurements == dead, got
+    assert got.seconds == pytest.approx(60.0 * dead) and got.steps >= 3
+
+
+def test_one_outlier_does_not_move_the_estimate() -> None:
+    """A 15 um outlier (a chip that passed every check) beside a step, for each place it can
+    fall: the estimate stays the loop's dead time."""
+    for at in range(20, 34):
+        got = loop(3, outlier_at=at).estimate()
+        assert got is not None and got.measurements == 3, (at, got)
+
+
+def test_one_step_is_not_enough_and_steps_within_the_scatter_tell_nothing() -> None:
+    assert loop(2, parts=10).estimate() is None  # one or two steps
+    assert loop(2, gain=0.05, noise_um=3.0).estimate() is None  # lost in the scatter
