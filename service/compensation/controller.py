@@ -56,6 +56,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from service.compensation.bands import PartBand, part_band, tolerance_text
+from service.compensation.dead_time import MeasuredDeadTime
 from service.compensation.exchange import clip_step, effect_mm, same_total
 from service.compensation.handshake import OffsetBook
 from service.compensation.laws import Estimate, Law, law_of
@@ -84,6 +85,7 @@ class CompensationController(OffsetBook):
         if problems:
             raise ValueError("; ".join(problems))
         self._law: Law = law_of(self.settings)   # chosen once, anew when the law changes
+        self.dead = MeasuredDeadTime()  # the dead time the gauge's own offsets show
         self._applied_mm = 0.0  # the effect of every offset applied since the start, mm
         self._last_offset_mm = 0.0  # the last applied offset's effect, mm
         # A write handed out but never reported (the service died) is uncertain on restart.
@@ -103,6 +105,8 @@ class CompensationController(OffsetBook):
     def _applied_now(self, effect: float, now: float) -> None:
         self._last_offset_mm = effect
         self._in_flight(effect, now)
+        self.dead.applied(effect)
+
 
     def _in_flight(self, effect: float, now: float) -> None:
         """An offset's effect on the diameter (mm) applied now: the laws wait for it."""
@@ -163,6 +167,7 @@ class CompensationController(OffsetBook):
     def _changed_at_cnc(self, change_mm: float, now: float) -> Decision:
         """Someone else moved the CNC's total by ``change_mm`` (offset units)."""
         self._in_flight(effect_mm(self.settings, change_mm), now)
+        self.dead.estimator.forget()  # not a step of the gauge's: the level jumps with it
         # An insert change, most likely: the process estimate starts again from the parts cut
         # after it, and nothing is corrected before they are seen.
         self._law.restart(now)
@@ -207,6 +212,11 @@ class CompensationController(OffsetBook):
                 State.ACTIVE, Kind.ACKNOWLEDGED, "plausible_again", f"deviation "
                 f"{raw * 1000:+.1f} um is plausible again: the alarm is over and "
                 "compensation resumes", now, who="gauge", **kw)
+        if self.dead.measured(deviation, m.time_s, s.dead_time_measurements, s.dead_time_s):
+            # Said once, in a row of its own (a quiet decision's reason gives way to the
+            # next's): this measurement corrects nothing.
+            return self._decision(Kind.SETTINGS, "dead_time_measured", self.dead.said(
+                s.dead_time_measurements, s.dead_time_s), now, **kw)
         if gate:
             return self._decision(Kind.HELD, f"gate_{self.state.value}", gate, now, **kw)
         if feature is not None and feature.held:
@@ -308,6 +318,7 @@ class CompensationController(OffsetBook):
         self.persisted.cumulative_mm = 0.0
         self.persisted.state = State.ACTIVE.value
         self.persisted.baseline_mm = None
+        self.dead.estimator.forget()  # a new insert's level: no step of the gauge's
         self._law.clear()
         # Parts cut before the reset (a new insert) say nothing of the process after it.
         self._law.restart(now)

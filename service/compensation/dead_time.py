@@ -10,8 +10,8 @@ moves least from measurement to measurement, in absolute differences: one outlie
 same two differences whatever ``d`` is, so it cannot move the estimate (squares would let it).
 
 It is taken only from several steps (``MIN_STEPS``) each larger than the measurements'
-own scatter, and only when it is clearly better than every other candidate (``MARGIN``);
-until then there is none, and the typed dead time stays in use.
+own scatter, and only when it is clearly better than every other candidate (``MARGIN``),
+the typed dead time first of all; until then the typed one stays in use.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -26,10 +27,16 @@ HISTORY = 240
 """Measurements kept (at a part a minute, four hours)."""
 MIN_STEPS = 3
 """Applied steps, each above the scatter, that the estimate needs."""
+MIN_STEPS_AGAINST = 8
+"""... and that it needs to contradict the typed dead time (the prior)."""
 MARGIN = 2.0
 """How much better (in scatters) the best candidate must explain the steps than any other."""
 MAX_DEAD = 40
 """The longest dead time looked for, measurements."""
+PRIOR_SPAN = 3
+"""With a typed dead time, candidates up to this many times it (plus as many measurements):
+a dead time mis-set by more is not looked for, and a steady cadence of steps has aliases
+beyond it that fit almost as well."""
 
 
 @dataclass(frozen=True)
@@ -106,23 +113,103 @@ class DeadTimeEstimator:
             out[d] = np.abs(dx - np.median(dx)).sum() if len(dx) else 0.0
         return out
 
-    def estimate(self) -> DeadTime | None:
-        """The dead time the steps show, or None while they do not tell it clearly."""
+    def estimate(self, prior: int | None = None) -> DeadTime | None:
+        """The dead time the steps show, or None while they do not tell it clearly. With a
+        ``prior`` (the typed dead time, measurements) that explains the steps within the
+        margin of the best, the prior: steps at a steady cadence fit a dead time one cadence
+        longer almost as well, and only evidence against the typed one replaces it."""
         scatter = self.scatter_mm()
         if scatter <= 0.0:
             return None
         first = self.taken - len(self.deviations)
         seen = [(at, e) for at, e in self.steps if at >= first + 2]
         # A step needs measurements after it to be seen at all, by at least the candidate.
-        max_dead = min(MAX_DEAD, self.taken - (min(at for at, _ in seen) if seen else 0) - 2)
+        max_dead = min(MAX_DEAD, self.taken - (min(at for at, _ in seen) if seen else 0) - 2,
+                       MAX_DEAD if prior is None else PRIOR_SPAN * (prior + 1))
         clear = [e for at, e in seen if abs(e) > 2.0 * scatter and at + max_dead < self.taken]
         if len(clear) < MIN_STEPS or max_dead < 1:
             return None
         c = self.costs(max_dead)
         best = int(np.argmin(c))
-        others = np.delete(c, best)
-        if others.min() - c[best] < MARGIN * scatter:
+        if prior is not None and prior <= max_dead and (
+                c[prior] - c[best] < MARGIN * scatter or len(clear) < MIN_STEPS_AGAINST):
+            best = prior  # the steps do not tell otherwise, or are too few to
+        elif np.delete(c, best).min() - c[best] < MARGIN * scatter:
             return None
         t = np.fromiter(self.times, float)
         interval = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
         return DeadTime(best, best * max(interval, 0.0), len(clear))
+
+
+CONFIRMATIONS = 10
+"""Estimates in a row that must agree before a newly measured dead time is taken."""
+
+
+@dataclass
+class MeasuredDeadTime:
+    """A controller's measured dead time: the estimator and what it measured, confirmed
+    ``CONFIRMATIONS`` times in a row (no flapping), beside the typed one. The law waits the
+    typed dead time: on the closed-loop bench, putting the measured one in use still lost
+    Cpk where a steady cadence of steps fits a longer dead time almost as well. What is
+    measured is shown, and the log says when it is more than a measurement from the typed
+    (a typed time in seconds may hold a fraction of an interval the steps cannot resolve)."""
+
+    estimator: DeadTimeEstimator = field(default_factory=DeadTimeEstimator)
+    measured_value: DeadTime | None = None
+    differs: bool = False
+    """Whether the measured dead time is more than a measurement from the typed."""
+    _seen: tuple[int, int] = (-1, 0)
+
+    def applied(self, effect_mm: float) -> None:
+        """An offset of the gauge's applied now (its effect on the diameter, mm)."""
+        self.estimator.applied(effect_mm)
+
+    def typed_measurements(self, typed: int, typed_s: float) -> int:
+        """The typed dead time in measurements (seconds at the interval seen)."""
+        t = np.fromiter(self.estimator.times, float)
+        interval = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        return max(typed, math.ceil(typed_s / interval - 1e-9) if interval > 0 else 0)
+
+    def measured(self, deviation_mm: float, time_s: float, typed: int, typed_s: float
+                 ) -> bool:
+        """Take a measurement in; True when the measured dead time came to differ from the
+        typed, or to agree with it again (``said`` says how, once)."""
+        self.estimator.measured(deviation_mm, time_s)
+        prior = self.typed_measurements(typed, typed_s)
+        got = self.estimator.estimate(prior)
+        now = self.measured_value
+        if got is None or (now is not None and got.measurements == now.measurements):
+            self._seen = (-1, 0)
+            return False
+        value, count = self._seen
+        self._seen = (got.measurements, count + 1 if value == got.measurements else 1)
+        if self._seen[1] < CONFIRMATIONS:
+            return False
+        self.measured_value, self._seen = got, (-1, 0)
+        before, self.differs = self.differs, abs(got.measurements - prior) > 1
+        return self.differs != before
+
+    def said(self, typed: int, typed_s: float) -> str:
+        """What was measured against the typed, in words an integrator can act on."""
+        got = self.measured_value
+        if got is None:
+            return ""
+        typed_text = (f"the typed {self.typed_measurements(typed, typed_s)} "
+                      f"(compensation.dead_time_measurements {typed}, dead_time_s {typed_s:g})")
+        if not self.differs:
+            return (f"dead time measured from {got.steps} of the gauge's offsets: "
+                    f"{got.measurements} measurements ({got.seconds:.0f} s), within one of "
+                    f"{typed_text} again")
+        return (f"dead time measured from {got.steps} of the gauge's offsets: each shows "
+                f"{got.measurements} measurements after it is applied ({got.seconds:.0f} s), "
+                f"not {typed_text}, which the law waits: set the typed one to the measured, "
+                "or find what changed (the part program, the parts between the tool and "
+                "the gauge)")
+
+    def status(self, typed_measurements: int, typed_s: float) -> dict[str, Any]:
+        """The dead time typed, measured and in use (measurements and seconds), JSON-ready."""
+        m = self.measured_value
+        typed = {"measurements": typed_measurements, "seconds": typed_s}
+        return {"typed": typed, "in_use": typed, "differs": self.differs,
+                "measured": None if m is None else {"measurements": m.measurements,
+                                                    "seconds": m.seconds, "steps": m.steps}}

@@ -202,7 +202,8 @@ class CompensationService:
         return {"state": self.state.value, "shadow": self.settings.shadow,
                 **{k: one.get(k) for k in (
                     "cumulative_offset_mm", "cnc_total_mm", "baseline_mm",
-                    "cnc_offset_from_baseline_mm", "offset_seq", "pending_seq")},
+                    "cnc_offset_from_baseline_mm", "offset_seq", "pending_seq",
+                    "dead_time")},
                 "max_total_mm": self.settings.max_total_mm, "held": self.offset_hold(),
                 "log_rows": None if self.log is None else self.log.rows_written,
                 "entries": entries}

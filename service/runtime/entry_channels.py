@@ -239,5 +239,7 @@ class EntryChannels:
                         "baseline_mm": p.baseline_mm,
                         "cnc_offset_from_baseline_mm": p.cnc_offset_mm(),
                         "offset_seq": p.offset_seq, "pending_seq": p.pending_seq,
-                        "writes_blocked": c.writes_blocked or None})
+                        "writes_blocked": c.writes_blocked or None,
+                        "dead_time": c.dead.status(c.settings.dead_time_measurements,
+                                                   c.settings.dead_time_s)})
         return out

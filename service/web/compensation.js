@@ -47,7 +47,8 @@ function showEntries(entries, shadow) {
                    t.cnc_total_mm != null ? um(t.cnc_total_mm)
                      : t.writes_blocked ? "\u2013" : "not read yet", handshake(t),
                    t.writes_blocked ? "proposed only: " + t.writes_blocked
-                     : shadow ? "proposed only (shadow mode)" : "written to the CNC"];
+                     : shadow ? "proposed only (shadow mode)" : "written to the CNC",
+                   deadTime(t.dead_time)];
     cells.forEach((c) => {
       const td = document.createElement("td");
       td.textContent = c;
@@ -67,7 +68,17 @@ function handshake(c) {
   return `settled: offset #${c.offset_seq} answered by the CNC`;
 }
 
+// The dead time the law waits, typed, and as the gauge's own offsets show it.
+function deadTime(d) {
+  if (!d) return "\u2013";
+  const typed = `typed ${d.typed.measurements} meas. / ${d.typed.seconds} s`;
+  if (!d.measured) return `${typed}; not measured yet`;
+  const measured = `measured ${d.measured.measurements} meas. (${Math.round(d.measured.seconds)} s)`;
+  return `${typed}; ${measured}${d.differs ? ": set the typed one to it" : ""}`;
+}
+
 function showCnc(c) {
+  $("comp-dead-time").textContent = several(c) ? "each entry's, below" : deadTime(c.dead_time);
   $("comp-cnc-total").textContent = several(c) ? "each entry's, below"
     : c.cnc_total_mm == null ? "not read yet" : um(c.cnc_total_mm);
   $("comp-handshake").textContent = several(c) ? "each entry's, below" : handshake(c);

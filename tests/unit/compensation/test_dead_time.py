@@ -52,3 +52,18 @@ def test_one_outlier_does_not_move_the_estimate() -> None:
 def test_one_step_is_not_enough_and_steps_within_the_scatter_tell_nothing() -> None:
     assert loop(2, parts=10).estimate() is None  # one or two steps
     assert loop(2, gain=0.05, noise_um=3.0).estimate() is None  # lost in the scatter
+
+
+def test_the_typed_dead_time_stands_unless_the_steps_tell_otherwise() -> None:
+    """A prior that explains the steps within the margin is kept (a steady cadence fits a
+    dead time one cadence longer almost as well); one they contradict is not."""
+    est = loop(2)
+    assert est.estimate(prior=2).measurements == 2
+    assert est.estimate(prior=4).measurements == 2  # 2x too long: the steps say 2
+    assert est.estimate(prior=1).measurements == 2  # 0.5x
+
+
+def test_a_few_steps_do_not_contradict_the_typed_dead_time() -> None:
+    """Fewer than eight clear steps agree with a typed dead time they do not tell apart."""
+    assert loop(2, parts=40).estimate(prior=4).measurements == 4
+    assert loop(2).estimate(prior=4).measurements == 2  # enough: they do

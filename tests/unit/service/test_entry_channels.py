@@ -169,3 +169,21 @@ def test_readers_see_the_channels_of_the_job_in_force(tmp_path) -> None:
     assert comp.state is not State.STOPPED
     comp.entries.channels[OffsetEntry(2)].controller.persisted.state = State.ALARM.value
     assert comp.state is State.ALARM
+
+
+async def test_the_dead_time_typed_and_measured_are_in_the_status(tmp_path) -> None:
+    """Offsets written as a tool wears (the fake CNC applies each at once: a dead time of 0
+    measurements, as typed): once the steps tell, each entry's status shows the dead time
+    measured from them beside the typed one, the typed in use."""
+    comp = service(tmp_path / "g.db", {OffsetEntry(1): FakeCnc(), OffsetEntry(2): FakeCnc()})
+    before = comp.status()["entries"][0]["dead_time"]
+    assert before["measured"] is None and before["in_use"] == before["typed"] == {
+        "measurements": 0, "seconds": 0.0}
+    seq = 0
+    for k in range(60):  # each part 2 um larger than the last, both tools
+        seq = await cut(comp, seq, 1, {1: 2.0 * k, 2: 2.0 * k})
+    got = comp.status()["entries"][0]["dead_time"]
+    assert got["measured"] is not None and got["measured"]["measurements"] == 0, got
+    assert got["measured"]["steps"] >= 3 and not got["differs"]
+    assert got["in_use"] == got["typed"]
+    comp.log.close()
