@@ -149,10 +149,10 @@ CONFIRMATIONS = 10
 class MeasuredDeadTime:
     """A controller's measured dead time: the estimator and what it measured, confirmed
     ``CONFIRMATIONS`` times in a row (no flapping), beside the typed one. The law waits the
-    typed dead time: on the closed-loop bench, putting the measured one in use still lost
-    Cpk where a steady cadence of steps fits a longer dead time almost as well. What is
-    measured is shown, and the log says when it is more than a measurement from the typed
-    (a typed time in seconds may hold a fraction of an interval the steps cannot resolve)."""
+    typed dead time: on the closed-loop bench, the measured one put in use where it differs
+    did not yet hold (CHANGELOG). What is measured is shown, and the log says when it is
+    more than a measurement from the typed (a typed time in seconds may hold a fraction of
+    an interval the steps cannot resolve)."""
 
     estimator: DeadTimeEstimator = field(default_factory=DeadTimeEstimator)
     measured_value: DeadTime | None = None
