@@ -585,14 +585,14 @@ ENTRY_JOB = Job("SHAFT-E", "one insert, two entries", (
     JobFeature(1, "collar", 30.0, 0.020, -0.020, tool=2),
     JobFeature(2, "pin", 26.0, 0.020, -0.020, tool=2, entry=10012)),
     (JobTool(2, wear_entry=10002),))
-TAPER_UM_PER_PART = 0.8  # the pin springs away more as the insert wears: 16 um in 20 parts
+TAPER_UM_PER_PART = 0.8  # the pin springs away more as the insert wears: 12 um in 15 parts
 
 
 def test_two_entries_of_one_insert_each_moved_only_by_its_own_offsets(lathe) -> None:
     """The LinuxCNC way of two offsets on one insert (``index_lathe_tool_with_wear``: T202 is
     tool 2 with wear entry 10002, T212 with 10012): the collar and the pin each on their own
     entry. The insert wears 1.2 um a part and the pin's taper grows 0.8 um a part: one
-    correction for both would leave the pin 16 um behind. Each entry's channel posts its own
+    correction for both would leave the pin 12 um behind. Each entry's channel posts its own
     requests (naming tool and entry), the shipped subroutine applies each to its entry, both
     features stay in tolerance, each wear entry moved by exactly its own applied offsets and
     the tool's geometry (T2) not at all."""
@@ -623,7 +623,7 @@ def test_two_entries_of_one_insert_each_moved_only_by_its_own_offsets(lathe) -> 
         rng = np.random.default_rng(31)
         deviations: dict[int, list[float]] = {1: [], 2: []}
         seq = 0
-        for k in range(20):
+        for k in range(15):
             answer = cnc.ask(do="run", path=str(program))
             assert answer["ok"] and not answer["errors"], answer
             time.sleep(0.15)  # the report through mb2hal
