@@ -37,6 +37,7 @@ def test_a_run_of_identical_quiet_decisions_is_one_row(tmp_path) -> None:
     t0 = time.time()
     for i in range(1000):
         log.submit(held(seq=i), t0 + i * 0.1, ControllerState(last_measurement_seq=i))
+    assert log.flush(30.0)  # every submission written (a busy host's thread lags)
     rows = log.decisions(limit=10)
     assert len(rows) == 1
     r = rows[0]
@@ -57,6 +58,7 @@ def test_a_significant_decision_ends_the_runs(tmp_path) -> None:
     log.record(Decision(Kind.APPLIED, "applied", 0.0, offset_seq=1, offset_mm=-0.001,
                         code="applied"), time.time(), st)
     log.submit(held("deadband"), time.time(), st)
+    assert log.flush(30.0)  # every submission written (a busy host's thread lags)
     rows = log.decisions(limit=10)
     assert [(r["kind"], r["code"], r["count"]) for r in reversed(rows)] == [
         ("held", "filling_window", 6), ("held", "deadband", 3), ("applied", "applied", 1),
@@ -76,6 +78,7 @@ def test_each_entry_keeps_its_own_state_and_runs(tmp_path) -> None:
                    tool=2)
         log.submit(held(seq=i), time.time(), ControllerState(last_measurement_seq=20 + i),
                    tool=2, entry=10012)
+    assert log.flush(30.0)  # every submission written (a busy host's thread lags)
     rows = log.decisions(limit=10)
     assert sorted((r["tool"], r["entry"], r["count"]) for r in rows) == [
         (1, 0, 4), (2, 0, 4), (2, 10012, 4)]
@@ -185,6 +188,7 @@ def test_a_full_disk_keeps_the_rows_and_writes_them_later(tmp_path, small_disk) 
     while log.problem and time.monotonic() < deadline:
         time.sleep(0.1)
     assert log.problem == ""
+    assert log.flush(30.0)
     kinds = [(r["kind"], r["count"]) for r in reversed(log.decisions(limit=10))]
     assert kinds == [("write", 1), ("held", 50)], kinds
     log.close()
