@@ -155,7 +155,7 @@ class CompensationController(OffsetBook):
         settled = self.state not in (State.PENDING, State.UNCERTAIN)
         before, p.cnc_total_mm = p.cnc_total_mm, total_mm
         changed = None if before is None or not settled or same_total(
-            before, total_mm, self.settings) else self._changed_at_cnc(total_mm - before, now)
+            before, total_mm, self.settings) else self._changed_at_cnc(before, total_mm, now)
         if p.baseline_mm is None and not self.settings.shadow and settled:
             p.baseline_mm = total_mm
             return self._decision(Kind.BASELINE, "baseline", f"the CNC's total wear offset "
@@ -164,18 +164,38 @@ class CompensationController(OffsetBook):
                                   " um)", now)
         return changed
 
-    def _changed_at_cnc(self, change_mm: float, now: float) -> Decision:
-        """Someone else moved the CNC's total by ``change_mm`` (offset units)."""
-        self._in_flight(effect_mm(self.settings, change_mm), now)
+    def _changed_at_cnc(self, before_mm: float, total_mm: float, now: float) -> Decision:
+        """Someone else moved the CNC's total from ``before_mm`` to ``total_mm`` (offset
+        units): an insert change when it zeroed the total or took back more than half of
+        what stood since the baseline (the wear offset set back), else a hand change at the
+        panel. Taken for an insert change when in doubt: read as a hand change, an insert
+        change would be corrected back by all the wear the new insert does not have."""
+        change = total_mm - before_mm
+        effect = effect_mm(self.settings, change)
+        base = self.persisted.baseline_mm or 0.0
+        self._in_flight(effect, now)
+        set_back = same_total(total_mm, 0.0, self.settings) or \
+            abs(total_mm - base) < 0.5 * abs(before_mm - base)
+        if not set_back:
+            # A known step of known size: the process estimate takes it when it lands, a
+            # dead time on, and the law corrects what it does to the parts like any other
+            # offset in force; nothing is read as wear or a step of the process.
+            self.dead.applied(effect)
+            return self._decision(
+                Kind.BASELINE, "hand_change", f"the CNC's total wear offset was changed "
+                f"at the CNC by {change * 1000:+.1f} um (a hand change at the panel): taken "
+                "as a known step, which shows a dead time on; the parts are still held to "
+                "nominal; the cumulative limit counts it", now)
         self.dead.estimator.forget()  # not a step of the gauge's: the level jumps with it
         # An insert change, most likely: the process estimate starts again from the parts cut
         # after it, and nothing is corrected before they are seen.
         self._law.restart(now)
         return self._decision(
             Kind.BASELINE, "cnc_total_changed", f"the CNC's total wear offset was changed "
-            f"at the CNC by {change_mm * 1000:+.1f} um (an insert change?): the process is "
-            "estimated again from the parts cut with it, nothing is corrected before they are "
-            "measured; the cumulative limit keeps its reference", now)
+            f"at the CNC by {change * 1000:+.1f} um, back toward where it stood when "
+            "compensation started (an insert change?): the process is estimated again from "
+            "the parts cut with it, nothing is corrected before they are measured; the "
+            "cumulative limit keeps its reference", now)
 
     def on_measurement(self, m: MeasurementIn, now: float,
                        feature: FeatureTerms | None = None) -> Decision:

@@ -45,8 +45,9 @@ class OffsetBook:
     def _applied_now(self, effect: float, now: float) -> None:
         """An offset with this effect on the diameter (mm) was applied now."""
 
-    def _changed_at_cnc(self, change_mm: float, now: float) -> Decision:
-        """Someone else moved the CNC's total by ``change_mm`` (offset units)."""
+    def _changed_at_cnc(self, before_mm: float, total_mm: float, now: float) -> Decision:
+        """Someone else moved the CNC's total from ``before_mm`` to ``total_mm`` (offset
+        units)."""
         raise NotImplementedError
 
     def check_before_write(self, offset_seq: int, total_mm: float | None,
@@ -61,22 +62,19 @@ class OffsetBook:
         if p.pending_seq != offset_seq or self.state is not State.PENDING:
             return self._drop(offset_seq, "not_in_flight", "it is not the offset in flight",
                               now)
-        change = None
+        seen = None
         if total_mm is not None:
             if p.cnc_total_mm is not None and not same_total(p.cnc_total_mm, total_mm,
                                                              self.settings):
-                change = total_mm - p.cnc_total_mm
-                self._changed_at_cnc(change, now)
+                seen = self._changed_at_cnc(p.cnc_total_mm, total_mm, now)
             p.cnc_total_mm = total_mm
         code, why = limit_veto(self.settings, p, total_mm)
         if code:
             return self._drop(offset_seq, code, why, now,
                               kind=Kind.LIMIT if code == "limit" else Kind.NOT_APPLIED)
-        if change is not None:
-            return self._drop(offset_seq, "cnc_total_changed", f"the CNC's total wear offset "
-                              f"was changed at the CNC by {change * 1000:+.1f} um since it was "
-                              "decided (an insert change?): the process is estimated again "
-                              "from the parts cut with it", now)
+        if seen is not None:
+            return self._drop(offset_seq, seen.code, f"decided before the change: {seen.reason}",
+                              now)
         p.pending_total_before_mm = total_mm
         return None
 

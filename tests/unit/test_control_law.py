@@ -209,6 +209,30 @@ def test_an_insert_change_zeroed_at_the_cnc_is_judged_with_and_not_corrected_bac
     assert all(d.offset_mm > -0.02 for d in loop.writes_from(n)), loop.writes_from(n)
 
 
+@pytest.mark.parametrize("hand_um", [10.0, -10.0])
+@pytest.mark.parametrize("dead", [1, 3])
+def test_a_hand_change_at_the_panel_is_a_known_step(hand_um: float, dead: int) -> None:
+    """Mid-run, the operator adds 10 um to the wear offset at the panel: a change the gauge
+    did not make, which is not a setting back. It is logged as a hand change, taken as a
+    known step (the process estimate does not jump when it lands) and corrected back at the
+    next measurement: one part carries it, none after."""
+    loop = Loop(DEFAULTS, dead)
+    for k in range(60):
+        loop.part(0.001 * k)
+    assert loop.total < -0.040
+    loop.total += hand_um / 1000
+    change = loop.ctrl.observe_cnc_total(loop.total, float(loop.k))
+    assert change is not None and change.code == "hand_change", change
+    assert "hand change" in change.reason
+    n = loop.k
+    for k in range(60, 90):
+        loop.part(0.001 * k)
+    after = loop.cut[n:]
+    assert abs(after[0]) > 7.0, after       # the part cut with the hand change
+    assert max(abs(x) for x in after[1:]) < 4.0, after  # the next one is back
+    assert not any("step" in d.reason for _, d in loop.decisions[n:]), loop.decisions[n:]
+
+
 def test_a_second_insert_change_is_corrected_before_it_is_seen() -> None:
     """After one insert change the gauge knows where a new insert's parts stand; at the next
     one the machine's growth the zeroed offset loses is corrected at the first measurement,
