@@ -86,6 +86,7 @@ class CompensationController(OffsetBook):
             raise ValueError("; ".join(problems))
         self._law: Law = law_of(self.settings)   # chosen once, anew when the law changes
         self.dead = MeasuredDeadTime()  # the dead time the gauge's own offsets show
+        self._dead_used = (self.settings.dead_time_measurements, self.settings.dead_time_s)
         self._applied_mm = 0.0  # the effect of every offset applied since the start, mm
         self._last_offset_mm = 0.0  # the last applied offset's effect, mm
         # A write handed out but never reported (the service died) is uncertain on restart.
@@ -101,6 +102,13 @@ class CompensationController(OffsetBook):
 
     def _forget(self) -> None:
         self._law.clear()
+
+    def _dead_in_use(self) -> None:
+        """The law waits the dead time in use (the measured one once it differs)."""
+        use = self.dead.in_use(self.settings.dead_time_measurements, self.settings.dead_time_s)
+        if use != self._dead_used:
+            self._dead_used = use
+            self._law.use_dead_time(*use)
 
     def _applied_now(self, effect: float, now: float) -> None:
         self._last_offset_mm = effect
@@ -137,6 +145,8 @@ class CompensationController(OffsetBook):
             settings.nominal_mm, settings.programming, settings.offset_sign)
         self._law = self._law.retuned(settings, renewed) if old.law == settings.law \
             else law_of(settings)
+        self._dead_used = (settings.dead_time_measurements, settings.dead_time_s)
+        self._dead_in_use()
         enabled = old.shadow and not settings.shadow
         if enabled:
             self.persisted.baseline_mm = None
@@ -232,7 +242,10 @@ class CompensationController(OffsetBook):
                 State.ACTIVE, Kind.ACKNOWLEDGED, "plausible_again", f"deviation "
                 f"{raw * 1000:+.1f} um is plausible again: the alarm is over and "
                 "compensation resumes", now, who="gauge", **kw)
-        if self.dead.measured(deviation, m.time_s, s.dead_time_measurements, s.dead_time_s):
+        said = self.dead.measured(deviation, m.time_s, s.dead_time_measurements,
+                                  s.dead_time_s)
+        self._dead_in_use()
+        if said:
             # Said once, in a row of its own (a quiet decision's reason gives way to the
             # next's): this measurement corrects nothing.
             return self._decision(Kind.SETTINGS, "dead_time_measured", self.dead.said(

@@ -27,10 +27,13 @@ HISTORY = 240
 """Measurements kept (at a part a minute, four hours)."""
 MIN_STEPS = 3
 """Applied steps, each above the scatter, that the estimate needs."""
-MIN_STEPS_AGAINST = 8
+MIN_STEPS_AGAINST = 4
 """... and that it needs to contradict the typed dead time (the prior)."""
-MARGIN = 2.0
-"""How much better (in scatters) the best candidate must explain the steps than any other."""
+MARGIN = 3.0
+"""How much better the best candidate must explain the steps than any other: its sum of
+absolute differences lower by this many scatters times the root of the number of
+measurements where the two differ (they differ only about the steps: the comparison's
+noise grows with the steps it rests on, not with the whole history)."""
 MAX_DEAD = 40
 """The longest dead time looked for, measurements."""
 PRIOR_SPAN = 3
@@ -88,6 +91,15 @@ class DeadTimeEstimator:
         self.times.clear()
         self.steps = []
 
+    @staticmethod
+    def edges(steps: list[tuple[int, float]]) -> list[tuple[int, float]]:
+        """(where, size) of the change each offset makes to the offsets applied a
+        measurement: one after a measurement with none changes them by its whole size."""
+        applied: dict[int, float] = collections.defaultdict(float)
+        for at, e in steps:
+            applied[at] += e
+        return [(at, applied[at] - applied.get(at - 1, 0.0)) for at in sorted(applied)]
+
     def scatter_mm(self) -> float:
         """The measurements' scatter from one to the next (a robust standard deviation of
         one measurement), mm; 0 with fewer than three."""
@@ -97,21 +109,33 @@ class DeadTimeEstimator:
         dy = np.diff(y)
         return float(1.4826 * np.median(np.abs(dy - np.median(dy))) / math.sqrt(2.0))
 
-    def costs(self, max_dead: int = MAX_DEAD) -> np.ndarray:
-        """For each candidate dead time 0..``max_dead``: how much the process, the steps
-        taken off from that many measurements after each on, moves from one measurement to
-        the next (sum of absolute differences about their median), mm."""
+    def moves(self, max_dead: int = MAX_DEAD) -> np.ndarray:
+        """For each candidate dead time 0..``max_dead`` (rows) and each measurement after
+        the first (columns): how much the process, the steps taken off from that many
+        measurements after each on, moved from the last measurement, mm."""
         y = np.fromiter(self.deviations, float)
         first = self.taken - len(y)
         index = np.arange(first, self.taken)
-        out = np.empty(max_dead + 1)
+        out = np.zeros((max_dead + 1, max(len(y) - 1, 0)))
         for d in range(max_dead + 1):
             x = y.copy()
             for at, effect in self.steps:
                 x[index >= at + d] -= effect
-            dx = np.diff(x)
-            out[d] = np.abs(dx - np.median(dx)).sum() if len(dx) else 0.0
+            out[d] = np.diff(x)
         return out
+
+    @staticmethod
+    def roughness(moves: np.ndarray) -> np.ndarray:
+        """``moves`` as absolute differences about each candidate's median move (the
+        process's drift: wear), mm."""
+        if moves.shape[1] == 0:
+            return moves
+        return np.abs(moves - np.median(moves, axis=1, keepdims=True))
+
+    def costs(self, max_dead: int = MAX_DEAD) -> np.ndarray:
+        """For each candidate: how much the process moves from one measurement to the next
+        (sum of absolute differences about the median move), mm."""
+        return self.roughness(self.moves(max_dead)).sum(axis=1)
 
     def estimate(self, prior: int | None = None) -> DeadTime | None:
         """The dead time the steps show, or None while they do not tell it clearly. With a
@@ -126,22 +150,38 @@ class DeadTimeEstimator:
         # A step needs measurements after it to be seen at all, by at least the candidate.
         max_dead = min(MAX_DEAD, self.taken - (min(at for at, _ in seen) if seen else 0) - 2,
                        MAX_DEAD if prior is None else PRIOR_SPAN * (prior + 1))
-        clear = [e for at, e in seen if abs(e) > 2.0 * scatter and at + max_dead < self.taken]
-        if len(clear) < MIN_STEPS or max_dead < 1:
+        if max_dead < 1:
             return None
-        c = self.costs(max_dead)
+        moves = self.moves(max_dead)
+        r = self.roughness(moves)
+        c = r.sum(axis=1)
         best = int(np.argmin(c))
+
+        def clearly_worse(d: int) -> bool:
+            """Whether candidate ``d`` explains the steps worse than the best beyond noise."""
+            diff = r[d] - r[best]
+            differ = int(np.count_nonzero(np.abs(moves[d] - moves[best]) > 1e-12))
+            return d != best and diff.sum() > MARGIN * scatter * math.sqrt(differ)
+
+        # The steps that tell: where the offsets applied change by more than the scatter
+        # from one measurement to the next (a steady stream of equal offsets, a ramp, fits
+        # any dead time alike), and shown by the best candidate (a step too recent to have
+        # landed counts against no candidate).
+        clear = [e for at, e in self.edges(seen) if abs(e) > 2.0 * scatter
+                 and at + best < self.taken]
+        if len(clear) < MIN_STEPS:
+            return None
         if prior is not None and prior <= max_dead and (
-                c[prior] - c[best] < MARGIN * scatter or len(clear) < MIN_STEPS_AGAINST):
+                not clearly_worse(prior) or len(clear) < MIN_STEPS_AGAINST):
             best = prior  # the steps do not tell otherwise, or are too few to
-        elif np.delete(c, best).min() - c[best] < MARGIN * scatter:
+        elif not all(clearly_worse(d) for d in range(max_dead + 1) if d != best):
             return None
         t = np.fromiter(self.times, float)
         interval = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
         return DeadTime(best, best * max(interval, 0.0), len(clear))
 
 
-CONFIRMATIONS = 10
+CONFIRMATIONS = 3
 """Estimates in a row that must agree before a newly measured dead time is taken."""
 
 
@@ -149,10 +189,9 @@ CONFIRMATIONS = 10
 class MeasuredDeadTime:
     """A controller's measured dead time: the estimator and what it measured, confirmed
     ``CONFIRMATIONS`` times in a row (no flapping), beside the typed one. The law waits the
-    typed dead time: on the closed-loop bench, the measured one put in use where it differs
-    did not yet hold (CHANGELOG). What is measured is shown, and the log says when it is
-    more than a measurement from the typed (a typed time in seconds may hold a fraction of
-    an interval the steps cannot resolve)."""
+    measured one once it is confirmed and differs from the typed (``in_use``), the typed one
+    until then; the log says when it is more than a measurement from the typed (a typed time
+    in seconds may hold a fraction of an interval the steps cannot resolve)."""
 
     estimator: DeadTimeEstimator = field(default_factory=DeadTimeEstimator)
     measured_value: DeadTime | None = None
@@ -176,7 +215,10 @@ class MeasuredDeadTime:
         typed, or to agree with it again (``said`` says how, once)."""
         self.estimator.measured(deviation_mm, time_s)
         prior = self.typed_measurements(typed, typed_s)
-        got = self.estimator.estimate(prior)
+        # What the steps must tell against: the dead time in use (a measured one stays
+        # until the steps say otherwise as clearly as they said it).
+        got = self.estimator.estimate(self.in_use(typed, typed_s)[0] if self.measured_value
+                                      else prior)
         now = self.measured_value
         if got is None or (now is not None and got.measurements == now.measurements):
             self._seen = (-1, 0)
@@ -188,6 +230,15 @@ class MeasuredDeadTime:
         self.measured_value, self._seen = got, (-1, 0)
         before, self.differs = self.differs, abs(got.measurements - prior) > 1
         return self.differs != before
+
+    def in_use(self, typed: int, typed_s: float) -> tuple[int, float]:
+        """The dead time the law waits (measurements, seconds): the measured one where it
+        differs from the typed, else the typed one (its seconds kept: they may say more
+        than whole measurements do)."""
+        m = self.measured_value
+        if m is None or m.measurements == self.typed_measurements(typed, typed_s):
+            return typed, typed_s
+        return m.measurements, 0.0
 
     def said(self, typed: int, typed_s: float) -> str:
         """What was measured against the typed, in words an integrator can act on."""
@@ -202,14 +253,16 @@ class MeasuredDeadTime:
                     f"{typed_text} again")
         return (f"dead time measured from {got.steps} of the gauge's offsets: each shows "
                 f"{got.measurements} measurements after it is applied ({got.seconds:.0f} s), "
-                f"not {typed_text}, which the law waits: set the typed one to the measured, "
-                "or find what changed (the part program, the parts between the tool and "
+                f"not {typed_text}; the law now waits the measured one. Set the typed one to "
+                "it, or find what changed (the part program, the parts between the tool and "
                 "the gauge)")
 
     def status(self, typed_measurements: int, typed_s: float) -> dict[str, Any]:
         """The dead time typed, measured and in use (measurements and seconds), JSON-ready."""
         m = self.measured_value
         typed = {"measurements": typed_measurements, "seconds": typed_s}
-        return {"typed": typed, "in_use": typed, "differs": self.differs,
+        use_m, use_s = self.in_use(typed_measurements, typed_s)
+        return {"typed": typed, "in_use": {"measurements": use_m, "seconds": use_s},
+                "differs": self.differs,
                 "measured": None if m is None else {"measurements": m.measurements,
                                                     "seconds": m.seconds, "steps": m.steps}}

@@ -119,6 +119,10 @@ class Law(Protocol):
         offset convention, the process estimate starts again."""
         ...
 
+    def use_dead_time(self, measurements: int, seconds: float) -> None:
+        """Wait this dead time from now on (the offsets in flight included)."""
+        ...
+
 
 def filtered_deviation(window: list[tuple[float, float]], how: str) -> float:
     """The window of (deviation, uncertainty) as one deviation: the median, or the mean
@@ -173,6 +177,10 @@ class WindowLaw:
     def restart(self, now_s: float) -> None:
         """Nothing more than the dead time its ``applied`` started."""
 
+    def use_dead_time(self, measurements: int, seconds: float) -> None:
+        """Wait this dead time after a correction."""
+        self.dead_measurements, self.dead_s = measurements, seconds
+
     def observe(self, deviation: float, uncertainty: float, now: float
                 ) -> float | tuple[str, str]:
         """The filtered deviation, or (code, why) it is held."""
@@ -202,6 +210,7 @@ class InFlight:
     after_measurements: int   # it shows from the measurement after this many
     visible_at_s: float       # ... and not before this time
     seen: int = 0             # measurements since it was applied
+    applied_s: float = -math.inf
 
     def visible(self, now_s: float) -> bool:
         """Whether the measurement taken now shows it."""
@@ -303,11 +312,20 @@ class Predictor:
                        horizon=fresh.horizon, band_mm=fresh.band_mm, floor_mm=fresh.floor_mm,
                        dead_s=fresh.dead_s)
 
-    def applied(self, effect_mm: float, after_measurements: int, visible_at_s: float) -> None:
-        """An offset was applied (by the gauge, or by someone else at the CNC): its effect on
-        the diameter (mm) shows from the measurement after ``after_measurements`` more, at
-        ``visible_at_s`` at the earliest."""
-        self.in_flight.append(InFlight(effect_mm, after_measurements, visible_at_s))
+    def applied(self, effect_mm: float, after_measurements: int, visible_at_s: float,
+                applied_s: float = -math.inf) -> None:
+        """An offset was applied (by the gauge, or by someone else at the CNC) at
+        ``applied_s``: its effect on the diameter (mm) shows from the measurement after
+        ``after_measurements`` more, at ``visible_at_s`` at the earliest."""
+        self.in_flight.append(InFlight(effect_mm, after_measurements, visible_at_s,
+                                       applied_s=applied_s))
+
+    def use_dead_time(self, measurements: int, seconds: float) -> None:
+        """Another dead time from now on: the horizon, and when the offsets in flight show."""
+        self.horizon, self.dead_s = measurements + 1, seconds
+        for f in [*self.in_flight, *([self.skip] if self.skip else [])]:
+            f.after_measurements = measurements
+            f.visible_at_s = f.applied_s + seconds
 
     def in_flight_mm(self) -> float:
         """The effect of the offsets not yet visible, mm of diameter."""
@@ -495,7 +513,8 @@ class Predictor:
         self.level, self.aside, self.starting = self.fresh_level, None, []
         self.expected, self.lag_run = "insert", []
         self.surprise_run.clear()
-        self.skip = InFlight(0.0, after_measurements, visible_at_s) \
+        self.skip = InFlight(0.0, after_measurements, visible_at_s,
+                             applied_s=visible_at_s - self.dead_s) \
             if after_measurements > 0 or visible_at_s > -math.inf else None
 
 
@@ -540,7 +559,12 @@ class PredictiveLaw:
 
     def applied(self, effect_mm: float, now_s: float) -> None:
         """An offset applied now, shown a dead time later."""
-        self.predictor.applied(effect_mm, self.dead_measurements, now_s + self.dead_s)
+        self.predictor.applied(effect_mm, self.dead_measurements, now_s + self.dead_s, now_s)
+
+    def use_dead_time(self, measurements: int, seconds: float) -> None:
+        """Wait this dead time from now on, the offsets in flight included."""
+        self.dead_measurements, self.dead_s = measurements, seconds
+        self.predictor.use_dead_time(measurements, seconds)
 
     def clear(self) -> None:
         """The estimate outlives the controller's states."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.compensation.dead_time import DeadTimeEstimator
+from service.compensation.dead_time import MIN_STEPS_AGAINST, DeadTimeEstimator
 
 
 def loop(dead: int, parts: int = 80, seed: int = 3, outlier_at: int | None = None,
@@ -64,6 +64,58 @@ def test_the_typed_dead_time_stands_unless_the_steps_tell_otherwise() -> None:
 
 
 def test_a_few_steps_do_not_contradict_the_typed_dead_time() -> None:
-    """Fewer than eight clear steps agree with a typed dead time they do not tell apart."""
-    assert loop(2, parts=40).estimate(prior=4).measurements == 4
+    """Fewer than ``MIN_STEPS_AGAINST`` clear steps keep a typed dead time, even where
+    without it they would say another."""
+    few = loop(2, parts=30)
+    assert few.estimate().measurements == 2
+    got = few.estimate(prior=4)
+    assert got.measurements == 4 and got.steps < MIN_STEPS_AGAINST, got
     assert loop(2).estimate(prior=4).measurements == 2  # enough: they do
+
+
+@pytest.mark.parametrize(("real", "typed"), [(4, 2), (2, 4), (4, 8)])
+def test_a_mis_set_dead_time_is_measured_and_put_in_use(real: int, typed: int) -> None:
+    """A lathe wearing 2 um a part whose parts reach the gauge ``real`` parts after the cut,
+    the dead time typed wrong by 2x: the controller measures the real one from its own
+    offsets, says so once in the log, waits it from then on, and the status shows the typed,
+    the measured and the one in use."""
+    from collections import deque
+    from dataclasses import replace
+
+    from drivers.sim.lathe import LatheConfig, VirtualLathe
+    from service.compensation import (
+        CompensationController,
+        CompensationSettings,
+        ControllerState,
+        Kind,
+        MeasurementIn,
+    )
+
+    s = replace(CompensationSettings(), nominal_mm=30.0, shadow=False, max_total_mm=1.0,
+                dead_time_measurements=typed, dead_time_s=0.0, max_age_s=3600.0)
+    ctrl = CompensationController(s, ControllerState())
+    lathe = VirtualLathe(LatheConfig(nominal_mm=30.0, wear_per_part_mm=0.002,
+                                     part_sigma_mm=0.0015), seed=5)
+    rng = np.random.default_rng(6)
+    total, waiting, said = 0.0, deque(), []
+    ctrl.observe_cnc_total(total, 0.0)
+    for k in range(200):
+        waiting.append(lathe.cut_part(total))
+        if len(waiting) <= real:
+            continue
+        now = 60.0 * k
+        d = ctrl.on_measurement(MeasurementIn(k, now, "ok", waiting.popleft().diameter_mm
+                                              + rng.normal(0.0, 0.0015), 0.0015), now)
+        if d.code == "dead_time_measured":
+            said.append(d.reason)
+        if d.kind is Kind.WRITE:
+            assert ctrl.check_before_write(d.offset_seq, total, now) is None
+            total += d.offset_mm
+            ctrl.on_write_outcome(d.offset_seq, True, now)
+            ctrl.observe_cnc_total(total, now)
+    status = ctrl.dead.status(typed, 0.0)
+    assert status["typed"] == {"measurements": typed, "seconds": 0.0}
+    assert status["measured"]["measurements"] == real, status
+    assert status["in_use"] == {"measurements": real, "seconds": 0.0} and status["differs"]
+    assert len(said) == 1 and "now waits the measured one" in said[0], said
+    assert ctrl._law.dead_measurements == real
