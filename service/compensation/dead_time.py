@@ -150,8 +150,8 @@ class DeadTimeEstimator:
         # A step needs measurements after it to be seen at all, by at least the candidate.
         max_dead = min(MAX_DEAD, self.taken - (min(at for at, _ in seen) if seen else 0) - 2,
                        MAX_DEAD if prior is None else PRIOR_SPAN * (prior + 1))
-        if max_dead < 1:
-            return None
+        if max_dead < 1 or (prior is not None and prior > max_dead):
+            return None  # no step old enough to show the typed dead time: none tells
         moves = self.moves(max_dead)
         r = self.roughness(moves)
         c = r.sum(axis=1)
@@ -198,15 +198,19 @@ class MeasuredDeadTime:
     differs: bool = False
     """Whether the measured dead time is more than a measurement from the typed."""
     _seen: tuple[int, int] = (-1, 0)
+    _interval: float = 0.0
 
     def applied(self, effect_mm: float) -> None:
         """An offset of the gauge's applied now (its effect on the diameter, mm)."""
         self.estimator.applied(effect_mm)
 
     def typed_measurements(self, typed: int, typed_s: float) -> int:
-        """The typed dead time in measurements (seconds at the interval seen)."""
+        """The typed dead time in measurements (seconds at the interval seen: the last one
+        known when the estimator starts again)."""
         t = np.fromiter(self.estimator.times, float)
-        interval = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        if len(t) > 1:
+            self._interval = float(np.median(np.diff(t)))
+        interval = self._interval
         return max(typed, math.ceil(typed_s / interval - 1e-9) if interval > 0 else 0)
 
     def measured(self, deviation_mm: float, time_s: float, typed: int, typed_s: float
@@ -217,8 +221,8 @@ class MeasuredDeadTime:
         prior = self.typed_measurements(typed, typed_s)
         # What the steps must tell against: the dead time in use (a measured one stays
         # until the steps say otherwise as clearly as they said it).
-        got = self.estimator.estimate(self.in_use(typed, typed_s)[0] if self.measured_value
-                                      else prior)
+        got = self.estimator.estimate(prior if self.measured_value is None
+                                      else self.measured_value.measurements)
         now = self.measured_value
         if got is None or (now is not None and got.measurements == now.measurements):
             self._seen = (-1, 0)

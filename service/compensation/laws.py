@@ -38,11 +38,17 @@ forecast where the last new insert stood, so what the zeroed wear offset loses, 
 growth, is corrected before it is seen), and after a stop (a gap of ten intervals between
 measurements: the machine may have cooled).
 
-The null band is never narrower than the forecast's own noise (1.5 of its standard
+The null band is never narrower than the forecast's own noise (one of its standard
 deviations: the scale times the filter's noise gain), and an offset that would reverse the
 last one needs three null bands: what the estimate cannot tell from noise is not corrected.
 The gains are per dead-time cycle: where the dead time in seconds spans several measurements
 (continuous cutting), each takes its share.
+
+The bound as applied: the level's gain is the setting's, ``0 < gain <= 1``, inside
+Ingolfsson and Sachs' ``0 < lam xi < 2`` for any model gain ``0 < xi <= 1`` (the CNC applies
+what is written: ``xi = 1`` when the offset's convention is right); the dead time is the one
+the gauge's own offsets show once measured
+(``service.compensation.dead_time``), the typed one until then.
 
 Pure: deviations and effects in mm of diameter, time passed in.
 """

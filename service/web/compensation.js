@@ -68,13 +68,14 @@ function handshake(c) {
   return `settled: offset #${c.offset_seq} answered by the CNC`;
 }
 
-// The dead time the law waits, typed, and as the gauge's own offsets show it.
+// The dead time the law waits (in use), typed, and as the gauge's own offsets show it.
 function deadTime(d) {
   if (!d) return "\u2013";
+  const inUse = `in use ${d.in_use.measurements} meas. / ${d.in_use.seconds} s`;
   const typed = `typed ${d.typed.measurements} meas. / ${d.typed.seconds} s`;
-  if (!d.measured) return `${typed}; not measured yet`;
+  if (!d.measured) return `${inUse}; ${typed}; not measured yet`;
   const measured = `measured ${d.measured.measurements} meas. (${Math.round(d.measured.seconds)} s)`;
-  return `${typed}; ${measured}${d.differs ? ": set the typed one to it" : ""}`;
+  return `${inUse}; ${typed}; ${measured}${d.differs ? ": set the typed one to it" : ""}`;
 }
 
 function showCnc(c) {

@@ -215,6 +215,12 @@ def test_compensation_view_and_shadow_switch(service, browser) -> None:
     expect(page.locator("#comp-cnc-total")).to_contain_text("µm", timeout=UI_WAIT_MS)
     expect(page.locator("#comp-handshake")).to_have_text(
         re.compile(r"no offset sent yet|settled: offset #\d+|offset #\d+ sent"))
+    # The dead time the law waits, as typed (conftest: 3 measurements, 0.5 s) until measured.
+    dead = httpx.get(service.url + "/api/v1/status", timeout=10).json()[
+        "compensation"]["dead_time"]
+    assert dead["typed"] == {"measurements": 3, "seconds": 0.5}, dead
+    expect(page.locator("#comp-dead-time")).to_contain_text(
+        re.compile(r"in use \d+ meas\. / [\d.]+ s; typed 3 meas\. / 0\.5 s"))
     box = page.locator("#shadow")
     expect(box).not_to_be_checked()
     box.click()  # no key yet: refused, said, and the switch goes back

@@ -227,8 +227,13 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
         assert any(d["code"] == "cnc_total_changed" for d in log), log[:20]
         assert not any(d["kind"] in ("acknowledged", "reset") and d["who"] != "gauge"
                        for d in log)
-        assert svc.get("/api/v1/status").json()["compensation"]["state"] in ("active",
-                                                                              "pending")
+        comp = svc.get("/api/v1/status").json()["compensation"]
+        assert comp["state"] in ("active", "pending")
+        dead = comp["dead_time"]
+        print(f"FIGURES dead time after the loop: {dead}")
+        assert dead["typed"] == {"measurements": 0, "seconds": 1.5}, dead
+        assert dead["in_use"] == (dead["typed"] if not dead["differs"] else {
+            "measurements": dead["measured"]["measurements"], "seconds": 0.0}), dead
     finally:
         if pacer is not None:
             pacer.close()

@@ -119,3 +119,22 @@ def test_a_mis_set_dead_time_is_measured_and_put_in_use(real: int, typed: int) -
     assert status["in_use"] == {"measurements": real, "seconds": 0.0} and status["differs"]
     assert len(said) == 1 and "now waits the measured one" in said[0], said
     assert ctrl._law.dead_measurements == real
+
+
+def test_a_dead_time_typed_in_seconds_and_measured_alike_stays_in_seconds() -> None:
+    """Typed as 30 s at a measurement every 2 s, measured as 15 measurements: the typed one
+    stays in use (its seconds), also after an insert change starts the estimator again, and
+    the measured one is what the steps must tell against (not the typed 0 measurements)."""
+    from service.compensation.dead_time import DeadTime, MeasuredDeadTime
+
+    dead = MeasuredDeadTime()
+    for k in range(5):
+        dead.measured(0.001, 2.0 * k, 0, 30.0)
+    assert dead.typed_measurements(0, 30.0) == 15
+    dead.measured_value = DeadTime(15, 30.0, 3)
+    assert dead.in_use(0, 30.0) == (0, 30.0)
+    dead.estimator.forget()
+    assert dead.typed_measurements(0, 30.0) == 15 and dead.in_use(0, 30.0) == (0, 30.0)
+    dead.measured(0.001, 20.0, 0, 30.0)
+    assert dead.measured_value.measurements == 15
+    assert dead.status(0, 30.0)["in_use"] == {"measurements": 0, "seconds": 30.0}
