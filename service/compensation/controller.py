@@ -108,7 +108,7 @@ class CompensationController(OffsetBook):
         use = self.dead.in_use(self.settings.dead_time_measurements, self.settings.dead_time_s)
         if use != self._dead_used:
             self._dead_used = use
-            self._law.use_dead_time(*use)
+            self._law.use_dead_time(*use, drift_mm=self.dead.drift_mm())
 
     def _applied_now(self, effect: float, now: float) -> None:
         self._last_offset_mm = effect

@@ -35,6 +35,7 @@ absolute differences lower by this many scatters times the root of the number of
 measurements where the two differ (they differ only about the steps: the comparison's
 noise grows with the steps it rests on, not with the whole history)."""
 MAX_DEAD = 40
+MAD_TO_SIGMA = 1.4826
 """The longest dead time looked for, measurements."""
 PRIOR_SPAN = 3
 """With a typed dead time, candidates up to this many times it (plus as many measurements):
@@ -107,7 +108,7 @@ class DeadTimeEstimator:
         if len(y) < 3:
             return 0.0
         dy = np.diff(y)
-        return float(1.4826 * np.median(np.abs(dy - np.median(dy))) / math.sqrt(2.0))
+        return float(MAD_TO_SIGMA * np.median(np.abs(dy - np.median(dy))) / math.sqrt(2.0))
 
     def moves(self, max_dead: int = MAX_DEAD) -> np.ndarray:
         """For each candidate dead time 0..``max_dead`` (rows) and each measurement after
@@ -115,13 +116,16 @@ class DeadTimeEstimator:
         measurements after each on, moved from the last measurement, mm."""
         y = np.fromiter(self.deviations, float)
         first = self.taken - len(y)
-        index = np.arange(first, self.taken)
-        out = np.zeros((max_dead + 1, max(len(y) - 1, 0)))
+        out = np.tile(np.diff(y), (max_dead + 1, 1))
+        if not self.steps or out.shape[1] == 0:
+            return out
+        at = np.array([a for a, _ in self.steps]) - first
+        effect = np.array([e for _, e in self.steps])
         for d in range(max_dead + 1):
-            x = y.copy()
-            for at, effect in self.steps:
-                x[index >= at + d] -= effect
-            out[d] = np.diff(x)
+            # A step landing at measurement j moves the process between j - 1 and j.
+            j = at + d - 1
+            inside = (j >= 0) & (j < out.shape[1])
+            np.subtract.at(out[d], j[inside], effect[inside])
         return out
 
     @staticmethod
@@ -156,6 +160,12 @@ class DeadTimeEstimator:
         r = self.roughness(moves)
         c = r.sum(axis=1)
         best = int(np.argmin(c))
+        # The scatter of the process the best candidate leaves, the gauge's own steps taken
+        # off: a loop that oscillates on a wrong dead time swings its raw measurements by its
+        # offsets, which is no noise to judge the steps against.
+        scatter = min(scatter, MAD_TO_SIGMA * float(np.median(r[best])) / math.sqrt(2.0))
+        if scatter <= 0.0:
+            return None
 
         def clearly_worse(d: int) -> bool:
             """Whether candidate ``d`` explains the steps worse than the best beyond noise."""
@@ -234,6 +244,14 @@ class MeasuredDeadTime:
         self.measured_value, self._seen = got, (-1, 0)
         before, self.differs = self.differs, abs(got.measurements - prior) > 1
         return self.differs != before
+
+    def drift_mm(self) -> float | None:
+        """The process's move per measurement under the measured dead time (the median
+        move, the gauge's steps taken off), mm; None before one is measured."""
+        m = self.measured_value
+        if m is None or len(self.estimator.deviations) < 3:
+            return None
+        return float(np.median(self.estimator.moves(m.measurements)[m.measurements]))
 
     def in_use(self, typed: int, typed_s: float) -> tuple[int, float]:
         """The dead time the law waits (measurements, seconds): the measured one where it

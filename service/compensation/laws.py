@@ -56,10 +56,13 @@ Pure: deviations and effects in mm of diameter, time passed in.
 from __future__ import annotations
 
 import collections
+import itertools
 import math
 import statistics
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
+
+from service.compensation.dead_time import MAD_TO_SIGMA
 
 REVERSAL_NULL_BANDS = 3.0
 """An offset that would reverse the last one needs this many null bands (predictive law)."""
@@ -125,8 +128,11 @@ class Law(Protocol):
         offset convention, the process estimate starts again."""
         ...
 
-    def use_dead_time(self, measurements: int, seconds: float) -> None:
-        """Wait this dead time from now on (the offsets in flight included)."""
+    def use_dead_time(self, measurements: int, seconds: float,
+                      drift_mm: float | None = None) -> None:
+        """Wait this dead time from now on (the offsets in flight included); ``drift_mm``:
+        the process's move per measurement as the steps show it under that dead time, when
+        it was measured (what was estimated under the other is not kept)."""
         ...
 
 
@@ -183,7 +189,8 @@ class WindowLaw:
     def restart(self, now_s: float) -> None:
         """Nothing more than the dead time its ``applied`` started."""
 
-    def use_dead_time(self, measurements: int, seconds: float) -> None:
+    def use_dead_time(self, measurements: int, seconds: float,
+                      drift_mm: float | None = None) -> None:
         """Wait this dead time after a correction."""
         self.dead_measurements, self.dead_s = measurements, seconds
 
@@ -239,8 +246,36 @@ STOP_MIN_S = 60.0
 (the machine may have cooled; a busy host's second is not one)."""
 NULL_SIGMAS = 1.0
 """The null band is at least this many standard deviations of the forecast's own noise."""
+FULL_GAIN_SCATTERS = 2.0
+MIN_GAIN_SHARE = 0.4
+MOVE_SPAN = 10
+"""The gains follow the process (``Predictor.share``): the whole where it moves by two
+scatters over a dead-time cycle, 0.4 of them at the least, from the last two spans of ten
+measurements (or of a dead-time cycle, where that is longer)."""
 ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
 """The mean absolute value of a Gaussian is sigma / this."""
+
+
+def gain_share(values: list[float], h: int) -> float:
+    """The share of the settings' gains a process asks for, from its uncompensated
+    ``values`` (mm) and ``h`` measurements to a correction showing: the whole where it moves
+    over a dead-time cycle by ``FULL_GAIN_SCATTERS`` of its scatter or more, down to
+    ``MIN_GAIN_SHARE`` where it hardly moves against its scatter (a tight tolerance measured
+    by a noisy gauge: there a gain follows noise, not the process). Both from the values
+    themselves, not from the estimate the gains make: a gain cut by a trend not learnt yet,
+    or by a scatter the lag inflates, would never catch up (continuous cutting at 5 um/min
+    lost its Cpk so)."""
+    span = max(h, MOVE_SPAN)
+    if len(values) < 2 * span:
+        return 1.0
+    values = values[-2 * span:]
+    steps = [b - a for a, b in itertools.pairwise(values)]
+    mid = statistics.median(steps)
+    scatter = MAD_TO_SIGMA * statistics.median(abs(d - mid) for d in steps) / math.sqrt(2.0)
+    if scatter <= 0.0:
+        return 1.0
+    moved = abs(statistics.median(values[span:]) - statistics.median(values[:span]))
+    return min(1.0, max(MIN_GAIN_SHARE, moved * h / span / scatter / FULL_GAIN_SCATTERS))
 
 
 @dataclass
@@ -301,7 +336,11 @@ class Predictor:
     """The last surprises inside the band (a step or a new level starts it afresh)."""
     lag_run: list[float] = field(default_factory=list)
     """The last surprises, while they fall on one side."""
+    recent: collections.deque = field(default_factory=lambda: collections.deque(maxlen=400))
+    """The uncompensated values taken lately (how far the process moves, against what
+    scatter)."""
     _response: tuple | None = field(default=None, repr=False, compare=False)
+    _share: tuple | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def of(cls, settings: Any) -> Predictor:
@@ -326,9 +365,18 @@ class Predictor:
         self.in_flight.append(InFlight(effect_mm, after_measurements, visible_at_s,
                                        applied_s=applied_s))
 
-    def use_dead_time(self, measurements: int, seconds: float) -> None:
-        """Another dead time from now on: the horizon, and when the offsets in flight show."""
+    def use_dead_time(self, measurements: int, seconds: float,
+                      drift_mm: float | None = None) -> None:
+        """Another dead time from now on: the horizon, and when the offsets in flight show.
+        With ``drift_mm`` (it was measured): the level and trend estimated under the old one
+        go (a loop that oscillated on a wrong dead time leaves a trend of its swings); the
+        trend is the drift the steps show under the new one, the next measurement sets the
+        level."""
         self.horizon, self.dead_s = measurements + 1, seconds
+        if drift_mm is not None and self.level is not None and self.skip is None:
+            self.trend, self.level, self.expected = drift_mm, None, "stop"
+            self.aside, self.starting, self.lag_run = None, [], []
+            self.surprise_run.clear()
         for f in [*self.in_flight, *([self.skip] if self.skip else [])]:
             f.after_measurements = measurements
             f.visible_at_s = f.applied_s + seconds
@@ -387,6 +435,7 @@ class Predictor:
                                  f"beyond the mean-value band of {band * 1000:.1f} um: set "
                                  "aside until the next measurement says outlier or step")
         self.aside = None
+        self.recent.append(u)
         self.surprise_run.append(surprise)
         counted = statistics.median(self.surprise_run)
         if self._lagging(surprise):  # the estimate trails the process: catch it up
@@ -422,10 +471,20 @@ class Predictor:
         (continuous cutting, a fused diameter every few seconds), each measurement takes the
         share that makes the same over the cycle."""
         per_cycle = self.steps_ahead() / self.horizon
+        share = self.share()
+        gain, trend_gain = self.gain * share, self.trend_gain * share
         if per_cycle <= 1.0:
-            return self.gain, self.trend_gain
-        return (1.0 - (1.0 - self.gain) ** (1.0 / per_cycle),
-                1.0 - (1.0 - self.trend_gain) ** (1.0 / per_cycle))
+            return gain, trend_gain
+        return (1.0 - (1.0 - gain) ** (1.0 / per_cycle),
+                1.0 - (1.0 - trend_gain) ** (1.0 / per_cycle))
+
+    def share(self) -> float:
+        """The share of the settings' gains the process asks for now (``gain_share``)."""
+        h = self.steps_ahead()
+        key = (len(self.recent), self.recent[-1] if self.recent else None, h)
+        if self._share is None or self._share[0] != key:
+            self._share = (key, gain_share(list(self.recent), h))
+        return self._share[1]
 
     def noise_gain(self) -> float:
         """How much of the measurements' scatter (one scale) reaches the forecast: the root
@@ -567,10 +626,11 @@ class PredictiveLaw:
         """An offset applied now, shown a dead time later."""
         self.predictor.applied(effect_mm, self.dead_measurements, now_s + self.dead_s, now_s)
 
-    def use_dead_time(self, measurements: int, seconds: float) -> None:
+    def use_dead_time(self, measurements: int, seconds: float,
+                      drift_mm: float | None = None) -> None:
         """Wait this dead time from now on, the offsets in flight included."""
         self.dead_measurements, self.dead_s = measurements, seconds
-        self.predictor.use_dead_time(measurements, seconds)
+        self.predictor.use_dead_time(measurements, seconds, drift_mm)
 
     def clear(self) -> None:
         """The estimate outlives the controller's states."""

@@ -277,3 +277,23 @@ def test_a_change_at_the_cnc_seen_just_before_a_write_drops_the_write_and_says_s
     assert veto is not None and veto.code == "cnc_total_changed", veto
     assert "insert change" in veto.reason and veto.measurement_seq == 2
     assert c.state.value == "active" and c.persisted.cnc_total_mm == 0.0
+
+
+def test_the_gains_follow_the_process() -> None:
+    """The settings' gains are the most: taken whole where the process moves by two of its
+    scatters or more over a dead-time cycle, 0.4 of them where it stands still against its
+    scatter, and whole until two spans of values tell."""
+    import numpy as np
+
+    from service.compensation.laws import MIN_GAIN_SHARE, MOVE_SPAN
+
+    rng = np.random.default_rng(4)
+    still = Predictor(gain=0.3, trend_gain=0.15, horizon=2)
+    fast = Predictor(gain=0.3, trend_gain=0.15, horizon=2)
+    for k in range(120):
+        still.observe(float(rng.normal(0.0, 0.003)), 0.0, float(k), 0.003)
+        fast.observe(0.004 * k + float(rng.normal(0.0, 0.001)), 0.0, float(k), 0.001)
+        if k < MOVE_SPAN:
+            assert still.gains() == (0.3, 0.15)
+    assert still.gains() == pytest.approx((0.3 * MIN_GAIN_SHARE, 0.15 * MIN_GAIN_SHARE))
+    assert fast.gains() == (0.3, 0.15)

@@ -66,7 +66,7 @@ def test_the_typed_dead_time_stands_unless_the_steps_tell_otherwise() -> None:
 def test_a_few_steps_do_not_contradict_the_typed_dead_time() -> None:
     """Fewer than ``MIN_STEPS_AGAINST`` clear steps keep a typed dead time, even where
     without it they would say another."""
-    few = loop(2, parts=30)
+    few = loop(2, parts=24)
     assert few.estimate().measurements == 2
     got = few.estimate(prior=4)
     assert got.measurements == 4 and got.steps < MIN_STEPS_AGAINST, got
