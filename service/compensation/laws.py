@@ -367,11 +367,9 @@ class Predictor:
 
     def use_dead_time(self, measurements: int, seconds: float,
                       drift_mm: float | None = None) -> None:
-        """Another dead time from now on: the horizon, and when the offsets in flight show.
-        With ``drift_mm`` (it was measured): the level and trend estimated under the old one
-        go (a loop that oscillated on a wrong dead time leaves a trend of its swings); the
-        trend is the drift the steps show under the new one, the next measurement sets the
-        level."""
+        """Another dead time from now on (the horizon; when the offsets in flight show).
+        With ``drift_mm`` (it was measured): the trend is that drift, the next measurement
+        sets the level (a loop that swung on a wrong dead time left a trend of its swings)."""
         self.horizon, self.dead_s = measurements + 1, seconds
         if drift_mm is not None and self.level is not None and self.skip is None:
             self.trend, self.level, self.expected = drift_mm, None, "stop"
