@@ -35,8 +35,9 @@ absolute differences lower by this many scatters times the root of the number of
 measurements where the two differ (they differ only about the steps: the comparison's
 noise grows with the steps it rests on, not with the whole history)."""
 MAX_DEAD = 40
-MAD_TO_SIGMA = 1.4826
 """The longest dead time looked for, measurements."""
+MAD_TO_SIGMA = 1.4826
+"""A normal scatter's standard deviation over its median absolute deviation."""
 PRIOR_SPAN = 3
 """With a typed dead time, candidates up to this many times it (plus as many measurements):
 a dead time mis-set by more is not looked for, and a steady cadence of steps has aliases

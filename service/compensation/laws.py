@@ -44,11 +44,17 @@ last one needs three null bands: what the estimate cannot tell from noise is not
 The gains are per dead-time cycle: where the dead time in seconds spans several measurements
 (continuous cutting), each takes its share.
 
-The bound as applied: the level's gain is the setting's, ``0 < gain <= 1``, inside
-Ingolfsson and Sachs' ``0 < lam xi < 2`` for any model gain ``0 < xi <= 1`` (the CNC applies
-what is written: ``xi = 1`` when the offset's convention is right); the dead time is the one
-the gauge's own offsets show once measured
-(``service.compensation.dead_time``), the typed one until then.
+The gains follow the process (``gain_share``): the settings' ``gain`` and ``trend_gain`` are
+the most, taken whole where the process moves over a dead-time cycle by two of its scatters
+or more, down to 0.4 of them where it hardly moves against its scatter (a tight tolerance
+with a noisy gauge: there a gain follows noise, not the process).
+
+The bound as applied: the level's gain stays in ``[0.4 gain, gain]`` with ``0 < gain <= 1``,
+inside Ingolfsson and Sachs' ``0 < lam xi < 2`` for any model gain ``0 < xi <= 1`` (the CNC
+applies what is written: ``xi = 1`` when the offset's convention is right). It holds for the
+dead time the tagging knows: the one the gauge's own offsets show once measured
+(``service.compensation.dead_time``), the typed one until then; a typed one twice too long
+can swing the loop until the measured one is in use.
 
 Pure: deviations and effects in mm of diameter, time passed in.
 """
@@ -249,7 +255,7 @@ NULL_SIGMAS = 1.0
 FULL_GAIN_SCATTERS = 2.0
 MIN_GAIN_SHARE = 0.4
 MOVE_SPAN = 10
-"""The gains follow the process (``Predictor.share``): the whole where it moves by two
+"""The gains follow the process (``gain_share``): the whole where it moves by two
 scatters over a dead-time cycle, 0.4 of them at the least, from the last two spans of ten
 measurements (or of a dead-time cycle, where that is longer)."""
 ABS_TO_SIGMA = math.sqrt(math.pi / 2.0)
