@@ -208,6 +208,10 @@ class MeasuredDeadTime:
     measured_value: DeadTime | None = None
     differs: bool = False
     """Whether the measured dead time is more than a measurement from the typed."""
+    use_measured: bool = False
+    """Whether the law waits the measured one: decided when it is confirmed (never by the
+    rate of measurements meanwhile), any difference where the typed one is in measurements,
+    more than one where it is in seconds (they fall on a measurement either way)."""
     _seen: tuple[int, int] = (-1, 0)
     _interval: float = 0.0
 
@@ -244,6 +248,7 @@ class MeasuredDeadTime:
             return False
         self.measured_value, self._seen = got, (-1, 0)
         before, self.differs = self.differs, abs(got.measurements - prior) > 1
+        self.use_measured = self.differs or (typed_s <= 0 and got.measurements != prior)
         return self.differs != before
 
     def drift_mm(self) -> float | None:
@@ -256,12 +261,14 @@ class MeasuredDeadTime:
 
     def in_use(self, typed: int, typed_s: float) -> tuple[int, float]:
         """The dead time the law waits (measurements, seconds): the measured one where it
-        differs from the typed, else the typed one (its seconds kept: they may say more
-        than whole measurements do)."""
+        was found to differ from the typed when it was confirmed (``use_measured``), else the
+        typed one. Typed in seconds, the measured one is in seconds too: a rate of
+        measurements that changes (a busy host) changes how many measurements the same
+        seconds are."""
         m = self.measured_value
-        if m is None or m.measurements == self.typed_measurements(typed, typed_s):
+        if m is None or not self.use_measured:
             return typed, typed_s
-        return m.measurements, 0.0
+        return (0, m.seconds) if typed_s > 0 else (m.measurements, 0.0)
 
     def said(self, typed: int, typed_s: float) -> str:
         """What was measured against the typed, in words an integrator can act on."""

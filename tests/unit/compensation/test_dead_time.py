@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.compensation.dead_time import MIN_STEPS_AGAINST, DeadTimeEstimator
+from service.compensation.dead_time import CONFIRMATIONS, MIN_STEPS_AGAINST, DeadTimeEstimator
 
 
 def loop(dead: int, parts: int = 80, seed: int = 3, outlier_at: int | None = None,
@@ -138,3 +138,20 @@ def test_a_dead_time_typed_in_seconds_and_measured_alike_stays_in_seconds() -> N
     dead.measured(0.001, 20.0, 0, 30.0)
     assert dead.measured_value.measurements == 15
     assert dead.status(0, 30.0)["in_use"] == {"measurements": 0, "seconds": 30.0}
+
+
+def test_a_measured_dead_time_is_used_in_seconds_where_seconds_are_typed() -> None:
+    """Typed as 1.5 s at ten measurements a second: one measurement off (the rate of a busy
+    host moves the typed one between 15 and 16) keeps the typed seconds; two off puts the
+    measured one in use, in seconds too, so that a rate that changes later keeps its time."""
+    from service.compensation.dead_time import DeadTime, MeasuredDeadTime
+
+    for measured, in_use in ((16, (0, 1.5)), (18, (0, 1.8))):
+        dead = MeasuredDeadTime()
+        for k in range(5):
+            dead.measured(0.001, 0.1 * k, 0, 1.5)
+        dead._seen = (measured, CONFIRMATIONS - 1)
+        dead.estimator.estimate = lambda prior, m=measured: DeadTime(m, m / 10, 4)
+        dead.measured(0.001, 0.5, 0, 1.5)
+        assert dead.measured_value.measurements == measured
+        assert dead.in_use(0, 1.5) == pytest.approx(in_use), measured
