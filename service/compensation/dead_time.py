@@ -137,10 +137,10 @@ class DeadTimeEstimator:
             return moves
         return np.abs(moves - np.median(moves, axis=1, keepdims=True))
 
-    def costs(self, max_dead: int = MAX_DEAD) -> np.ndarray:
-        """For each candidate: how much the process moves from one measurement to the next
-        (sum of absolute differences about the median move), mm."""
-        return self.roughness(self.moves(max_dead)).sum(axis=1)
+    def interval_s(self) -> float:
+        """The median interval between the measurements kept, s; 0 with fewer than two."""
+        t = np.fromiter(self.times, float)
+        return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
 
     def estimate(self, prior: int | None = None) -> DeadTime | None:
         """The dead time the steps show, or None while they do not tell it clearly. With a
@@ -187,9 +187,7 @@ class DeadTimeEstimator:
             best = prior  # the steps do not tell otherwise, or are too few to
         elif not all(clearly_worse(d) for d in range(max_dead + 1) if d != best):
             return None
-        t = np.fromiter(self.times, float)
-        interval = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-        return DeadTime(best, best * max(interval, 0.0), len(clear))
+        return DeadTime(best, best * max(self.interval_s(), 0.0), len(clear))
 
 
 CONFIRMATIONS = 3
@@ -222,9 +220,8 @@ class MeasuredDeadTime:
     def typed_measurements(self, typed: int, typed_s: float) -> int:
         """The typed dead time in measurements (seconds at the interval seen: the last one
         known when the estimator starts again)."""
-        t = np.fromiter(self.estimator.times, float)
-        if len(t) > 1:
-            self._interval = float(np.median(np.diff(t)))
+        if len(self.estimator.times) > 1:
+            self._interval = self.estimator.interval_s()
         interval = self._interval
         return max(typed, math.ceil(typed_s / interval - 1e-9) if interval > 0 else 0)
 
