@@ -243,7 +243,7 @@ class CompensationController(OffsetBook):
                 f"{raw * 1000:+.1f} um is plausible again: the alarm is over and "
                 "compensation resumes", now, who="gauge", **kw)
         said = self.dead.measured(deviation, m.time_s, s.dead_time_measurements,
-                                  s.dead_time_s)
+                                  s.dead_time_s, float(m.uncertainty_mm))
         self._dead_in_use()
         if said:
             # Said once, in a row of its own (a quiet decision's reason gives way to the

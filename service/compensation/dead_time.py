@@ -9,9 +9,14 @@ one each step leaves a jump there and one back. The estimate is the ``d`` whose 
 moves least from measurement to measurement, in absolute differences: one outlier adds the
 same two differences whatever ``d`` is, so it cannot move the estimate (squares would let it).
 
-It is taken only from several steps (``MIN_STEPS``) each larger than the measurements'
-own scatter, and only when it is clearly better than every other candidate (``MARGIN``),
-the typed dead time first of all; until then the typed one stays in use.
+The typed dead time stays in use until the steps refute it: the best candidate explains
+them clearly better (``MARGIN``) than the typed one and than every candidate between the two
+but the best's neighbours, on enough measurements (``MIN_TELLING_AGAINST``) and steps
+(``MIN_EDGES_AGAINST``). The typed one is confirmed by several steps (``MIN_STEPS``) each
+larger than the measurements' own scatter. A candidate longer than both is no argument
+either way: a loop that holds its deviations steady looks, over its last measurements, like
+one whose steps have not landed yet. A new value is taken once ``CONFIRMATIONS`` estimates
+in a row agree.
 """
 
 from __future__ import annotations
@@ -27,9 +32,16 @@ HISTORY = 240
 """Measurements kept (at a part a minute, four hours)."""
 MIN_STEPS = 3
 """Applied steps, each above the scatter, that the estimate needs."""
-MIN_STEPS_AGAINST = 4
-"""... and that it needs to contradict the typed dead time (the prior)."""
-MARGIN = 3.0
+MIN_EDGES_AGAINST = 4
+"""Changes of the offsets applied per measurement, each above twice the scatter and landed
+under the best candidate, that a refutation of the typed dead time rests on at least: two
+isolated offsets, or a run's two ends and more (a steady run fits any dead time alike in
+its middle)."""
+MIN_TELLING_AGAINST = 4
+"""Measurements that a step lands on under one of the two and not the other, each by more
+than twice the scatter, that a refutation of the typed dead time (the prior) needs: two
+isolated steps at least."""
+MARGIN = 2.5
 """How much better the best candidate must explain the steps than any other: its sum of
 absolute differences lower by this many scatters times the root of the number of
 measurements where the two differ (they differ only about the steps: the comparison's
@@ -62,22 +74,26 @@ class DeadTimeEstimator:
     history: int = HISTORY
     deviations: collections.deque = field(default_factory=lambda: collections.deque())
     times: collections.deque = field(default_factory=lambda: collections.deque())
+    uncertainties: collections.deque = field(default_factory=lambda: collections.deque())
     steps: list[tuple[int, float]] = field(default_factory=list)
     """(measurements taken before it was applied, its effect on the diameter, mm)."""
     taken: int = 0
     """Measurements taken so far (the index of the next one)."""
 
-    def measured(self, deviation_mm: float, time_s: float) -> None:
+    def measured(self, deviation_mm: float, time_s: float, uncertainty_mm: float = 0.0
+                 ) -> None:
         """A measurement taken into the process (its deviation from nominal, with every
-        offset applied so far in it)."""
+        offset applied so far in it, and its standard uncertainty)."""
         if not math.isfinite(deviation_mm):
             return
         self.deviations.append(deviation_mm)
         self.times.append(time_s)
+        self.uncertainties.append(uncertainty_mm if math.isfinite(uncertainty_mm) else 0.0)
         self.taken += 1
         while len(self.deviations) > self.history:
             self.deviations.popleft()
             self.times.popleft()
+            self.uncertainties.popleft()
         first = self.taken - len(self.deviations)
         self.steps = [s for s in self.steps if s[0] > first - MAX_DEAD]
 
@@ -91,25 +107,36 @@ class DeadTimeEstimator:
         """Start again (another process: a reset, a new job)."""
         self.deviations.clear()
         self.times.clear()
+        self.uncertainties.clear()
         self.steps = []
 
     @staticmethod
-    def edges(steps: list[tuple[int, float]]) -> list[tuple[int, float]]:
+    def edges(steps: list[tuple[int, float]], ends: bool = False) -> list[tuple[int, float]]:
         """(where, size) of the change each offset makes to the offsets applied a
-        measurement: one after a measurement with none changes them by its whole size."""
+        measurement: one after a measurement with none changes them by its whole size.
+        ``ends``: the measurement after the last of a run of offsets too (none after one)."""
         applied: dict[int, float] = collections.defaultdict(float)
         for at, e in steps:
             applied[at] += e
-        return [(at, applied[at] - applied.get(at - 1, 0.0)) for at in sorted(applied)]
+        where = sorted({*applied, *(at + 1 for at in applied)} if ends else applied)
+        return [(at, applied.get(at, 0.0) - applied.get(at - 1, 0.0)) for at in where]
 
     def scatter_mm(self) -> float:
         """The measurements' scatter from one to the next (a robust standard deviation of
-        one measurement), mm; 0 with fewer than three."""
+        one measurement), mm; 0 with fewer than three.  Never below their median stated
+        uncertainty: a few measurements' median absolute deviation can fall far below the
+        scatter, and every margin would shrink with it."""
         y = np.fromiter(self.deviations, float)
         if len(y) < 3:
             return 0.0
         dy = np.diff(y)
-        return float(MAD_TO_SIGMA * np.median(np.abs(dy - np.median(dy))) / math.sqrt(2.0))
+        return max(float(MAD_TO_SIGMA * np.median(np.abs(dy - np.median(dy))) / math.sqrt(2.0)),
+                   self.stated_mm())
+
+    def stated_mm(self) -> float:
+        """The measurements' median stated uncertainty, mm (0 with none)."""
+        return float(np.median(np.fromiter(self.uncertainties, float))) \
+            if self.uncertainties else 0.0
 
     def moves(self, max_dead: int = MAX_DEAD) -> np.ndarray:
         """For each candidate dead time 0..``max_dead`` (rows) and each measurement after
@@ -164,7 +191,8 @@ class DeadTimeEstimator:
         # The scatter of the process the best candidate leaves, the gauge's own steps taken
         # off: a loop that oscillates on a wrong dead time swings its raw measurements by its
         # offsets, which is no noise to judge the steps against.
-        scatter = min(scatter, MAD_TO_SIGMA * float(np.median(r[best])) / math.sqrt(2.0))
+        scatter = min(scatter, max(MAD_TO_SIGMA * float(np.median(r[best])) / math.sqrt(2.0),
+                                   self.stated_mm()))
         if scatter <= 0.0:
             return None
 
@@ -174,23 +202,45 @@ class DeadTimeEstimator:
             differ = int(np.count_nonzero(np.abs(moves[d] - moves[best]) > 1e-12))
             return d != best and diff.sum() > MARGIN * scatter * math.sqrt(differ)
 
+        def telling(d: int) -> int:
+            """Measurements where candidate ``d`` and the best part by more than twice the
+            scatter: each is a landing one of them puts where the other does not."""
+            return int(np.count_nonzero(np.abs(moves[d] - moves[best]) > 2.0 * scatter))
+
         # The steps that tell: where the offsets applied change by more than the scatter
         # from one measurement to the next (a steady stream of equal offsets, a ramp, fits
         # any dead time alike), and shown by the best candidate (a step too recent to have
         # landed counts against no candidate).
         clear = [e for at, e in self.edges(seen) if abs(e) > 2.0 * scatter
                  and at + best < self.taken]
+        # Where the offsets applied per measurement change, ends of runs included, landed
+        # under the best: what the refutation rests on.
+        landed = [e for at, e in self.edges(seen, ends=True) if abs(e) > 2.0 * scatter
+                  and at + best < self.taken]
+        between = range(best + 2, prior + 1) if prior is not None and best < prior \
+            else range(prior if prior is not None else 0, best - 1)
+        if prior is not None and clearly_worse(prior) and len(landed) >= MIN_EDGES_AGAINST \
+                and telling(prior) >= MIN_TELLING_AGAINST and all(map(clearly_worse, between)):
+            # The steps refute the typed one and every candidate between it and the best
+            # but the best's neighbours: the best replaces it (the loop swings on the typed
+            # one meanwhile; the next steps tell the neighbours apart). One longer than both
+            # is no argument for the typed one: a loop that holds its deviations steady
+            # looks, over its last few measurements, like one whose steps never landed.
+            return DeadTime(best, best * max(self.interval_s(), 0.0),
+                            max(len(clear), len(landed) // 2))
         if len(clear) < MIN_STEPS:
             return None
-        if prior is not None and prior <= max_dead and (
-                not clearly_worse(prior) or len(clear) < MIN_STEPS_AGAINST):
+        if prior is not None:
             best = prior  # the steps do not tell otherwise, or are too few to
         elif not all(clearly_worse(d) for d in range(max_dead + 1) if d != best):
             return None
         return DeadTime(best, best * max(self.interval_s(), 0.0), len(clear))
 
 
-CONFIRMATIONS = 3
+CONFIRMATIONS = 2
+DRIFT_SPAN = 30
+"""The measurements the process's drift is taken over when a measured dead time is put in
+use (wear may change its rate over an insert's life)."""
 """Estimates in a row that must agree before a newly measured dead time is taken."""
 
 
@@ -225,11 +275,12 @@ class MeasuredDeadTime:
         interval = self._interval
         return max(typed, math.ceil(typed_s / interval - 1e-9) if interval > 0 else 0)
 
-    def measured(self, deviation_mm: float, time_s: float, typed: int, typed_s: float
-                 ) -> bool:
-        """Take a measurement in; True when the measured dead time came to differ from the
-        typed, or to agree with it again (``said`` says how, once)."""
-        self.estimator.measured(deviation_mm, time_s)
+    def measured(self, deviation_mm: float, time_s: float, typed: int, typed_s: float,
+                 uncertainty_mm: float = 0.0) -> bool:
+        """Take a measurement in (its standard uncertainty: the scatter is never taken
+        below it); True when the measured dead time came to differ from the typed, or to
+        agree with it again (``said`` says how, once)."""
+        self.estimator.measured(deviation_mm, time_s, uncertainty_mm)
         prior = self.typed_measurements(typed, typed_s)
         # What the steps must tell against: the dead time in use (a measured one stays
         # until the steps say otherwise as clearly as they said it).
@@ -249,12 +300,17 @@ class MeasuredDeadTime:
         return self.differs != before
 
     def drift_mm(self) -> float | None:
-        """The process's move per measurement under the measured dead time (the median
-        move, the gauge's steps taken off), mm; None before one is measured."""
+        """The process's move per measurement under the measured dead time, the gauge's
+        steps taken off: the Theil-Sen slope of the last ``DRIFT_SPAN`` measurements (the
+        median of every pair's slope: a tenth of the median move's noise over 20 of them,
+        and one outlier cannot tilt it), mm; None before one is measured."""
         m = self.measured_value
         if m is None or len(self.estimator.deviations) < 3:
             return None
-        return float(np.median(self.estimator.moves(m.measurements)[m.measurements]))
+        moves = self.estimator.moves(m.measurements)[m.measurements][-DRIFT_SPAN:]
+        process = np.concatenate(([0.0], np.cumsum(moves)))
+        i, j = np.triu_indices(len(process), k=1)
+        return float(np.median((process[j] - process[i]) / (j - i)))
 
     def in_use(self, typed: int, typed_s: float) -> tuple[int, float]:
         """The dead time the law waits (measurements, seconds): the measured one where it
