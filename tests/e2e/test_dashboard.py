@@ -19,6 +19,7 @@ import pytest
 from playwright.sync_api import Page, expect, sync_playwright
 
 from drivers.sim.control import control
+from tests.e2e import test_lathe_loop as lathe_loop
 from tests.e2e.conftest import (
     TECH_KEY,
     UI_WAIT_MS,
@@ -412,3 +413,47 @@ def test_the_key_form_works_under_the_gauges_own_policy(service, browser) -> Non
     assert page.evaluate("sessionStorage.getItem('shaftgauge-key')") == TECH_KEY
     assert page.evaluate("window.stayed === true"), "Enter reloaded the page"
     assert not [c for c in console if "Content Security Policy" in c], console
+
+
+def test_the_dead_time_the_gauge_measured_is_shown_beside_the_typed(tmp_path, browser) -> None:
+    """The loop closed on the camera's virtual lathe (``tests/e2e/test_lathe_loop.py``) with
+    its dead time typed twice too long: the gauge measures the real one from its own offsets,
+    and the status and the compensation view show it beside the typed one and in use. The
+    machine warms up 30 um in its first seconds: offsets of different sizes, whose landings
+    tell the dead time (a steady stream of equal ones fits any dead time alike)."""
+    typed_s = 3.6  # the lathe's 1 s to the laser and the camera's 0.8 s ring, doubled
+    svc = start_service(tmp_path, camera_toml=lathe_loop.camera(20.0, 30.0, 6.0),
+                        compensation_toml=lathe_loop.PREDICTIVE.replace(
+                            "dead_time_s = 1.5", f"dead_time_s = {typed_s}"))
+    pacer = None
+    try:
+        assert wait_ready(svc)
+        pacer = lathe_loop.LathePacer(svc)
+        r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": False},
+                      headers={"X-API-Key": TECH_KEY}, timeout=10)
+        assert r.status_code == 200, r.text
+        dead: dict = {}
+        for _ in range(24):  # up to two minutes of the lathe's time, 5 s at a time
+            lathe_loop.follow(svc, 5.0)
+            dead = svc.get("/api/v1/status").json()["compensation"]["dead_time"]
+            if dead["measured"] is not None and dead["differs"]:
+                break
+        print(f"\nFIGURES dead time typed {typed_s} s, as the status has it: {dead}")
+        assert dead["typed"] == {"measurements": 0, "seconds": typed_s}, dead
+        measured = dead["measured"]
+        assert measured is not None and dead["differs"], dead
+        assert 1.0 <= measured["seconds"] <= 2.8, dead  # the lathe's and the camera's
+        assert dead["in_use"] == {"measurements": 0, "seconds": measured["seconds"]}, dead
+        log = svc.get("/api/v1/compensation/log", params={"limit": 1000}).json()["items"]
+        said = [d for d in log if d["code"] == "dead_time_measured"]
+        assert said and "Set the typed one to it" in said[-1]["reason"], said
+        page = open_page(browser, svc.url + "/ui/#compensation")
+        expect(page.locator("#comp-dead-time")).to_contain_text(re.compile(
+            rf"in use 0 meas\. / [\d.]+ s; typed 0 meas\. / {typed_s} s; measured "
+            rf"{measured['measurements']} meas\. \(\d+ s\): set the typed one to it"),
+            timeout=UI_WAIT_MS)
+        shot(page, "compensation-dead-time")
+    finally:
+        if pacer is not None:
+            pacer.close()
+        stop_service(svc)
