@@ -46,6 +46,9 @@ MARGIN = 2.5
 absolute differences lower by this many scatters times the root of the number of
 measurements where the two differ (they differ only about the steps: the comparison's
 noise grows with the steps it rests on, not with the whole history)."""
+UNSTEADY = 2.0
+"""Intervals between measurements off their median by more than this factor make them
+unsteady (``DeadTimeEstimator.steady``)."""
 MAX_DEAD = 40
 """The longest dead time looked for, measurements."""
 MAD_TO_SIGMA = 1.4826
@@ -164,6 +167,20 @@ class DeadTimeEstimator:
             return moves
         return np.abs(moves - np.median(moves, axis=1, keepdims=True))
 
+    def steady(self) -> bool:
+        """Whether the measurements come at a steady rate (eight intervals in ten within a
+        factor ``UNSTEADY`` of the median): only then is a dead time a fixed count of them.
+        Where a part's features are measured a second apart and the next part a minute
+        later, or some are skipped, the count varies from offset to offset, and no single
+        count refutes the typed one (it fitted none: a job of two tools measured 0 for 2)."""
+        t = np.fromiter(self.times, float)
+        if len(t) < 3:
+            return False
+        gaps = np.diff(t)
+        median = float(np.median(gaps))
+        low, high = np.quantile(gaps, [0.1, 0.9])
+        return median > 0 and low * UNSTEADY >= median and high <= UNSTEADY * median
+
     def interval_s(self) -> float:
         """The median interval between the measurements kept, s; 0 with fewer than two."""
         t = np.fromiter(self.times, float)
@@ -217,9 +234,11 @@ class DeadTimeEstimator:
         # under the best: what the refutation rests on.
         landed = [e for at, e in self.edges(seen, ends=True) if abs(e) > 2.0 * scatter
                   and at + best < self.taken]
+        # Every candidate from the typed one to the best but the best's neighbour.
         between = range(best + 2, prior + 1) if prior is not None and best < prior \
             else range(prior if prior is not None else 0, best - 1)
-        if prior is not None and clearly_worse(prior) and len(landed) >= MIN_EDGES_AGAINST \
+        if prior is not None and self.steady() and clearly_worse(prior) \
+                and len(landed) >= MIN_EDGES_AGAINST \
                 and telling(prior) >= MIN_TELLING_AGAINST and all(map(clearly_worse, between)):
             # The steps refute the typed one and every candidate between it and the best
             # but the best's neighbours: the best replaces it (the loop swings on the typed

@@ -15,10 +15,11 @@ from service.compensation.dead_time import (
 
 
 def loop(dead: int, parts: int = 80, seed: int = 3, outlier_at: int | None = None,
-         gain: float = 0.8, noise_um: float = 1.0) -> DeadTimeEstimator:
+         gain: float = 0.8, noise_um: float = 1.0, pairs: bool = False) -> DeadTimeEstimator:
     """Parts of a tool wearing 1 um a part, measured ``dead`` measurements after the cut,
     corrected now and then (every 3 to 7 measurements) by ``gain`` times what the last
-    measurement showed, as a loop correcting wear does: steps of varying size."""
+    measurement showed, as a loop correcting wear does: steps of varying size. ``pairs``:
+    measured two a minute, a second apart (two features of a part), not one a minute."""
     rng = np.random.default_rng(seed)
     est = DeadTimeEstimator()
     total, cut, due = 0.0, [], 4
@@ -29,7 +30,7 @@ def loop(dead: int, parts: int = 80, seed: int = 3, outlier_at: int | None = Non
         y = cut[k - dead]  # the part cut ``dead`` parts ago reaches the gauge
         if outlier_at is not None and k == outlier_at:
             y += 0.015
-        est.measured(y, 60.0 * k)
+        est.measured(y, 60.0 * (k // 2) + k % 2 if pairs else 60.0 * k)
         due -= 1
         if due == 0:
             step = -gain * y
@@ -74,6 +75,14 @@ def test_a_few_steps_do_not_contradict_the_typed_dead_time() -> None:
     got = loop(2, parts=16).estimate(prior=4)
     assert got is None or got.measurements == 4, got
     assert loop(2, parts=20).estimate(prior=4).measurements == 2
+
+
+def test_measurements_at_an_unsteady_rate_do_not_refute_the_typed_dead_time() -> None:
+    """Two features of a part a second apart, the next part a minute later: the dead time
+    is no fixed count of measurements, and the count that fits best refutes nothing."""
+    assert loop(2).estimate(prior=4).measurements == 2
+    got = loop(2, pairs=True).estimate(prior=4)
+    assert got is None or got.measurements == 4, got
 
 
 def test_the_scatter_is_never_below_the_stated_uncertainty() -> None:
