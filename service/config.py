@@ -179,9 +179,10 @@ class ModbusSettings(_Section):
     CNC's program takes that authority: its reset moves the reference of the cumulative limit
     as a technician's does."""
     acknowledge_command: bool = False
-    """Whether the CNC may acknowledge an out-of-tolerance alarm through the ``command``
-    register (3). Off, it is refused and logged (an alarm stops offsets until a person has
-    looked); a technician acknowledges over the API."""
+    """Whether the CNC may acknowledge a plausibility alarm through the ``command`` register
+    (3). Off, it is refused and logged; a technician acknowledges over the API. The alarm
+    (a deviation beyond the plausibility limit: nothing is written while it lasts) ends by
+    itself at the next plausible measurement: acknowledging only ends it sooner."""
     allowed_clients: list[str] = ["127.0.0.0/8", "::1"]
     """Addresses or networks that may connect (others are disconnected at once, counted and
     logged): loopback by default; on an installation the CNC's address and whoever reads the

@@ -17,7 +17,7 @@ Lengths in mm of diameter unless named otherwise. The bands, from the inside out
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Literal
 
 BOUNDS = {"nominal_mm": 2000.0, "tol_upper_mm": 10.0, "deadband_mm": 1.0,
@@ -46,13 +46,13 @@ class CompensationSettings:
         Workpiece tolerance as deviations from nominal (upper >= 0 >= lower): a part outside
         it is flagged (fault bit, dashboard, plant) and the tool is still corrected.
     law : {'predictive', 'window'}
-        ``predictive`` (the default; ``service.compensation.laws``): every measurement
-        counts, tagged with the offsets in force when its surface was cut; the process
-        without compensation is followed by a robust double EWMA and the total offset set to
-        cancel its forecast where the next correction will show. The dead time then says
-        when an applied offset becomes visible, not how long to wait. ``window``: a
-        measuring cycle's mean value: wait out the dead time after a correction, fill the
-        window, correct ``gain`` of its median or mean.
+        ``predictive`` (the default): every measurement counts, tagged with the offsets in
+        force when its surface was cut; the process without compensation is followed by a
+        robust double EWMA and the total offset set to cancel its forecast where the next
+        correction will show. The dead time then says when an applied offset becomes
+        visible, not how long to wait. ``window``: a measuring cycle's mean value: wait out
+        the dead time after a correction, fill the window, correct ``gain`` of its median or
+        mean.
     gain : float
         The **feedback** (0-1]: ``predictive``: the share of each measurement taken into the
         process estimate (a mean value over about ``2 / gain - 1`` parts; Siemens' ``1/_K``);
@@ -200,3 +200,58 @@ def law_problems(gain: float, trend_gain: float) -> dict[str, str]:
     if not (math.isfinite(trend_gain) and 0 <= trend_gain < 1):
         p["trend_gain"] = "within [0, 1)"
     return p
+
+
+RANGES = {"gain": "(0, 1]", "trend_gain": "[0, 1)", "max_uncertainty_fraction": "(0, 1]",
+          "tol_upper_mm": "0 to 10, above tol_lower_mm", "tol_lower_mm": "-10 to 0",
+          "nominal_mm": "> 0, at most 2000; none: nothing judged",
+          "deadband_mm": ">= 0, inside the tolerance",
+          "mean_value_band_mm": "0 (from the data), or deadband to plausibility limit",
+          "plausibility_mm": "beyond the tolerance, within safe_area_mm; none: the default",
+          "safe_area_mm": "beyond the tolerance, at most 10",
+          "max_step_mm": "> 0, at most max_total_mm and 1",
+          "offset_resolution_mm": "> 0, at most max_step_mm", "offset_sign": "+1 or -1",
+          "window": "1 to 1000", "max_age_s": "> 0, at most 3600"}
+"""Each setting's range in words where ``problems`` checks more than ``BOUNDS`` (the table
+of the manual's; ``problems`` is the check)."""
+UNITS = {"_mm": "mm", "_s": "s", "_measurements": "measurements"}
+
+
+def attribute_docs() -> dict[str, str]:
+    """Each setting's description, from the class docstring's Attributes (numpydoc): its
+    first sentence, in Markdown."""
+    out: dict[str, str] = {}
+    names: list[str] = []
+    for line in (CompensationSettings.__doc__ or "").split("Attributes")[1].splitlines()[2:]:
+        if line.startswith("    ") and not line.startswith("        ") and " : " in line:
+            names = [n.strip() for n in line.split(" : ")[0].split(",")]
+            for n in names:
+                out[n] = ""
+        elif line.startswith("        ") and names:
+            for n in names:
+                out[n] = (out[n] + " " + line.strip()).strip()
+    return {n: text.split(". ")[0].rstrip(".").replace("``", "`") for n, text in out.items()}
+
+
+def markdown_table() -> str:
+    """The ``[compensation]`` settings as a Markdown table: type, range, default, unit and
+    what each is (the text ``docs/integrating.md`` must contain; a test checks it)."""
+    docs = attribute_docs()
+    lines = ["| setting | type | range | default | unit | what it is |",
+             "|---|---|---|---|---|---|"]
+    for f in fields(CompensationSettings):
+        typed = str(f.type)
+        choices = typed.startswith("Literal")
+        kind = "text" if choices else typed.split(" ")[0]
+        top = BOUNDS.get(f.name)
+        span = RANGES.get(f.name) or ("" if top is None else f">= 0, at most {top:g}")
+        if not span and choices:
+            span = typed.removeprefix("Literal[").removesuffix("]").replace("'", '"')
+        if not span and typed == "bool":
+            span = "true or false"
+        unit = next((u for suffix, u in UNITS.items() if f.name.endswith(suffix)), "")
+        default = "none" if f.default is None else str(f.default).lower() \
+            if isinstance(f.default, bool) else repr(f.default).replace("'", '"')
+        lines.append(f"| `{f.name}` | {kind} | {span} | {default} | {unit} | "
+                     f"{docs.get(f.name, '')} |")
+    return "\n".join(lines) + "\n"
