@@ -37,8 +37,25 @@ function row(d) {
 // Several entries in the job: each in its row, none at the top.
 const several = (c) => (c.entries ?? []).length > 1;
 
+// The tools an action may name: every tool of a job of several, else none but all.
+function showTools(entries) {
+  const tools = [...new Set(entries.length > 1 ? entries.map((e) => e.tool) : [])];
+  const select = $("act-tool");
+  const now = [...select.options].slice(1).map((o) => Number(o.value));
+  if (now.join() === tools.join()) return;
+  const keep = select.value;
+  select.replaceChildren(select.options[0], ...tools.map((t) => {
+    const o = document.createElement("option");
+    o.value = t;
+    o.textContent = `T${t}`;
+    return o;
+  }));
+  select.value = tools.includes(Number(keep)) ? keep : "";
+}
+
 // A job of several offset entries: a row an entry (its state, offsets and exchange).
 function showEntries(entries, shadow) {
+  showTools(entries);
   const rows = entries.length > 1 ? entries : [];
   $("comp-tools-card").hidden = !rows.length;
   $("comp-tools").replaceChildren(...rows.map((t) => {
@@ -132,8 +149,30 @@ export function onStatus(st) {
   if (!switching) $("shadow").checked = st.compensation.shadow;  // the service's word counts
 }
 
+// Acknowledge or reset, of every tool or the one chosen; refused without a technician's key.
+async function act(command) {
+  const tool = $("act-tool").value;
+  const what = tool ? `T${tool}'s compensation` : "the compensation of every tool";
+  if (command === "reset" && !window.confirm(`Reset ${what}? Its cumulative offset starts `
+      + "again from the CNC's total, and its process estimate from the next parts.")) {
+    say($("act-msg"), "reset not taken");
+    return;
+  }
+  try {
+    const got = await api("/compensation/command", {
+      method: "POST", json: tool ? { command, tool: Number(tool) } : { command } });
+    const d = got.decision;
+    say($("act-msg"), d ? `${d.code}: ${d.reason}` : `${command}: done`, "ok");
+    loadCompensation();
+  } catch (err) {
+    say($("act-msg"), err.message, "bad");
+  }
+}
+
 export function wireCompensation() {
   $("comp-filter").addEventListener("change", loadCompensation);
+  $("act-ack").addEventListener("click", () => act("acknowledge"));
+  $("act-reset").addEventListener("click", () => act("reset"));
   $("shadow").addEventListener("change", async (e) => {
     const want = e.target.checked;
     switching = true;

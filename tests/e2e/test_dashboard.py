@@ -457,3 +457,43 @@ def test_the_dead_time_the_gauge_measured_is_shown_beside_the_typed(tmp_path, br
         if pacer is not None:
             pacer.close()
         stop_service(svc)
+
+
+def test_acknowledge_and_reset_from_the_dashboard(service, browser) -> None:
+    """The compensation view's actions: refused without a technician's key (nothing logged),
+    taken with it and logged with who took it; a reset not confirmed is not taken."""
+    page = open_page(browser, service.url + "/ui/#compensation")
+    expect(page.locator("#decisions tr").first).to_be_visible(timeout=UI_WAIT_MS)
+
+    def taken(kind: str) -> list[dict]:
+        return service.get("/api/v1/compensation/log",
+                           params={"kinds": kind, "limit": 100}).json()["items"]
+
+    page.locator("#act-ack").click()
+    expect(page.locator("#act-msg")).to_contain_text("technician key")
+    page.once("dialog", lambda d: d.accept())
+    page.locator("#act-reset").click()
+    expect(page.locator("#act-msg")).to_contain_text("technician key")
+    assert not taken("acknowledged") and not taken("reset")
+    page.goto(service.url + "/ui/#technician")
+    enter_key(page)
+    page.goto(service.url + "/ui/#compensation")
+    # A part far beyond the tolerance, within the safe area: the plausibility alarm.
+    control(service.control_port, {"set": {"diameter_mm": 30.3}})
+    until(lambda: service.get("/api/v1/status").json()["compensation"]["state"] == "alarm",
+          what="the plausibility alarm")
+    page.locator("#act-ack").click()
+    expect(page.locator("#act-msg")).to_contain_text("acknowledged")
+    acks = taken("acknowledged")
+    assert any(d["who"].startswith("api:technician") for d in acks), acks
+    control(service.control_port, {"set": {"diameter_mm": 30.0}})
+    page.once("dialog", lambda d: d.dismiss())
+    page.locator("#act-reset").click()
+    expect(page.locator("#act-msg")).to_have_text("reset not taken")
+    assert not taken("reset")
+    page.once("dialog", lambda d: d.accept())
+    page.locator("#act-reset").click()
+    expect(page.locator("#act-msg")).to_contain_text("reset")
+    resets = taken("reset")
+    assert resets and resets[0]["who"].startswith("api:technician"), resets
+    shot(page, "compensation-actions")
