@@ -9,7 +9,7 @@ those of the simulated PLC (``shaftgauge sim-plc``).
 | offset_address     | 2 | offset, int32, 0.1 um                  | gauge (FC16) |
 | offset_address + 2 | 2 | offset sequence number, uint32         | gauge (same FC16) |
 | ack_address        | 2 | sequence number last applied, uint32   | CNC |
-| total_address      | 2 | wear offset applied in total, int32, 0.1 um | CNC (the truth for the cumulative limit) |
+| total_address      | 2 | wear offset in total, int32, 0.1 um    | CNC (the limit's truth) |
 
 A job of several offset entries: offset number ``n``'s block (a tool's own entry: its T
 number's) is the same at ``(n - 1) * tool_stride`` further (0: the CNC keeps one block, and
