@@ -188,9 +188,10 @@ class DeadTimeEstimator:
 
     def estimate(self, prior: int | None = None) -> DeadTime | None:
         """The dead time the steps show, or None while they do not tell it clearly. With a
-        ``prior`` (the typed dead time, measurements) that explains the steps within the
-        margin of the best, the prior: steps at a steady cadence fit a dead time one cadence
-        longer almost as well, and only evidence against the typed one replaces it."""
+        ``prior`` (the typed dead time, measurements): the best candidate where the steps
+        refute the prior (see the module's docstring), else the prior once enough clear steps
+        confirm it (steps at a steady cadence fit a dead time one cadence longer almost as
+        well: only evidence against the typed one replaces it)."""
         scatter = self.scatter_mm()
         if scatter <= 0.0:
             return None
@@ -220,7 +221,7 @@ class DeadTimeEstimator:
             return d != best and diff.sum() > MARGIN * scatter * math.sqrt(differ)
 
         def telling(d: int) -> int:
-            """Measurements where candidate ``d`` and the best part by more than twice the
+            """Measurements where candidate ``d`` and the best differ by more than twice the
             scatter: each is a landing one of them puts where the other does not."""
             return int(np.count_nonzero(np.abs(moves[d] - moves[best]) > 2.0 * scatter))
 
