@@ -3,12 +3,13 @@ import { $, api, clock, mm, um } from "./api.js";
 import { drawPolar, drawTrend } from "./chart.js";
 
 const MAX_POINTS = 600;
-const points = [];      // {seq, d}
+const points = [];      // {seq, d, feature}
 const marks = [];       // seq of measurements after which an offset was applied
 const applied = [];     // {seq, offset_mm} of those offsets, oldest first
 let deadTime = 0;       // measurements from an offset applied to the first that shows it
-let feature = null;     // {nominal_mm, tol_upper_mm, tol_lower_mm}
-let lastSeq = 0;
+let feature = null;     // {nominal_mm, tol_upper_mm, tol_lower_mm, name?}: judged against
+let features = {};      // the job in force's, by number: a job of several features
+let current = null;     // the number of the feature under the laser (null: the only one)
 
 function band() {
   if (!feature || feature.nominal_mm == null) return null;
@@ -16,14 +17,35 @@ function band() {
            hi: feature.nominal_mm + feature.tol_upper_mm };
 }
 
+// The feature the card and the trend stand for: the one under the laser in a job of
+// several features (each has its own nominal and tolerance), else the one feature.
+function showFeature() {
+  $("feature-name").textContent = current == null || !features[current] ? ""
+    : `feature ${current} ${features[current].name ?? ""}`.trim();
+  $("nominal").textContent = mm(feature?.nominal_mm ?? null);
+  $("tolerance").textContent = feature?.nominal_mm == null ? "–"
+    : `+${um(feature.tol_upper_mm, 0)} / ${um(feature.tol_lower_mm, 0)}`;
+}
+
+async function loadJob() {
+  const st = await api("/status");
+  const id = st.job?.job?.id;
+  features = {};
+  if (id == null || (st.job.job.features ?? 0) < 2) return;
+  const job = await api(`/jobs/${id}`);
+  for (const f of job.document.features ?? []) features[f.number] = f;
+}
+
 export async function loadOperator() {
   feature = await api("/feature");
-  $("nominal").textContent = mm(feature.nominal_mm);
-  $("tolerance").textContent = feature.nominal_mm == null ? "–"
-    : `+${um(feature.tol_upper_mm, 0)} / ${um(feature.tol_lower_mm, 0)}`;
+  await loadJob();
+  if (current != null && features[current]) feature = features[current];
+  showFeature();
   const hist = await api("/measurements?limit=" + MAX_POINTS + "&ok_only=true");
   points.length = 0;
-  for (const m of hist.items.reverse()) points.push({ seq: m.seq, d: m.diameter_mm });
+  for (const m of hist.items.reverse()) {
+    points.push({ seq: m.seq, d: m.diameter_mm, feature: m.feature });
+  }
   const log = await api("/compensation/log?limit=200&kinds=applied");
   deadTime = (await api("/compensation")).settings.dead_time_measurements ?? 0;
   marks.length = 0; applied.length = 0;
@@ -48,11 +70,23 @@ export function uncompensated(pts, offsets, dead) {
 }
 
 export function redraw() {
+  if (Object.keys(features).length > 1) {  // the feature under the laser's own, alone
+    const own = points.filter((p) => p.feature === current);
+    drawTrend($("trend"), own, band(), [], []);
+    return;
+  }
   drawTrend($("trend"), points, band(), marks, uncompensated(points, applied, deadTime));
 }
 
+let lastSeq = 0;
+
 export function onMeasurement(m) {
   lastSeq = m.seq;
+  if (m.feature != null && m.feature !== current && features[m.feature]) {
+    current = m.feature;  // another feature under the laser: its nominal and tolerance
+    feature = features[current];
+    showFeature();
+  }
   const card = $("state-card");
   $("diameter").textContent = m.diameter_mm == null ? "no diameter" : mm(m.diameter_mm);
   $("deviation").textContent = um(m.deviation_mm);
@@ -69,7 +103,7 @@ export function onMeasurement(m) {
   card.className = "card big " + state;
   $("verdict").textContent = verdict; $("verdict").className = "pill " + state;
   if (m.status === "ok" && m.diameter_mm != null) {
-    points.push({ seq: m.seq, d: m.diameter_mm });
+    points.push({ seq: m.seq, d: m.diameter_mm, feature: m.feature });
     if (points.length > MAX_POINTS) points.shift();
     if (!document.hidden && !$("view-operator").hidden) redraw();
   }

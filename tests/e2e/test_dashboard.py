@@ -395,6 +395,17 @@ def test_the_part_view_shows_each_part_by_feature_and_the_feature_under_the_lase
                                                       timeout=UI_WAIT_MS)
     expect(page.locator("#decisions")).to_contain_text("T2 ", timeout=UI_WAIT_MS)
     shot(page, "compensation-tools")
+    # The operator view: the feature under the laser, with its own nominal and tolerance.
+    page.goto(service.url + "/ui/#operator")
+    for diameter, name, nominal, tolerance in (
+            (25.002, "feature 2 seat", "25.0000 mm", "+4 µm / -4 µm"),
+            (30.0, "feature 1 journal", "30.0000 mm", "+50 µm / -50 µm")):
+        assert control(service.control_port, {"set": {"diameter_mm": diameter}})["ok"]
+        expect(page.locator("#feature-name")).to_have_text(name, timeout=UI_WAIT_MS)
+        expect(page.locator("#nominal")).to_have_text(nominal)
+        expect(page.locator("#tolerance")).to_have_text(tolerance)
+        expect(page.locator("#verdict")).to_have_text("in tolerance", timeout=UI_WAIT_MS)
+    shot(page, "operator-features")
     assert not page.errors  # type: ignore[attr-defined]
 
 
