@@ -508,3 +508,26 @@ def test_acknowledge_and_reset_from_the_dashboard(service, browser) -> None:
     resets = taken("reset")
     assert resets and resets[0]["who"].startswith("api:technician"), resets
     shot(page, "compensation-actions")
+
+
+def test_make_runs_stepped_shaft_shows_each_feature_with_its_own_nominal(tmp_path,
+                                                                         browser) -> None:
+    """``make run``'s embedded default turns a stepped shaft of four features, 3 s each:
+    the operator view names each while it is under the laser, with its own nominal and
+    tolerance (it showed the first feature's nominal beside the collar's diameter)."""
+    svc = start_service(tmp_path, embedded=True)
+    try:
+        wait_ready(svc)
+        page = open_page(browser, svc.url + "/ui/#operator")
+        for name, nominal, tolerance in (
+                ("feature 1 journal", "30.0000 mm", "+20 µm / -20 µm"),
+                ("feature 2 bearing seat", "26.0000 mm", "+12 µm / -12 µm"),
+                ("feature 3 collar", "34.0000 mm", "+25 µm / -25 µm"),
+                ("feature 4 slender end", "28.0000 mm", "+15 µm / -15 µm")):
+            expect(page.locator("#feature-name")).to_have_text(name, timeout=UI_WAIT_MS)
+            expect(page.locator("#nominal")).to_have_text(nominal)
+            expect(page.locator("#tolerance")).to_have_text(tolerance)
+        shot(page, "operator-stepped-shaft")
+        assert not page.errors  # type: ignore[attr-defined]
+    finally:
+        stop_service(svc)
