@@ -239,8 +239,9 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
         dead = comp["dead_time"]
         print(f"FIGURES dead time after the loop: {dead}")
         assert dead["typed"] == {"measurements": 0, "seconds": 1.5}, dead
+        # Typed in seconds, a measured dead time that differs is used in seconds too.
         assert dead["in_use"] == (dead["typed"] if not dead["differs"] else {
-            "measurements": dead["measured"]["measurements"], "seconds": 0.0}), dead
+            "measurements": 0, "seconds": dead["measured"]["seconds"]}), dead
     finally:
         if pacer is not None:
             pacer.close()
