@@ -31,13 +31,17 @@ class JobInfo:
     note: str
     document: dict[str, Any]
     active: bool
+    number: int = 0
+    """The job's number: the same for every version of its part number (its first
+    version's id), what a CNC writes to put the newest version in force."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return dict(self.__dict__)
 
 
-_JOB = "id, part_number, version, created, created_by, note, document"
+_JOB = ("id, part_number, version, created, created_by, note, document, "
+        "(SELECT MIN(j.id) FROM jobs AS j WHERE j.part_number = jobs.part_number)")
 _PART = ("id", "serial", "time", "job_id", "verdict", "features")
 
 
@@ -65,7 +69,7 @@ class JobStore:
 
     def _info(self, row: tuple, active_id: int | None) -> JobInfo:
         return JobInfo(row[0], row[1], row[2], row[3], row[4], row[5], json.loads(row[6]),
-                       row[0] == active_id)
+                       row[0] == active_id, int(row[7]))
 
     def _active_id(self) -> int | None:
         row = self._db.execute("SELECT job_id FROM active_job WHERE id = 1").fetchone()
@@ -121,6 +125,19 @@ class JobStore:
                                    (job_id,)).fetchone()
             if row is None:
                 raise KeyError(f"no job {job_id}")
+            return self._info(row, self._active_id())
+
+    def newest_of(self, number: int) -> JobInfo:
+        """The newest version of the job numbered ``number`` (its first version's id;
+        KeyError when no job has that number: a later version's id is none)."""
+        with self._lock:
+            row = self._db.execute(
+                f"SELECT {_JOB} FROM jobs WHERE part_number = (SELECT part_number FROM jobs "
+                "WHERE id = ? AND id = (SELECT MIN(j.id) FROM jobs AS j WHERE j.part_number "
+                "= jobs.part_number)) ORDER BY version DESC LIMIT 1", (number,)).fetchone()
+            if row is None:
+                raise KeyError(f"no job numbered {number} (a job's number is its first "
+                               "version's id, the same for every version)")
             return self._info(row, self._active_id())
 
     def active(self) -> JobInfo | None:

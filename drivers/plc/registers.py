@@ -168,8 +168,10 @@ REGISTERS: tuple[Register, ...] = (
     _r("lobes", 45, U16, "count", "the form's dominant lobing (3: three lobes); 0 none above "
        "its noise, or not known"),
     # The whole part (version 4): written by the CNC.
-    _r("job", 46, U16, "id", "the stored job to put in force (its id); reads the job in "
-       "force, 0 none (the single feature of the settings)", writable=True),
+    _r("job", 46, U16, "number", "the job to put in force by its number (the same for every "
+       "version of a part number: its newest version goes in force); reads the number of the "
+       "job in force, 0 none (the single feature of the settings; writing `nominal` ends the "
+       "job too)", writable=True),
     _r("feature", 47, U16, "number", "the feature under the laser, as the job numbers it "
        "(1-99); 0: recognised from the diameter", writable=True),
     _r("part_counter", 48, U16, "count", "the CNC's part counter: a new value starts the next "

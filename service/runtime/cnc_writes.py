@@ -47,9 +47,9 @@ class CncWriteRules:
             if self.jobs.store is None:
                 return f"job: the store cannot be used ({self.jobs.store_error})"
             try:
-                job = job_from_doc(self.jobs.store.get(values["job"]).document)
-            except KeyError:
-                return f"job: no stored job {values['job']}"
+                job = job_from_doc(self.jobs.store.newest_of(values["job"]).document)
+            except KeyError as err:
+                return f"job: {err.args[0]}"
             except JobError as err:
                 return f"job {values['job']}: {err}"
         if values.get("feature"):
@@ -164,8 +164,8 @@ class CncCommands:
         try:
             if job_id == 0:
                 jobs.deactivate(who)
-            elif job_id is not None:
-                await jobs.activate(job_id, who)
+            elif job_id is not None and jobs.store is not None:  # a job's number: its
+                await jobs.activate(jobs.store.newest_of(job_id).id, who)  # newest version
             if feature is not None:
                 jobs.select(feature or None)
         except (KeyError, ValueError, NotStoredError) as err:  # changed meanwhile

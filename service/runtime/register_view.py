@@ -105,7 +105,7 @@ class RegisterView:
         jobs = self.jobs
         if jobs is not None:
             self.set_feature(jobs.feature_in_view())
-            self.bank.set_many({"job": 0 if jobs.stored is None else jobs.stored.id & 0xFFFF,
+            self.bank.set_many({"job": 0 if jobs.stored is None else jobs.stored.number & 0xFFFF,
                                 "feature": jobs.selected or 0})
 
     async def refresh(self, snapshot: Callable[[], StatusSnapshot]) -> None:

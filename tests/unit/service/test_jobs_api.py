@@ -206,6 +206,18 @@ def test_the_cnc_puts_a_job_in_force_names_the_feature_and_counts_parts(client) 
             time.sleep(0.05)
         st = client.get("/api/v1/status").json()["job"]
         assert st["job"]["id"] == jid and st["feature_selected"] == 2
+        # A revision keeps the job's number: the program writes the same, the newest goes in
+        # force, the register reads the number; a later version's id is no job's number.
+        revised = client.post("/api/v1/jobs", headers=H, json={"document": TWO}).json()
+        assert revised["version"] == 2 and revised["number"] == jid, revised
+        assert not c.write_registers(job, [jid, 2], device_id=1).isError()
+        deadline = time.monotonic() + 5
+        while client.get("/api/v1/status").json()["job"]["job"]["id"] != revised["id"]:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert c.read_holding_registers(job, count=2, device_id=1).registers == [jid, 2]
+        bad = c.write_register(job, revised["id"], device_id=1)
+        assert bad.isError() and bad.exception_code == 3
         bad = c.write_register(feature, 7, device_id=1)
         assert bad.isError() and bad.exception_code == 3
         assert c.read_holding_registers(feature, count=1, device_id=1).registers == [2]
