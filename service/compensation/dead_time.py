@@ -46,9 +46,10 @@ MARGIN = 2.5
 absolute differences lower by this many scatters times the root of the number of
 measurements where the two differ (they differ only about the steps: the comparison's
 noise grows with the steps it rests on, not with the whole history)."""
-UNSTEADY = 2.0
+UNSTEADY = 5.0
 """Intervals between measurements off their median by more than this factor make them
-unsteady (``DeadTimeEstimator.steady``)."""
+unsteady (``DeadTimeEstimator.steady``): a loaded host's jitter stays within it, a part's
+features a second apart and the next part a minute later are far beyond."""
 MAX_DEAD = 40
 """The longest dead time looked for, measurements."""
 MAD_TO_SIGMA = 1.4826

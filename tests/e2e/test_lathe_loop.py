@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 import threading
 import time
+from collections.abc import Callable
 
 import httpx
 
@@ -74,10 +75,11 @@ shadow = true
 
 class LathePacer:
     """Drives the camera's lathe: a frame's time (1 / FPS) for each frame the service has
-    measured, read five times a second, until closed."""
+    measured, read five times a second, until closed. ``before`` (a CNC of the test's) is
+    called before each step: the lathe never cuts on with a total it was not told."""
 
-    def __init__(self, svc) -> None:
-        self.svc = svc
+    def __init__(self, svc, before: Callable[[], None] | None = None) -> None:
+        self.svc, self.before = svc, before
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -92,6 +94,8 @@ class LathePacer:
             with contextlib.suppress(httpx.HTTPError, OSError):
                 now = self._measured()
                 if now > last:
+                    if self.before is not None:
+                        self.before()
                     control(self.svc.control_port,
                             {"do": "advance_lathe", "s": (now - last) / FPS})
                     last = now
@@ -177,14 +181,13 @@ class HandCnc:
         self.port = asyncio.run_coroutine_threadsafe(self.plc.start(), self.loop).result(10)
         self._stop = threading.Event()
 
-    def follow(self, control_port: int) -> None:
-        """Tell the camera's lathe the CNC's total, five times a second, until closed."""
-        def run() -> None:
-            while not self._stop.wait(0.2):
-                total = self.plc.total_units * UM_PER_UNIT / 1000.0
-                with contextlib.suppress(OSError):
-                    control(control_port, {"set": {"cnc_total_mm": total}})
-        threading.Thread(target=run, daemon=True).start()
+    def tell(self, control_port: int) -> None:
+        """Tell the camera's lathe the CNC's total now (the pacer does, before each step of
+        the lathe's time: on a loaded machine a thread of its own fell seconds of the
+        lathe's time behind, and the loop swung on a dead time it could not know)."""
+        total = self.plc.total_units * UM_PER_UNIT / 1000.0
+        with contextlib.suppress(OSError):
+            control(control_port, {"set": {"cnc_total_mm": total}})
 
     def zero_by_hand(self) -> None:
         self.loop.call_soon_threadsafe(self.plc.set_total_by_hand, 0)
@@ -206,15 +209,14 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
         svc = start_service(tmp_path, camera_toml=camera(20.0, 30.0, 6.0),
                             compensation_toml=PREDICTIVE, plc_port=cnc.port)
         assert wait_ready(svc)
-        pacer = LathePacer(svc)
-        cnc.follow(svc.control_port)
+        cnc.tell(svc.control_port)
+        pacer = LathePacer(svc, before=lambda: cnc.tell(svc.control_port))
         r = httpx.put(svc.url + "/api/v1/compensation/shadow", json={"shadow": False},
                       headers={"X-API-Key": TECH_KEY}, timeout=10)
         assert r.status_code == 200, r.text
         before = follow(svc, 20.0)
-        # The offset comes to carry the growth and the wear (36 um by now); under a loaded
-        # suite the CNC's total reaches the lathe later (it is told five times a second of
-        # the wall clock, the lathe's time runs with the frames measured): a few more seconds.
+        # The offset comes to carry the growth and the wear (36 um by now): on a loaded
+        # machine the loop may take a few more seconds of the lathe's time.
         for _ in range(8):
             if lathe(svc)["cnc_total_mm"] < -0.030:
                 break
