@@ -236,14 +236,13 @@ class DeadTimeEstimator:
         # under the best: what the refutation rests on.
         landed = [e for at, e in self.edges(seen, ends=True) if abs(e) > 2.0 * scatter
                   and at + best < self.taken]
-        # Every candidate from the typed one to the best but the best's neighbour.
-        between = range(best + 2, prior + 1) if prior is not None and best < prior \
-            else range(prior if prior is not None else 0, best - 1)
         if prior is not None and self.steady() and clearly_worse(prior) \
                 and len(landed) >= MIN_EDGES_AGAINST \
-                and telling(prior) >= MIN_TELLING_AGAINST and all(map(clearly_worse, between)):
+                and telling(prior) >= MIN_TELLING_AGAINST and all(map(
+                    clearly_worse, range(best + 2, prior + 1) if best < prior
+                    else range(prior, best - 1))):
             # The steps refute the typed one and every candidate between it and the best
-            # but the best's neighbours: the best replaces it (the loop swings on the typed
+            # but the best's neighbour: the best replaces it (the loop swings on the typed
             # one meanwhile; the next steps tell the neighbours apart). One longer than both
             # is no argument for the typed one: a loop that holds its deviations steady
             # looks, over its last few measurements, like one whose steps never landed.
@@ -259,10 +258,10 @@ class DeadTimeEstimator:
 
 
 CONFIRMATIONS = 2
+"""Estimates in a row that must agree before a newly measured dead time is taken."""
 DRIFT_SPAN = 30
 """The measurements the process's drift is taken over when a measured dead time is put in
 use (wear may change its rate over an insert's life)."""
-"""Estimates in a row that must agree before a newly measured dead time is taken."""
 
 
 @dataclass
