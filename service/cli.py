@@ -367,7 +367,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             inputs = StepInputs(Board(), intrinsics=args.intrinsics, plane=args.plane,
                                 axis=args.axis)
         elif args.step == "intrinsics":
-            inputs = StepInputs(c.parse_board(args.board), {"view": args.images})
+            inputs = StepInputs(c.parse_board(args.board), {"view": args.images},
+                                detections=args.detections)
         elif args.step == "plane":
             if args.laser_on_only and args.pairs:
                 return _fail("plane: give laser-off / laser-on pairs or --laser-on-only "
@@ -379,10 +380,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                 return _fail("plane: give laser-off / laser-on pairs (OFF ON OFF ON ...) or "
                              "--laser-on-only IMAGE ...")
             inputs = StepInputs(Board(), {"plane_off": off, "plane_on": on},
-                                intrinsics=args.intrinsics)
+                                intrinsics=args.intrinsics, detections=args.detections)
         else:
             inputs = StepInputs(Board(), {"axis": args.images}, intrinsics=args.intrinsics,
-                                plane=args.plane)
+                                plane=args.plane, detections=args.detections)
         result = run_step(args.step, inputs)
         if args.step == "build":
             if args.report:
@@ -612,6 +613,12 @@ class _Version(argparse.Action):
         parser.exit()
 
 
+def _detections_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--detections", metavar="DIR", help="keep the board's detections in DIR: "
+                   "a later step or run given the same images reads them there instead of "
+                   "detecting again (half a second an image)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = argparse.ArgumentParser(
@@ -751,6 +758,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "chessboard's inner corners, square), chess:..., circles:COLSxROWSxPITCH, "
                    "acircles:COLSxROWSxPITCH (docs/calibrating.md)")
     p.add_argument("--output", required=True, metavar="FILE")
+    _detections_option(p)
     p.add_argument("images", nargs="+", metavar="IMAGE")
     p = steps.add_parser("plane", help="light plane from laser-off / laser-on pairs, or "
                          "laser-on images alone")
@@ -759,11 +767,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--laser-on-only", nargs="+", metavar="IMAGE", default=[],
                    help="laser-on images with no laser-off twin (the line found by its "
                    "colour, or above the board's pattern)")
+    _detections_option(p)
     p.add_argument("pairs", nargs="*", metavar="IMAGE", help="OFF ON OFF ON ...")
     p = steps.add_parser("axis", help="spindle axis from the board turned between centres")
     p.add_argument("--intrinsics", required=True, metavar="FILE")
     p.add_argument("--plane", metavar="FILE", help="to place the axis point on the plane")
     p.add_argument("--output", required=True, metavar="FILE")
+    _detections_option(p)
     p.add_argument("images", nargs="+", metavar="IMAGE")
     p = steps.add_parser("build", help="assemble and grade the calibration document")
     p.add_argument("--intrinsics", required=True, metavar="FILE")

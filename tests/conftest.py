@@ -126,3 +126,12 @@ def calibration_images(tmp_path_factory) -> Path:
             assert r.returncode == 0, r.stderr
             (out / ".rendered").touch()
     return out
+
+
+@pytest.fixture(scope="session")
+def detections(tmp_path_factory) -> Path:
+    """Board detections kept for this run's workers (``service.calibrate.kept_detections``):
+    the rendered session's images are read by half a dozen tests, in-process and through
+    the command line, and detecting them is most of each (half a second an image)."""
+    root = tmp_path_factory.getbasetemp()
+    return (root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root) / "detections"

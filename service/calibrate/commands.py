@@ -15,6 +15,7 @@ from service.calibrate import board
 from service.calibrate.axis import AxisResult, calibrate_axis
 from service.calibrate.board import Board, board_of
 from service.calibrate.intrinsics import IntrinsicsResult, calibrate_intrinsics
+from service.calibrate.kept_detections import detect_kept
 from service.calibrate.laser_line import grey_of
 from service.calibrate.master import correction_from_masters
 from service.calibrate.plane import PlaneResult, calibrate_plane, calibrate_plane_laser_on
@@ -70,10 +71,13 @@ def write_json(path: str, data: dict[str, Any]) -> None:
     Path(path).write_text(json.dumps(data, indent=2) + "\n")
 
 
-def intrinsics_step(images: list[str], board: Board) -> tuple[dict[str, Any], IntrinsicsResult]:
-    """Camera matrix and distortion from images of the target."""
+def intrinsics_step(images: list[str], board: Board, detections: Path | None = None
+                    ) -> tuple[dict[str, Any], IntrinsicsResult]:
+    """Camera matrix and distortion from images of the target (the board's detections kept
+    in ``detections``, ``kept_detections``)."""
     raw = _read_raw(images)
     imgs = [grey_of(im) for im in raw]
+    detect_kept(imgs, board, detections)
     res = calibrate_intrinsics(imgs, board)
     report = assess(res)
     out: dict[str, Any] = {"step": "intrinsics", "ok": bool(res), "reason": res.reason,
@@ -97,10 +101,11 @@ def _intrinsics(path: str) -> tuple[np.ndarray, np.ndarray, Board, dict[str, Any
     return np.array(d["camera_matrix"]), np.array(d["dist_coeffs"]), board_, d
 
 
-def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | None = None
-               ) -> tuple[dict[str, Any], PlaneResult]:
+def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | None = None,
+               detections: Path | None = None) -> tuple[dict[str, Any], PlaneResult]:
     """The light plane from laser-off / laser-on image pairs, or from laser-on images alone
-    (``laser_on_only``; their colour is used)."""
+    (``laser_on_only``; their colour is used); the board's detections kept in
+    ``detections``."""
     if len(pairs) % 2:
         raise StepError("--pairs takes images two by two: laser off, then laser on")
     if pairs and laser_on_only:
@@ -108,12 +113,14 @@ def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | Non
     K, dist, board, _ = _intrinsics(intrinsics)
     if laser_on_only:
         raw = _read_raw(laser_on_only)
+        detect_kept([grey_of(im) for im in raw], board, detections)
         res = calibrate_plane_laser_on(raw, board, K, dist)
         read = {**how_read(raw), "conversion": "laser-on images alone: the line looked for "
                 "in the channel it stands out in (see how)"}
     else:
         raw = _read_raw(pairs)
         imgs = [grey_of(im) for im in raw]
+        detect_kept(imgs[::2], board, detections)
         res = calibrate_plane(list(zip(imgs[::2], imgs[1::2], strict=True)), board, K, dist)
         read = how_read(raw)
     out: dict[str, Any] = {"step": "plane", "ok": bool(res), "reason": res.reason,
@@ -128,9 +135,10 @@ def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | Non
     return out, res
 
 
-def axis_step(intrinsics: str, plane: str | None, images: list[str]
-              ) -> tuple[dict[str, Any], AxisResult]:
-    """The spindle axis from the board clamped between the centres at several rotations."""
+def axis_step(intrinsics: str, plane: str | None, images: list[str],
+              detections: Path | None = None) -> tuple[dict[str, Any], AxisResult]:
+    """The spindle axis from the board clamped between the centres at several rotations (the
+    board's detections kept in ``detections``)."""
     K, dist, board, _ = _intrinsics(intrinsics)
     light = None
     if plane:
@@ -138,7 +146,9 @@ def axis_step(intrinsics: str, plane: str | None, images: list[str]
         if not p.get("ok"):
             raise StepError(f"{plane}: the plane step failed ({p.get('reason')}): redo it")
         light = (np.array(p["normal"]), float(p["d"]))
-    res = calibrate_axis(_read_all(images), board, K, dist, light)
+    imgs = _read_all(images)
+    detect_kept(imgs, board, detections)
+    res = calibrate_axis(imgs, board, K, dist, light)
     out: dict[str, Any] = {"step": "axis", "ok": bool(res), "reason": res.reason,
                            "rotation_span_deg": res.rotation_span_deg,
                            "plane_residual_mm": res.plane_residual_mm,

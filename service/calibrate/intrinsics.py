@@ -40,9 +40,10 @@ MIN_CHARUCO_CORNERS = 8
 
 
 KEPT_DETECTIONS = 128
-"""Detections kept by ``find_corners`` (a few kB each): a calibration session's steps read
-the same images again (the intrinsics every board image, the plane its laser-off images, the
-axis its spindle rotations), and a step run again after one more capture reads them all."""
+"""Detections kept by ``find_corners`` (a few kB each): a calibration's steps read the same
+images again (the intrinsics every board image, the plane its laser-off images, the axis its
+spindle rotations), and a step run again after one more capture reads them all. Steps in
+processes of their own keep them on disk too (``service.calibrate.kept_detections``)."""
 
 _kept: OrderedDict[tuple, Corners] = OrderedDict()
 _kept_lock = threading.Lock()
@@ -55,21 +56,42 @@ def find_corners(image: np.ndarray, board: Board) -> Corners:
     The detector takes about half a second an image; a detection of the same pixels (their
     digest) and board is given again from memory (the last ``KEPT_DETECTIONS``)."""
     pixels = np.ascontiguousarray(image)
-    key = (pixels.shape, pixels.dtype.str, hashlib.blake2b(pixels.data, digest_size=16)
-           .digest(), board)
+    key = _key(pixels, board)
     with _kept_lock:
         found = _kept.get(key)
         if found is not None:
             _kept.move_to_end(key)
             return found
     found = _detect_corners(pixels, board)
+    _remember(key, found)
+    return found
+
+
+def _key(pixels: np.ndarray, board: Board) -> tuple:
+    return (pixels.shape, pixels.dtype.str, hashlib.blake2b(pixels.data, digest_size=16)
+            .digest(), board)
+
+
+def detection_name(image: np.ndarray, board: Board) -> str:
+    """A name for the detection of these pixels and board by this OpenCV, the same in every
+    process (for keeping it outside one: ``service.calibrate.kept_detections``)."""
+    key = _key(np.ascontiguousarray(image), board)
+    return hashlib.blake2b(repr((*key, cv2.__version__)).encode(), digest_size=16).hexdigest()
+
+
+def keep_detection(image: np.ndarray, board: Board, found: Corners) -> None:
+    """Give ``found`` for these pixels and board from now on, as if ``find_corners`` had
+    detected it here (a detection kept by another process)."""
+    _remember(_key(np.ascontiguousarray(image), board), found)
+
+
+def _remember(key: tuple, found: Corners) -> None:
     if found.points is not None:
         found.points.flags.writeable = False
     with _kept_lock:
         _kept[key] = found
         while len(_kept) > KEPT_DETECTIONS:
             _kept.popitem(last=False)
-    return found
 
 
 def _detect_corners(image: np.ndarray, board: Board) -> Corners:

@@ -42,6 +42,8 @@ class StepInputs:
     intrinsics: str = ""
     plane: str | None = None
     axis: str = ""
+    detections: str | None = None
+    """Where the board's detections are kept for the next step (``kept_detections``)."""
 
 
 @dataclass(frozen=True)
@@ -66,24 +68,27 @@ class StepResult:
 def run_step(step: Step, inputs: StepInputs) -> StepResult:
     """Run one calibration step (``commands.StepError`` for unusable inputs)."""
     imgs = inputs.images
+    kept = Path(inputs.detections) if inputs.detections else None
     if step == "intrinsics":
         # Every image with the board in it constrains the intrinsics (the principal point
         # most of all: tests/bench/principal_point.py), not only the views.
         figures, _ = commands.intrinsics_step(
             imgs.get("view", []) + imgs.get("plane_off", []) + imgs.get("axis", []),
-            inputs.board)
+            inputs.board, kept)
     elif step == "plane":
         off, on = imgs.get("plane_off", []), imgs.get("plane_on", [])
         if not off and on:  # no laser-off twins: the laser-on images alone
-            figures, _ = commands.plane_step(inputs.intrinsics, [], on)
+            figures, _ = commands.plane_step(inputs.intrinsics, [], on, kept)
         elif len(off) != len(on):
             raise commands.StepError("plane images come two by two: laser off, then laser "
                                      "on (as many of each), or laser-on images alone")
         else:
             figures, _ = commands.plane_step(
-                inputs.intrinsics, [p for pair in zip(off, on, strict=True) for p in pair])
+                inputs.intrinsics, [p for pair in zip(off, on, strict=True) for p in pair],
+                detections=kept)
     elif step == "axis":
-        figures, _ = commands.axis_step(inputs.intrinsics, inputs.plane, imgs.get("axis", []))
+        figures, _ = commands.axis_step(inputs.intrinsics, inputs.plane, imgs.get("axis", []),
+                                        kept)
     else:
         cal, report = commands.build_step(inputs.intrinsics, str(inputs.plane), inputs.axis)
         return StepResult("build", cal is not None, "; ".join(report.reasons),
@@ -160,7 +165,8 @@ class CalibrationSession:
         plane = self.dir / "plane.json"
         return StepInputs(commands.parse_board(self.board), self.images,
                           str(self.dir / "intrinsics.json"),
-                          str(plane) if plane.exists() else None, str(self.dir / "axis.json"))
+                          str(plane) if plane.exists() else None, str(self.dir / "axis.json"),
+                          str(self.dir / "detections"))
 
     def add_image(self, kind: ImageKind, image: np.ndarray, max_images: int) -> dict[str, Any]:
         """Store an image of ``kind`` (SessionLimitError past ``max_images``; OSError when it

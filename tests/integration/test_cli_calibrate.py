@@ -23,16 +23,17 @@ def session(calibration_images):
     return calibration_images
 
 
-def test_the_whole_chain(session, tmp_path) -> None:
+def test_the_whole_chain(session, tmp_path, detections) -> None:
     s, w = session, tmp_path
     views = sorted(str(p) for p in (s / "views").glob("*.png"))
-    assert run("calibrate", "intrinsics", "--output", w / "i.json", *views).returncode == 0
+    assert run("calibrate", "intrinsics", "--output", w / "i.json", "--detections", detections,
+               *views).returncode == 0
     pairs = [str(s / "plane" / f"pose{i}_{k}.png") for i in range(4) for k in ("off", "on")]
     assert run("calibrate", "plane", "--intrinsics", w / "i.json", "--output", w / "p.json",
-               *pairs).returncode == 0
+               "--detections", detections, *pairs).returncode == 0
     axis = sorted(str(p) for p in (s / "axis").glob("*.png"))
     assert run("calibrate", "axis", "--intrinsics", w / "i.json", "--plane", w / "p.json",
-               "--output", w / "a.json", *axis).returncode == 0
+               "--output", w / "a.json", "--detections", detections, *axis).returncode == 0
     r = run("calibrate", "build", "--intrinsics", w / "i.json", "--plane", w / "p.json",
             "--axis", w / "a.json", "--output", w / "cal.json", "--report", w / "rep.json")
     assert r.returncode == 0, r.stderr

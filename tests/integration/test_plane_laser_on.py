@@ -20,6 +20,7 @@ from drivers.sim.board_shots import BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate import commands
 from service.calibrate.board import parse_board
+from service.calibrate.kept_detections import detect_kept
 from service.calibrate.plane import PlaneResult, calibrate_plane, calibrate_plane_laser_on
 from service.calibrate.session import StepInputs, run_step
 from service.measure.geometry import geometry_of
@@ -41,14 +42,16 @@ def rendered(target: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
 
 
 @pytest.fixture(scope="module")
-def poses(calibration_images):
+def poses(calibration_images, detections):
     """The plane poses, laser off and on, of a target: the chessboard's from the rendered
-    session every test reads (``calibration_images``), the others' rendered here."""
+    session every test reads (``calibration_images``, their detections kept for the run),
+    the others' rendered here."""
     def of(target: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
         if target != "11x8x8":
             return rendered(target)
         read = [cv2.imread(str(calibration_images / "plane" / f"pose{i}_{kind}.png"),
                            cv2.IMREAD_GRAYSCALE) for kind in ("off", "on") for i in range(4)]
+        detect_kept(read, parse_board(target), detections)
         return read[:4], read[4:]
     return of
 
@@ -108,7 +111,8 @@ def test_laser_on_images_with_no_line_are_refused_per_image(poses) -> None:
 
 def test_the_command_line_takes_colour_jpegs_with_the_laser_on_alone(tmp_path,
                                                                       calibration_images,
-                                                                      poses) -> None:
+                                                                      poses, detections
+                                                                      ) -> None:
     """Views and laser-on poses as a phone writes them (colour JPEG): the intrinsics say
     what became of the colour, the plane which channel held the line."""
     views, on_only = [], []
@@ -123,8 +127,8 @@ def test_the_command_line_takes_colour_jpegs_with_the_laser_on_alone(tmp_path,
         on_only.append(str(path))
     intr, plane = tmp_path / "i.json", tmp_path / "p.json"
     r = subprocess.run([SHAFTGAUGE, "calibrate", "intrinsics", "--board", "chess:11x8x8",
-                        "--output", str(intr), *views], capture_output=True, text=True,
-                       timeout=300)
+                        "--output", str(intr), "--detections", str(detections), *views],
+                       capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     i = json.loads(intr.read_text())
     assert i["board"] == "chess:11x8x8" and i["read"]["colour_images"] == len(views)

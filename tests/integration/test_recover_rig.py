@@ -13,6 +13,7 @@ from drivers.sim.board_shots import Board, BoardRenderer, session_shots
 from drivers.sim.rig import RigConfig, ShaftRenderer
 from service.calibrate.axis import calibrate_axis
 from service.calibrate.intrinsics import calibrate_intrinsics
+from service.calibrate.kept_detections import detect_kept
 from service.calibrate.plane import calibrate_plane
 from service.measure.diameter import MeasureParams, measure_frame
 from service.measure.geometry import geometry_of
@@ -43,8 +44,10 @@ def session(calibration_images):
 
 
 @pytest.fixture(scope="module")
-def recovered(session):
+def recovered(session, detections):
     _, _, views, pairs, spindle = session
+    # What the run's other tests detected in these images already (kept_detections).
+    detect_kept(views + [im for pair in pairs for im in pair] + spindle, BOARD, detections)
     # Every board image of the session constrains the intrinsics, as in the service's session.
     intr = calibrate_intrinsics(views + [off for off, _ in pairs] + spindle, BOARD)
     assert intr, intr.reason
