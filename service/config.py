@@ -183,6 +183,12 @@ class ModbusSettings(_Section):
     (3). Off, it is refused and logged; a technician acknowledges over the API. The alarm
     (a deviation beyond the plausibility limit: nothing is written while it lasts) ends by
     itself at the next plausible measurement: acknowledging only ends it sooner."""
+    result_measurements: int = Field(3, ge=1, le=100)
+    """The good measurements of the feature, taken after a "feature measured" request
+    (``measure_request``), that the gauge answers it with."""
+    result_within_s: float = Field(5.0, gt=0.0, le=600.0)
+    """A request not answered with a measurement this long after it is answered refused,
+    with the reason of the last measurement the gauge could not use."""
     allowed_clients: list[str] = ["127.0.0.0/8", "::1"]
     """Addresses or networks that may connect (others are disconnected at once, counted and
     logged): loopback by default; on an installation the CNC's address and whoever reads the

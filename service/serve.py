@@ -49,6 +49,7 @@ from service.measure.diameter import MeasureParams
 from service.measure.result import Method
 from service.measure.runout_track import SpindleAngles
 from service.measure.stripe import StripeParams
+from service.quality.results import MeasureHandshake
 from service.runtime.archive import MeasurementArchive
 from service.runtime.calibration import CalibrationContext, MasterPolicy
 from service.runtime.cnc_writes import CncCommands, CncWriteRules
@@ -331,11 +332,15 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     modbus = ModbusService(settings.modbus, bank, registers, rules.check, commands.take)
     compensation.on_decision(registers.decided)
     sequence = SequenceCounter(comp_log, compensation.last_measurement_seq() + 1)
-    jobs = JobService(job_store, compensation, store_error)
+    jobs = JobService(job_store, compensation, store_error,
+                      MeasureHandshake(settings.modbus.result_measurements,
+                                       settings.modbus.result_within_s))
     compensation.on_settings(lambda _: jobs.settings_changed())
     rules.jobs = commands.jobs = jobs
     registers.show_jobs(jobs)
     jobs.on_change(registers.job_changed)
+    jobs.on_results(registers.show_results)
+    jobs.on_new_job(registers.show_results)
     publisher = Publisher(sequence, feed, registers, compensation, jobs, sp.max_tir_mm)
     pipeline = FramePipeline(camera, context, Method(ms.method), params, ms.workers, publisher,
                              settings.camera.roi_margin_px if settings.camera.roi_enabled
@@ -370,7 +375,7 @@ def wire(settings: Settings, camera: Camera, store: CalibrationStore | None,
     if made.mqtt is not None:
         feed.on_publish(made.mqtt.measurement)
         compensation.on_decision(made.mqtt.decision)
-        jobs.on_part(made.mqtt.part)
+        jobs.part_log.on_part(made.mqtt.part)
     if made.opcua_values is not None:
         compensation.on_decision(made.opcua_values.last_offset)
     plant = made.links

@@ -91,6 +91,36 @@ CNC_VERSION = 5
 """What a CNC whose subroutine applies offset entries writes into ``cnc_version``."""
 
 
+FEATURE_BLOCKS = 32
+"""Features with a result block of their own: as many as a job may have (``MAX_FEATURES``)."""
+RESULTS_BASE = ENTRY_BLOCK_BASE + ENTRY_BLOCKS * ENTRY_BLOCK_WORDS
+FEATURE_BLOCK_BASE = RESULTS_BASE + 16
+FEATURE_BLOCK_WORDS = 12
+
+
+def _feature_block(k: int) -> tuple[Register, ...]:
+    """The result block of the job's ``k``-th feature (in its order of features)."""
+    a = FEATURE_BLOCK_BASE + FEATURE_BLOCK_WORDS * (k - 1)
+    return (
+        _r(f"feature{k}_number", a, U16, "number", f"the job's feature {k} (in its order), as "
+           "the job numbers it; 0 none"),
+        _r(f"feature{k}_verdict", a + 1, U16, "code", f"its verdict in the part `feature{k}_part`"
+           f": 0 not measured yet, 1 in tolerance, 2 out, 3 refused (`feature{k}_reason`)"),
+        _r(f"feature{k}_reason", a + 2, U16, "code", "why refused (the reason codes below); 0 "
+           "none"),
+        _r(f"feature{k}_part", a + 3, U16, "number", "the part the result belongs to (as "
+           "`part`)"),
+        _r(f"feature{k}_value", a + 4, I32, "0.1 um", "its diameter in that part, fused from "
+           "its measurements; no value none yet"),
+        _r(f"feature{k}_deviation", a + 6, I32, "0.1 um", "that diameter less the feature's "
+           "nominal"),
+        _r(f"feature{k}_uncertainty", a + 8, I32, "0.1 um", "the standard uncertainty of that "
+           "diameter"),
+        _r(f"feature{k}_measurements", a + 10, U16, "count", "the measurements fused"),
+        _r(f"feature{k}_seq", a + 11, U16, "count", "moves when its result moves (wraps)"),
+    )
+
+
 def _entry_block(k: int) -> tuple[Register, ...]:
     """The block of the job's ``k``-th offset entry."""
     a = ENTRY_BLOCK_BASE + ENTRY_BLOCK_WORDS * (k - 1)
@@ -193,6 +223,35 @@ REGISTERS: tuple[Register, ...] = (
        "0 from a version 4 CNC", writable=True),
     # Each offset entry of the job in force (version 5): written by the gauge.
     *(reg for k in range(1, ENTRY_BLOCKS + 1) for reg in _entry_block(k)),
+    # Results for the part program (version 5): the "feature measured" handshake, the part's
+    # verdict, and each feature's result in the part under way.
+    _r("measure_feature", RESULTS_BASE, U16, "number", "written by the CNC with "
+       "`measure_request`: the feature under the laser to measure (the job's number; it is "
+       "the feature named, as `feature`)", writable=True),
+    _r("measure_request", RESULTS_BASE + 1, U16, "count", "written by the CNC: a new number "
+       "(1-65535, wrapping past 0) asks for `measure_feature` measured; 0 none",
+       writable=True),
+    _r("measured_seq", RESULTS_BASE + 2, U16, "count", "the request answered last: equal to "
+       "`measure_request` once it is answered"),
+    _r("measured_feature", RESULTS_BASE + 3, U16, "number", "the feature it answered for"),
+    _r("measured_verdict", RESULTS_BASE + 4, U16, "code", "1 in tolerance, 2 out, 3 refused "
+       "(`measured_reason` says why)"),
+    _r("measured_reason", RESULTS_BASE + 5, U16, "code", "0 measured; else why not (the "
+       "reason codes below)"),
+    _r("measured_value", RESULTS_BASE + 6, I32, "0.1 um", "the feature's diameter in the part "
+       "when answered, fused; no value when refused"),
+    _r("measured_deviation", RESULTS_BASE + 8, I32, "0.1 um", "that diameter less its "
+       "nominal"),
+    _r("measured_uncertainty", RESULTS_BASE + 10, I32, "0.1 um", "its standard uncertainty"),
+    _r("part_verdict", RESULTS_BASE + 12, U16, "code", "the part `part`: 0 a feature not "
+       "measured yet, 1 every feature in tolerance, 2 a feature out (as soon as one is), 3 "
+       "ended without every feature"),
+    _r("part", RESULTS_BASE + 13, U16, "number", "the part under way: the CNC's "
+       "`part_counter`, or the gauge's own count when the CNC counts none (wraps)"),
+    _r("result_seq", RESULTS_BASE + 14, U16, "count", "moves when any result below or the "
+       "part's verdict moves (wraps)"),
+    _r("features", RESULTS_BASE + 15, U16, "count", "the job's features: the blocks in use"),
+    *(reg for k in range(1, FEATURE_BLOCKS + 1) for reg in _feature_block(k)),
 )
 
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}
@@ -302,7 +361,10 @@ class RegisterBank:
         self.set("test_pattern", TEST_PATTERN)
         self.set("map_version", MAP_VERSION)
         for name in ("diameter", "uncertainty", "nominal", "proposed_offset",
-                     "cumulative_offset", "runout_tir", "ront"):
+                     "cumulative_offset", "runout_tir", "ront", "measured_value",
+                     "measured_deviation", "measured_uncertainty",
+                     *(f"feature{k}_{what}" for k in range(1, FEATURE_BLOCKS + 1)
+                       for what in ("value", "deviation", "uncertainty"))):
             self.set(name, NO_VALUE)
         self.set("runout_phase", 0xFFFF)
         self.set("tol_upper", 0)
@@ -345,16 +407,24 @@ def markdown_tables() -> str:
     ``docs/modbus-register-map.md`` must contain; a test checks it)."""
     lines = ["| address | name | type | unit | access | meaning |",
              "|---:|---|---|---|---|---|"]
-    first_of_rest = ENTRY_BLOCK_BASE + ENTRY_BLOCK_WORDS
+    # The blocks of entries and features 2 and on: one line each.
+    rest = {ENTRY_BLOCK_BASE + ENTRY_BLOCK_WORDS: (RESULTS_BASE, "entry", ENTRY_BLOCKS,
+                                                   "offset entries", ENTRY_BLOCK_WORDS),
+            FEATURE_BLOCK_BASE + FEATURE_BLOCK_WORDS: (SIZE, "feature", FEATURE_BLOCKS,
+                                                       "features", FEATURE_BLOCK_WORDS)}
+    skip_to = 0
     for r in REGISTERS:
-        if r.address >= first_of_rest:  # the blocks of entries 2 and on: one line
+        if r.address in rest:
+            end, name, n, what, words = rest[r.address]
+            lines.append(f"| {r.address}-{end - 1} | `{name}2_*` ... `{name}{n}_*` | | | read "
+                         f"| the same block for the job's {what} 2 to {n}, {words} registers "
+                         "each |")
+            skip_to = end
+        if r.address < skip_to:
             continue
         span = str(r.address) if r.kind.words == 1 else f"{r.address}-{r.address + 1}"
         lines.append(f"| {span} | `{r.name}` | {r.kind.value} | {r.unit} | "
                      f"{'read/write' if r.writable else 'read'} | {r.description} |")
-    lines.append(f"| {first_of_rest}-{SIZE - 1} | `entry2_*` ... `entry{ENTRY_BLOCKS}_*` | | "
-                 f"| read | the same block for the job's offset entries 2 to {ENTRY_BLOCKS}, "
-                 f"{ENTRY_BLOCK_WORDS} registers each |")
     for title, flags in (("status", StatusBit), ("faults", FaultBit)):
         lines += ["", f"`{title}` bits:", "", "| bit | name |", "|---:|---|"]
         lines += [f"| {int(f).bit_length() - 1} | `{f.name.lower()}` |" for f in flags]

@@ -77,7 +77,7 @@ def router(jobs: JobService, api: ApiSettings) -> APIRouter:
               before_id: int | None = Query(None, ge=1, le=2**63 - 1),
               serial: str | None = Query(None, max_length=200)) -> dict:
         if jobs.store is None:  # no store: the parts of this run
-            return {"items": list(jobs.recent)[:limit], "stored": False}
+            return {"items": list(jobs.part_log.recent)[:limit], "stored": False}
         items = jobs.store.parts(limit, before_id, serial)
         return {"items": items, "stored": True,
                 "next_before_id": items[-1]["id"] if len(items) == limit else None}

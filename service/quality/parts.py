@@ -46,6 +46,8 @@ class PartRecord:
     part_number: str
     features: tuple[FeatureResult, ...]
     verdict: str
+    number: int = 0
+    """The CNC's part counter, or the gauge's own count when the CNC counts none."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -102,6 +104,23 @@ class PartAssembler:
         feature of it was measured."""
         if not self._values:
             return None
+        record = self.under_way()
+        if self._counter is None:
+            self.next_own += 1
+        self._values, self._counter, self._last = {}, None, None
+        return record
+
+    @property
+    def number(self) -> int:
+        """The part under way's number: the CNC's part counter, or the gauge's own count."""
+        return self._counter if self._counter is not None else self.next_own
+
+    def under_way(self) -> PartRecord | None:
+        """The part under way as it stands: each feature fused from its measurements so far
+        (``missing`` those not measured yet, the part then ``incomplete``); None when
+        nothing of it is measured yet."""
+        if not self._values:
+            return None
         results = []
         for f in self.job.features:
             got = self._values.get(f.number, [])
@@ -117,12 +136,7 @@ class PartAssembler:
         verdicts = {r.verdict for r in results}
         verdict = "out" if verdicts & {"above", "below"} else \
             "incomplete" if "missing" in verdicts else "ok"
-        if self._counter is not None:
-            serial = f"{self.job.part_number}-{self._counter}"
-        else:
-            serial = f"{self.job.part_number}-g{self.next_own}"
-            self.next_own += 1
-        record = PartRecord(serial, self._started, self.job.part_number, tuple(results),
-                            verdict)
-        self._values, self._counter, self._last = {}, None, None
-        return record
+        serial = (f"{self.job.part_number}-{self._counter}" if self._counter is not None
+                  else f"{self.job.part_number}-g{self.next_own}")
+        return PartRecord(serial, self._started, self.job.part_number, tuple(results), verdict,
+                          self.number)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import replace
 
@@ -40,7 +41,8 @@ class CncWriteRules:
     def _check_jobs(self, entries: list[tuple[str, int]]) -> str:
         """Why the job, feature, tool or entry written cannot be taken ("" when it can)."""
         values = dict(entries)
-        if self.jobs is None or not {"job", "feature", "cnc_tool", "cnc_entry"} & values.keys():
+        if self.jobs is None or not {"job", "feature", "cnc_tool", "cnc_entry",
+                                     "measure_request"} & values.keys():
             return ""
         job = self.jobs.job
         if values.get("job"):
@@ -59,6 +61,16 @@ class CncWriteRules:
                 job.feature(values["feature"])
             except KeyError as err:
                 return f"feature: {err.args[0]}"
+        if values.get("measure_request"):
+            if "measure_feature" not in values:  # the pair in one write: never half a request
+                return ("measure_request: write measure_feature with it, in the same write "
+                        "(registers 182-183)")
+            if job is None:
+                return "measure_request: no job is in force"
+            try:
+                job.feature(values["measure_feature"])
+            except KeyError as err:
+                return f"measure_feature: {err.args[0]}"
         tool = values.get("cnc_tool")
         # The settings' single feature has whatever tool the CNC compensates.
         if tool and self.jobs.stored is not None and (job is None
@@ -140,6 +152,12 @@ class CncCommands:
             self.jobs.part_counter = values["part_counter"] or None
         if "job" in values or "feature" in values:
             self._spawn(self._job_from_cnc(values.get("job"), values.get("feature"), who))
+        if values.get("measure_request") and self.jobs is not None:
+            try:
+                self.jobs.request_measurement(values["measure_request"],
+                                              values["measure_feature"], time.time())
+            except KeyError as err:  # the job changed since the check
+                log.warning("measure request from %s not taken: %s", who, err)
         for name, value in entries:
             if name == "command":
                 self._spawn(self.run_command(Command(value), source="modbus", who=who))

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import sqlite3
-from collections import deque
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -22,16 +22,18 @@ from service.compensation import Decision
 from service.compensation.job import Job, JobError, JobFeature, job_from_doc
 from service.measurement_record import Feature, MeasurementRecord
 from service.quality.parts import PartAssembler, PartRecord
+from service.quality.results import Answer, MeasureHandshake, PartResults, Results
 from service.runtime.compensating import CompensationService
 from service.runtime.listeners import Listeners
+from service.runtime.part_log import PartLog
 
 log = logging.getLogger("shaftgauge.jobs")
 
-RECENT_PARTS = 50
 
 
 class JobService:
-    """Owns the active job, the feature under the laser and the part records.
+    """Owns the active job, the feature under the laser and the part records (the part under
+    way and what the part program reads back of it; ``part_log``, the parts finished).
 
     Parameters
     ----------
@@ -41,10 +43,12 @@ class JobService:
         Its settings are the single feature's when no stored job is active.
     store_error : str
         Why there is no store.
+    handshake : MeasureHandshake, optional
+        The "feature measured" requests' (``service.quality.results``).
     """
 
     def __init__(self, store: JobStore | None, compensation: CompensationService,
-                 store_error: str = "") -> None:
+                 store_error: str = "", handshake: MeasureHandshake | None = None) -> None:
         self.store, self.compensation, self.store_error = store, compensation, store_error
         self.stored: JobInfo | None = None
         self.not_taken: JobInfo | None = None
@@ -52,13 +56,13 @@ class JobService:
         self.selected: int | None = None
         self._feature_set = compensation.feature()  # the settings' single feature, as seen
         self._in_view: int | None = None  # the feature measured last (the registers show it)
-        self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT_PARTS)
-        self._parts_done: Listeners[dict[str, Any]] = Listeners("part finished")
+        self.part_log = PartLog(store)
         self.latest: dict[int, MeasurementRecord] = {}  # by feature, of the job in force
         self.part_counter: int | None = None  # the CNC's, when it counts (map v4)
         self._changes: Listeners[None] = Listeners("job or feature changed")
         self._new_jobs: Listeners[None] = Listeners("job put in force")
-        self.part_counts: dict[str, int] = {"ok": 0, "out": 0, "incomplete": 0}
+        self.results_kept = PartResults(handshake or MeasureHandshake())
+        self._results: Listeners[None] = Listeners("results changed")
         self.refused = 0
         self.last_refused = ""
         if store is not None:
@@ -81,9 +85,9 @@ class JobService:
     def _changed(self) -> None:
         self._changes.tell(None)
 
-    def on_part(self, listener: Callable[[dict[str, Any]], None]) -> None:
-        """Call ``listener(part)`` (``PartRecord.as_dict``) for every finished part."""
-        self._parts_done.add(listener)
+    def on_results(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` whenever what ``results()`` gives may have moved."""
+        self._results.add(lambda _: listener())
 
     # ---- the job ------------------------------------------------------------------------
 
@@ -224,7 +228,8 @@ class JobService:
         if job is None or diameter_mm is None:
             return None, ""
         if self.selected is not None:
-            return job.feature(self.selected), ""
+            other = self.results_kept.another_features(job, self.selected, diameter_mm)
+            return (None, other) if other else (job.feature(self.selected), "")
         if len(job.features) == 1:
             return job.features[0], ""
         found = job.recognise(diameter_mm)
@@ -252,41 +257,64 @@ class JobService:
 
     def feature_for(self, record: MeasurementRecord) -> Feature:
         """What ``record`` was compared with (its feature's nominal and tolerance)."""
-        if self._job is None or record.feature is None:
-            return Feature(None, 0.0, 0.0)
         try:
-            return self.feature_of(self._job.feature(record.feature))
+            return self.feature_of(None if self._job is None or record.feature is None
+                                   else self._job.feature(record.feature))
         except KeyError:  # measured under the job before this one
             return Feature(None, 0.0, 0.0)
 
     def published(self, record: MeasurementRecord) -> None:
-        """A published measurement (a feed listener): into the part under way."""
+        """A published measurement (a feed listener): into the part under way, and to the
+        "feature measured" request waiting."""
         if record.feature is not None:
             self.latest[record.feature] = record
             if record.feature != self._in_view:
                 self._in_view = record.feature
                 self._changed()  # the registers show the feature under the laser
-        if self.parts is None or record.feature is None or record.status != "ok" \
-                or record.diameter_mm is None or record.uncertainty_mm is None:
+        good = self.parts is not None and record.feature is not None \
+            and record.status == "ok" and record.diameter_mm is not None \
+            and record.uncertainty_mm is not None
+        if good:
+            assert self.parts is not None and record.feature is not None
+            self._record(self.parts.add(record.feature, record.compensation_diameter_mm,
+                                        record.uncertainty_mm, record.time, self.part_counter))
+        answer = self.results_kept.measured(record.feature, good, record.status,
+                                            record.time - record.latency_ms / 1e3, time.time())
+        if answer is not None or good:
+            self._answered(answer)
+
+    def request_measurement(self, seq: int, feature: int, now_s: float) -> None:
+        """The CNC's "feature measured" request at wall-clock ``now_s`` (``results``: the
+        feature named until answered; KeyError when the job has no such feature)."""
+        if not self.results_kept.request(seq, feature, now_s, self.selected):
             return
-        self._record(self.parts.add(record.feature, record.compensation_diameter_mm,
-                                    record.uncertainty_mm, record.time, self.part_counter))
+        if feature != self.selected:
+            self.select(feature)
+        self._results.tell(None)
+
+    def tick(self, now_s: float) -> None:
+        """A request whose time ran out with no measurement (the camera away): refused."""
+        if (answer := self.results_kept.handshake.tick(now_s)) is not None:
+            self._answered(answer)
+
+    def _answered(self, answer: Answer | None) -> None:
+        """The results moved (``answer``: a request answered)."""
+        kept, p = self.results_kept, self.parts
+        if answer is not None and kept.answered_with(answer, p.under_way() if p else None) \
+                and kept.named_before != self.selected:
+            self.select(kept.named_before)  # named as it was before the request
+        self._results.tell(None)
+
+    def results(self) -> Results:
+        """What the part program reads back now (``service.quality.results.Results``)."""
+        p = self.parts
+        return self.results_kept.now(self._job, p.under_way() if p else None,
+                                     p.number if p else 0)
 
     def _record(self, part: PartRecord | None) -> None:
-        if part is None:
-            return
-        doc = part.as_dict()
-        self.recent.appendleft(doc)
-        self.part_counts[part.verdict] += 1
-        self._parts_done.tell(doc)
-        if self.store is None:
-            return
-        try:
-            self.store.add_part(part.serial, part.time_s, None if self.stored is None
-                                else self.stored.id, part.verdict,
-                                [dict(f) for f in doc["features"]])
-        except sqlite3.Error as err:  # a full disk: the part is still shown, and said
-            log.error("part %s not stored: %s", part.serial, err)
+        if part is not None:  # a part finished
+            self.results_kept.finished(part)
+            self.part_log.add(part, None if self.stored is None else self.stored.id)
 
     def status(self) -> dict[str, Any]:
         """The job's part of the service status."""

@@ -59,7 +59,7 @@ class StatusCollector(Collector):
                     deviation.add_metric([str(f.number), f.name], r.deviation_mm)
         parts = CounterMetricFamily("shaftgauge_parts", "Parts recorded since the start, by "
                                     "verdict", labels=["verdict"])
-        for verdict, n in jobs.part_counts.items():
+        for verdict, n in jobs.part_log.counts.items():
             parts.add_metric([verdict], n)
         yield from (diameter, deviation, parts)
 

@@ -1,16 +1,25 @@
 """What the registers show the CNC: the latest measurement, the offsets of the job's entries,
-the feature and the job in force, and the status and fault bits from a snapshot every
-``REFRESH_S`` (the pure ``service.runtime.status_words``)."""
+the feature and the job in force, the results for the part program, and the status and fault
+bits from a snapshot every ``REFRESH_S`` (the pure ``service.runtime.status_words``)."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Callable
 
-from drivers.plc.registers import ENTRY_BLOCKS, FaultBit, RegisterBank, mm_to_units
+from drivers.plc.registers import (
+    ENTRY_BLOCKS,
+    FEATURE_BLOCKS,
+    FaultBit,
+    RegisterBank,
+    mm_to_units,
+)
 from service.compensation import Decision
 from service.measurement_record import Feature, MeasurementRecord
+from service.quality.parts import FeatureResult
+from service.quality.results import REFUSED, feature_verdict, part_verdict
 from service.runtime.compensating import CompensationService
 from service.runtime.job_service import JobService
 from service.runtime.status_words import StatusSnapshot, form_words, status_words
@@ -37,6 +46,7 @@ class RegisterView:
         self.jobs: JobService | None = None
         self._proposed: dict[tuple[int | None, int | None], int] = {}  # (tool, entry): units
         self._offsets_shown: dict[str, int] = {}     # what the offsets' registers hold
+        self._results_shown: dict[str, int] = {}     # ... and the results' (but the seqs)
 
     def publish(self, record: MeasurementRecord) -> None:
         """The latest measurement."""
@@ -108,10 +118,56 @@ class RegisterView:
             self.bank.set_many({"job": 0 if jobs.stored is None else jobs.stored.number & 0xFFFF,
                                 "feature": jobs.selected or 0})
 
+    def show_results(self) -> None:
+        """The results for the part program (map v5) from ``JobService.results``: the part's
+        verdict, each feature's block, the answer to the last "feature measured" request;
+        each block's sequence number, and ``result_seq``, moved when what it shows moved."""
+        if self.jobs is None:
+            return
+        r = self.jobs.results()
+        features = r.job.features if r.job is not None else ()
+        got = {f.feature: f for f in r.part.features} if r.part is not None else {}
+        update = {"part_verdict": part_verdict(r.part, r.finished), "part": r.number & 0xFFFF,
+                  "features": len(features)}
+        moved_blocks = []
+        for k in range(1, FEATURE_BLOCKS + 1):
+            f = features[k - 1] if k <= len(features) else None
+            res = got.get(f.number) if f is not None else None
+            verdict = feature_verdict(res)
+            reason = r.refused.get(f.number, 0) if f is not None and not verdict else 0
+            block = {f"feature{k}_number": f.number if f else 0,
+                     f"feature{k}_verdict": REFUSED if reason else verdict,
+                     f"feature{k}_reason": reason,
+                     f"feature{k}_part": r.number & 0xFFFF if res is not None else 0,
+                     **_result_words(f"feature{k}_", res)}
+            if any(self._results_shown.get(n) != v for n, v in block.items()):
+                moved_blocks.append(k)
+            update.update(block)
+        if r.answer is not None:
+            verdict = feature_verdict(r.answered) if not r.answer.reason else REFUSED
+            update.update({"measured_feature": r.answer.feature, "measured_verdict": verdict,
+                           "measured_reason": r.answer.reason,
+                           **_result_words("measured_", None if r.answer.reason
+                                           else r.answered)})
+        changed = {k: v for k, v in update.items() if self._results_shown.get(k) != v}
+        if r.answer is not None and self.bank.get("measured_seq") != r.answer.seq:
+            changed["measured_seq"] = r.answer.seq  # in the same write as what it answers
+        if not changed:
+            return
+        self._results_shown.update({k: v for k, v in changed.items() if k != "measured_seq"})
+        for k in moved_blocks:
+            changed[f"feature{k}_seq"] = (self.bank.get(f"feature{k}_seq") + 1) & 0xFFFF
+        changed["result_seq"] = (self.bank.get("result_seq") + 1) & 0xFFFF
+        self.bank.set_many(changed)
+
     async def refresh(self, snapshot: Callable[[], StatusSnapshot]) -> None:
-        """Status, faults and form from ``snapshot()`` every ``REFRESH_S``, until cancelled."""
+        """Status, faults and form from ``snapshot()`` every ``REFRESH_S``, until cancelled;
+        a "feature measured" request whose time ran out with no measurement to end it (the
+        camera away) answered."""
         while True:
             await asyncio.sleep(REFRESH_S)
+            if self.jobs is not None:
+                self.jobs.tick(time.time())
             try:
                 snap = snapshot()
                 status, faults, age_ms = status_words(snap)
@@ -123,3 +179,16 @@ class RegisterView:
             if faults & FaultBit.STALE_MEASUREMENT:  # a stale diameter is no diameter
                 update["diameter"] = mm_to_units(None)
             self.bank.set_many(update)
+
+
+def _result_words(prefix: str, res: FeatureResult | None) -> dict[str, int]:
+    """A feature's result as ``<prefix>value``, ``deviation``, ``uncertainty`` (0.1 um) and,
+    for a block, ``measurements``."""
+    value = res.diameter_mm if res is not None else None
+    words = {f"{prefix}value": mm_to_units(value),
+             f"{prefix}deviation": mm_to_units(None if value is None or res is None
+                                               else value - res.nominal_mm),
+             f"{prefix}uncertainty": mm_to_units(res.uncertainty_mm if res else None)}
+    if prefix.startswith("feature"):
+        words[f"{prefix}measurements"] = res.n if res is not None else 0
+    return words

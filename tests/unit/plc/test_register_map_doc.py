@@ -22,3 +22,15 @@ def test_every_entry_a_job_may_have_has_its_block() -> None:
 
     assert ENTRY_BLOCKS == MAX_ENTRIES >= MAX_TOOLS
     assert MAX_ENTRY_NUMBER <= 0xFFFF
+
+
+def test_every_feature_a_job_may_have_has_its_result_block_and_the_codes_are_documented(
+        ) -> None:
+    from drivers.plc.registers import FEATURE_BLOCKS
+    from service.compensation.job import MAX_FEATURES
+    from service.quality.results import markdown_table
+
+    assert FEATURE_BLOCKS == MAX_FEATURES
+    assert markdown_table() in DOC.read_text(), (
+        "docs/modbus-register-map.md lacks the reason codes of service/quality/results.py "
+        "(markdown_table())")

@@ -360,3 +360,72 @@ def test_tuning_the_job_in_force_cannot_hold_is_refused_naming_the_feature(clien
     r = client.put("/api/v1/compensation", headers={"X-API-Key": ADMIN},
                    json={"deadband_mm": 0.005})
     assert r.status_code == 200, r.text
+
+
+NO_VALUE_UM = -214748364.8
+
+
+def test_the_part_program_reads_each_features_result_and_the_parts_verdict(client) -> None:
+    """Register map version 5 over real Modbus, as a part program uses it: name a feature and
+    ask for it measured, wait for the answer, read the verdicts; a part with a feature out
+    says so; a request the gauge cannot measure is answered refused, with its reason."""
+    client.post("/api/v1/jobs", headers=H, json={"document": TWO, "activate": True})
+    a = {n: r.address for n, r in BY_NAME.items()}
+
+    def read(c, name: str, count: int = 1) -> list[int]:
+        return c.read_holding_registers(a[name], count=count, device_id=1).registers
+
+    def measured(c, seq: int, feature: int) -> dict[str, int]:
+        assert not c.write_registers(a["measure_feature"], [feature, seq],
+                                     device_id=1).isError()
+        deadline = time.monotonic() + 20
+        while read(c, "measured_seq") != [seq]:
+            assert time.monotonic() < deadline, f"request {seq} not answered"
+            time.sleep(0.05)
+        words = read(c, "measured_seq", 14)
+        value = (words[4] << 16 | words[5])
+        return {"feature": words[1], "verdict": words[2], "reason": words[3],
+                "value_um": (value - (1 << 32) if value & 0x80000000 else value) / 10,
+                "part_verdict": words[10], "part": words[11]}
+
+    with ModbusTcpClient("127.0.0.1", port=client.gauge.modbus.port, retries=0) as c:
+        # Half a request, a feature the job lacks: refused whole.
+        assert c.write_register(a["measure_request"], 1, device_id=1).isError()
+        bad = c.write_registers(a["measure_feature"], [7, 1], device_id=1)
+        assert bad.isError() and bad.exception_code == 3
+        assert not c.write_register(a["part_counter"], 7, device_id=1).isError()
+        journal = measured(c, 1, 1)
+        assert (journal["feature"], journal["verdict"], journal["reason"]) == (1, 1, 0)
+        assert abs(journal["value_um"] - 30000.0) < 10 and journal["part"] == 7
+        assert journal["part_verdict"] == 0  # the seat is not measured yet
+        assert read(c, "features") == [2] and read(c, "feature1_number", 4) == [1, 1, 0, 7]
+        assert read(c, "feature2_number", 2) == [2, 0]
+        client.gauge.camera.diameter_mm = 25.0  # the seat under the laser
+        seat = measured(c, 2, 2)
+        assert (seat["verdict"], seat["part_verdict"], seat["part"]) == (1, 1, 7), seat
+        assert read(c, "feature2_number", 4) == [2, 1, 0, 7]
+        # The next part: its seat 90 um over (tolerance +-50): the part is out.
+        assert not c.write_register(a["part_counter"], 8, device_id=1).isError()
+        client.gauge.camera.diameter_mm = 30.0
+        assert measured(c, 3, 1)["part_verdict"] == 0
+        client.gauge.camera.diameter_mm = 25.09
+        out = measured(c, 4, 2)
+        assert (out["verdict"], out["part_verdict"], out["part"]) == (2, 2, 8), out
+        assert abs(out["value_um"] - 25090.0) < 10
+        # The journal asked for while the seat is under the laser: refused, as another
+        # feature's diameter, in its time.
+        other = measured(c, 5, 1)
+        assert (other["verdict"], other["reason"], other["value_um"]) == (3, 10, NO_VALUE_UM)
+        # No frame comes (the camera unplugged): refused, nothing measured.
+        client.gauge.camera.unplug()
+        time.sleep(0.5)
+        try:
+            away = measured(c, 6, 1)
+        finally:
+            client.gauge.camera.plug()
+        assert (away["verdict"], away["reason"]) == (3, 1), away
+        # The journal of part 8 was measured before: its block keeps that result; a
+        # feature answered refused and not measured since would read 3 and its reason.
+        assert read(c, "feature1_verdict", 2) == [1, 0]
+    parts = client.get("/api/v1/parts").json()["items"]
+    assert [p["verdict"] for p in parts if p["serial"] == "SH-4711-7"] == ["ok"]
