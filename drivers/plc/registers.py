@@ -229,10 +229,11 @@ REGISTERS: tuple[Register, ...] = (
        "`measure_request`: the feature under the laser to measure (the job's number; it is "
        "the feature named, as `feature`)", writable=True),
     _r("measure_request", RESULTS_BASE + 1, U16, "count", "written by the CNC: a new number "
-       "(1-65535, wrapping past 0) asks for `measure_feature` measured; 0 none",
+       "(1-65535, wrapping past 0) asks for `measure_feature` measured; 0 none (drops a "
+       "request waiting, and `measured_seq` reads 0)",
        writable=True),
     _r("measured_seq", RESULTS_BASE + 2, U16, "count", "the request answered last: equal to "
-       "`measure_request` once it is answered"),
+       "`measure_request` once it is answered; 0 after `measure_request` 0"),
     _r("measured_feature", RESULTS_BASE + 3, U16, "number", "the feature it answered for"),
     _r("measured_verdict", RESULTS_BASE + 4, U16, "code", "1 in tolerance, 2 out, 3 refused "
        "(`measured_reason` says why)"),

@@ -108,8 +108,14 @@ class MeasureHandshake:
 
     def request(self, seq: int, feature: int, now_s: float) -> bool:
         """The CNC's request (written again every cycle by some clients: only a new sequence
-        number or feature opens one); True when it opened one."""
-        if seq == 0 or (seq, feature) == (self._seq, self._feature):
+        number or feature opens one); True when it opened one, or, for ``seq`` 0 (no
+        request), when it dropped one waiting or forgot the last number (so that a program
+        started again may begin its numbers again)."""
+        if seq == 0:
+            dropped = self._open or self._seq != 0
+            self._seq, self._open = 0, False
+            return dropped
+        if (seq, feature) == (self._seq, self._feature):
             return False
         self._seq, self._feature, self._since_s = seq, feature, now_s
         self._good, self._refusal, self._open = 0, BY_NAME["nothing_measured"].code, True
@@ -186,15 +192,22 @@ class PartResults:
     answered: FeatureResult | None = None
     last_part: PartRecord | None = None
 
-    def request(self, seq: int, feature: int, now_s: float, named: int | None) -> bool:
-        """A request (``named`` the feature named now); True when it opened one: the
-        feature is then named by it until it is answered."""
+    def request(self, seq: int, feature: int, now_s: float, named: int | None
+                ) -> tuple[bool, int | None]:
+        """A request (``named`` the feature named now): whether anything changed, and the
+        feature to be named from now on. A request opened names its feature until it is
+        answered; ``seq`` 0 drops one waiting (the feature named before it is named again)
+        and clears the last answer (``measured_seq`` reads 0)."""
         if not self.handshake.request(seq, feature, now_s):
-            return False
+            return False, named
+        if seq == 0:
+            self.answer = self.answered = None
+            naming, self.naming = self.naming, False
+            return True, self.named_before if naming else named
         if not self.naming:
             self.named_before = named
         self.naming = True
-        return True
+        return True, feature
 
     def another_features(self, job: Job, named: int, diameter_mm: float) -> str:
         """Why ``diameter_mm`` is not the feature ``named`` while a request names it: the job

@@ -152,10 +152,10 @@ class CncCommands:
             self.jobs.part_counter = values["part_counter"] or None
         if "job" in values or "feature" in values:
             self._spawn(self._job_from_cnc(values.get("job"), values.get("feature"), who))
-        if values.get("measure_request") and self.jobs is not None:
+        if "measure_request" in values and self.jobs is not None:
             try:
                 self.jobs.request_measurement(values["measure_request"],
-                                              values["measure_feature"], time.time())
+                                              values.get("measure_feature", 0), time.time())
             except KeyError as err:  # the job changed since the check
                 log.warning("measure request from %s not taken: %s", who, err)
         for name, value in entries:

@@ -286,11 +286,11 @@ class JobService:
     def request_measurement(self, seq: int, feature: int, now_s: float) -> None:
         """The CNC's "feature measured" request at wall-clock ``now_s`` (``results``: the
         feature named until answered; KeyError when the job has no such feature)."""
-        if not self.results_kept.request(seq, feature, now_s, self.selected):
-            return
-        if feature != self.selected:
-            self.select(feature)
-        self._results.tell(None)
+        changed, name = self.results_kept.request(seq, feature, now_s, self.selected)
+        if name != self.selected:
+            self.select(name)
+        if changed:
+            self._results.tell(None)
 
     def tick(self, now_s: float) -> None:
         """A request whose time ran out with no measurement (the camera away): refused."""

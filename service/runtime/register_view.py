@@ -150,8 +150,9 @@ class RegisterView:
                            **_result_words("measured_", None if r.answer.reason
                                            else r.answered)})
         changed = {k: v for k, v in update.items() if self._results_shown.get(k) != v}
-        if r.answer is not None and self.bank.get("measured_seq") != r.answer.seq:
-            changed["measured_seq"] = r.answer.seq  # in the same write as what it answers
+        seq = r.answer.seq if r.answer is not None else 0  # 0: no answer (none asked)
+        if self.bank.get("measured_seq") != seq:
+            changed["measured_seq"] = seq  # in the same write as what it answers
         if not changed:
             return
         self._results_shown.update({k: v for k, v in changed.items() if k != "measured_seq"})

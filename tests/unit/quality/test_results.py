@@ -44,6 +44,11 @@ def test_a_request_not_measured_in_time_is_refused_with_the_last_reason() -> Non
     assert h.measured(None, "no_feature", 25.0, 25.0) == Answer(
         3, 2, results.BY_NAME["no_feature"].code)
     assert h.request(3, 1, 30.0)  # the same number for another feature is a new request
+    # 0: none. It drops the request waiting and forgets the number: the same one again
+    # (a program started again) is a new request.
+    assert h.request(0, 0, 31.0) and not h.open and h.tick(99.0) is None
+    assert not h.request(0, 0, 31.1)
+    assert h.request(3, 1, 32.0) and h.open
 
 
 def test_every_measurement_status_but_ok_has_a_reason_code() -> None:
