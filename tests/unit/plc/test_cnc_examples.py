@@ -1,5 +1,6 @@
-"""The Fanuc and Siemens outlines in the register map name each register as the register
-table does: its address, and whether a CNC may write it."""
+"""The Fanuc and Siemens outlines in the register map (the pull handshake, and reading the
+results back) name each register as the register table does: its address, and whether a CNC
+may write it."""
 
 from __future__ import annotations
 
@@ -29,5 +30,10 @@ def test_each_register_an_example_uses_is_the_tables(control: str) -> None:
         assert name in table, name
         assert table[name].address == address, (name, address, table[name].address)
         assert (how == "writes") == table[name].writable, (name, how)
+    used = {name for name, _, _ in rows}
     pull = {r.name for r in REGISTERS if r.name.startswith(("request_", "cnc_"))}
-    assert pull <= {name for name, _, _ in rows}, pull - {name for name, _, _ in rows}
+    assert pull <= used, pull - used
+    # Reading the results back: the request, its answer and the part's verdict.
+    results = {"measure_feature", "measure_request", "measured_seq", "measured_verdict",
+               "measured_reason", "part_verdict"}
+    assert results <= used, results - used
