@@ -65,13 +65,23 @@ def router(comp: CompensationService, log: CompensationLog | None, run_command: 
     async def shadow(body: ShadowIn, caller: Caller = technician) -> dict:
         return await apply(replace(comp.settings, shadow=body.shadow), caller)
 
-    @r.post("/compensation/command", summary="Reset compensation or acknowledge an alarm")
+    @r.post("/compensation/command", summary="Reset compensation, record an insert change or "
+            "acknowledge an alarm")
     async def command(body: CommandIn, caller: Caller = technician) -> dict:
-        if body.tool is not None:  # one tool's: not a command of the CNC's registers
+        tool = body.tool
+        if body.command == "insert_change" and tool is None:  # the one tool's, if one
+            tools = sorted({e.tool for e, _ in comp.in_force()})
+            if len(tools) != 1:
+                raise HTTPException(422, "tool: an insert change names the tool whose insert "
+                                    f"was changed (the job's tools: {tools})")
+            tool = tools[0]
+        if tool is not None:  # one tool's: not a command of the CNC's registers
             who = f"api:{caller}"
             try:
-                d = await (comp.reset("api", who, body.tool) if body.command == "reset"
-                           else comp.acknowledge(who, body.tool))
+                d = await (comp.reset("api", who, tool) if body.command == "reset"
+                           else comp.insert_change(who, tool)
+                           if body.command == "insert_change"
+                           else comp.acknowledge(who, tool))
             except KeyError as err:
                 raise HTTPException(404, err.args[0]) from None
             return {"decision": d.as_dict(), "state": comp.state.value}

@@ -69,9 +69,10 @@ class ShadowIn(_Strict):
 class CommandIn(_Strict):
     """A command to the compensation."""
 
-    command: Literal["reset", "acknowledge"]
+    command: Literal["reset", "acknowledge", "insert_change"]
     tool: int | None = Field(None, ge=1, le=99999, description=(
-        "one tool of a job of several tools (none: the compensation and every tool's)"))
+        "one tool of a job of several tools (none: the compensation and every tool's); "
+        "an insert change names its tool"))
 
 
 class TemperatureIn(_Strict):

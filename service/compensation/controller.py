@@ -339,12 +339,14 @@ class CompensationController(OffsetBook):
         return self._decision(Kind.ACKNOWLEDGED, "acknowledged", "alarm acknowledged", now,
                               who=who)
 
-    def reset(self, now: float, who: str = "") -> Decision:
+    def reset(self, now: float, who: str = "", insert: bool = False) -> Decision:
         """A reset (after a tool change): the gauge's cumulative offset back to 0, leave
         STOPPED or ALARM; the CNC's total at the next reading becomes the reference of the
-        cumulative limit. Refused while an offset's fate is unknown."""
+        cumulative limit. Refused while an offset's fate is unknown. ``insert``: a person
+        recorded an insert change (its wear offset zeroed at the CNC), logged as such."""
+        what = "insert change" if insert else "reset"
         if self.state in (State.PENDING, State.UNCERTAIN):
-            return self._decision(Kind.HELD, "reset_unsettled", f"reset refused: offset "
+            return self._decision(Kind.HELD, "reset_unsettled", f"{what} refused: offset "
                                   f"{self.persisted.pending_seq} is still unsettled", now,
                                   who=who)
         before = self.persisted.cumulative_mm
@@ -355,6 +357,13 @@ class CompensationController(OffsetBook):
         self._law.clear()
         # Parts cut before the reset (a new insert) say nothing of the process after it.
         self._law.restart(now)
+        if insert:
+            return self._decision(
+                Kind.RESET, "insert_change", "insert change recorded: the process is "
+                "estimated again from the new insert's parts, nothing corrected before they "
+                "are measured; cumulative offset back to 0, the CNC's total at the next "
+                "reading (its wear offset zeroed) is the new baseline", now, before_mm=before,
+                after_mm=0.0, who=who)
         return self._decision(Kind.RESET, "reset", "compensation reset: cumulative offset "
                               "back to 0; the CNC's total at the next reading is the new "
                               "baseline", now, before_mm=before, after_mm=0.0, who=who)

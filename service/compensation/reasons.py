@@ -44,6 +44,9 @@ REASONS: tuple[Reason, ...] = (
            NOBODY, "nothing; check the change was meant"),
     Reason("other_settings", "settings that do not move the law were changed", NOBODY,
            "nothing"),
+    Reason("insert_change", "a person recorded an insert change (the tool's wear offset zeroed "
+           "at the CNC): compensation starts again from the new insert's parts", NOBODY,
+           "nothing; zero the wear offset at the CNC before or right after recording it"),
     Reason("dead_time_measured", "the gauge measured the dead time from its own offsets; "
            "when it differs from the typed one, the law now waits the measured one",
            INTEGRATOR, "set compensation.dead_time_measurements (or dead_time_s) to it, or "

@@ -336,6 +336,12 @@ class CompensationService:
                 "a technician resets over the API")
         return await self._command("reset", who, tool)
 
+    async def insert_change(self, who: str, tool: int) -> Decision:
+        """A person recorded an insert change of ``tool`` (its wear offset zeroed at the
+        CNC): its entries reset, the process estimated again from the new insert's parts
+        (KeyError when ``tool`` has no compensation)."""
+        return await self._command("insert_change", who, tool)
+
     async def acknowledge(self, who: str, tool: int | None = None) -> Decision:
         """Acknowledge an out-of-tolerance alarm (``tool``'s entries', or every one's)."""
         return await self._command("acknowledge", who, tool)

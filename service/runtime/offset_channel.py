@@ -241,12 +241,12 @@ class OffsetChannel:
                                           and not self.controller.settings.shadow)
 
     async def command(self, action: str, who: str = "") -> Decision:
-        """A command: ``reset`` (moves the limit's reference to where the CNC's total stands)
-        or ``acknowledge``."""
+        """A command: ``reset`` (moves the limit's reference to where the CNC's total stands),
+        ``insert_change`` (a reset a person recorded for a new insert) or ``acknowledge``."""
         async with self._lock:
             now = self.clock()
-            if action == "reset":
-                d = self.controller.reset(now, who)
+            if action in ("reset", "insert_change"):
+                d = self.controller.reset(now, who, insert=action == "insert_change")
             elif action == "acknowledge":
                 d = self.controller.acknowledge_alarm(now, who)
             else:

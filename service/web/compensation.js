@@ -149,13 +149,26 @@ export function onStatus(st) {
   if (!switching) $("shadow").checked = st.compensation.shadow;  // the service's word counts
 }
 
-// Acknowledge or reset, of every tool or the one chosen; refused without a technician's key.
+// Acknowledge, reset or record an insert change, of every tool or the one chosen (an insert
+// change names its tool); refused without a technician's key.
 async function act(command) {
   const tool = $("act-tool").value;
   const what = tool ? `T${tool}'s compensation` : "the compensation of every tool";
+  const several = $("act-tool").options.length > 1;
+  if (command === "insert_change" && !tool && several) {
+    say($("act-msg"), "choose the tool whose insert was changed", "bad");
+    return;
+  }
   if (command === "reset" && !window.confirm(`Reset ${what}? Its cumulative offset starts `
       + "again from the CNC's total, and its process estimate from the next parts.")) {
     say($("act-msg"), "reset not taken");
+    return;
+  }
+  const insert = tool ? `T${tool}` : "the tool";
+  if (command === "insert_change" && !window.confirm(`Record an insert change of ${insert}? `
+      + "Zero its wear offset at the CNC; the gauge starts its compensation again from the "
+      + "new insert's parts.")) {
+    say($("act-msg"), "insert change not recorded");
     return;
   }
   try {
@@ -173,6 +186,7 @@ export function wireCompensation() {
   $("comp-filter").addEventListener("change", loadCompensation);
   $("act-ack").addEventListener("click", () => act("acknowledge"));
   $("act-reset").addEventListener("click", () => act("reset"));
+  $("act-insert").addEventListener("click", () => act("insert_change"));
   $("shadow").addEventListener("change", async (e) => {
     const want = e.target.checked;
     switching = true;

@@ -477,9 +477,10 @@ def test_the_dead_time_the_gauge_measured_is_shown_beside_the_typed(tmp_path, br
         stop_service(svc)
 
 
-def test_acknowledge_and_reset_from_the_dashboard(service, browser) -> None:
+def test_acknowledge_reset_and_insert_change_from_the_dashboard(service, browser) -> None:
     """The compensation view's actions: refused without a technician's key (nothing logged),
-    taken with it and logged with who took it; a reset not confirmed is not taken."""
+    taken with it and logged with who took it; a reset or an insert change not confirmed is
+    not taken."""
     page = open_page(browser, service.url + "/ui/#compensation")
     expect(page.locator("#decisions tr").first).to_be_visible(timeout=UI_WAIT_MS)
 
@@ -491,6 +492,9 @@ def test_acknowledge_and_reset_from_the_dashboard(service, browser) -> None:
     expect(page.locator("#act-msg")).to_contain_text("technician key")
     page.once("dialog", lambda d: d.accept())
     page.locator("#act-reset").click()
+    expect(page.locator("#act-msg")).to_contain_text("technician key")
+    page.once("dialog", lambda d: d.accept())
+    page.locator("#act-insert").click()
     expect(page.locator("#act-msg")).to_contain_text("technician key")
     assert not taken("acknowledged") and not taken("reset")
     page.goto(service.url + "/ui/#technician")
@@ -514,6 +518,17 @@ def test_acknowledge_and_reset_from_the_dashboard(service, browser) -> None:
     expect(page.locator("#act-msg")).to_contain_text("reset")
     resets = taken("reset")
     assert resets and resets[0]["who"].startswith("api:technician"), resets
+    # The insert change of the one tool: not recorded unless confirmed; recorded and logged
+    # with who recorded it.
+    page.once("dialog", lambda d: d.dismiss())
+    page.locator("#act-insert").click()
+    expect(page.locator("#act-msg")).to_have_text("insert change not recorded")
+    page.once("dialog", lambda d: d.accept())
+    page.locator("#act-insert").click()
+    expect(page.locator("#act-msg")).to_contain_text("insert_change")
+    inserts = [d for d in taken("reset") if d["code"] == "insert_change"]
+    assert len(inserts) == 1 and inserts[0]["who"].startswith("api:technician"), inserts
+    assert inserts[0]["tool"] == 1, inserts
     shot(page, "compensation-actions")
 
 

@@ -80,6 +80,18 @@ def test_a_two_feature_part_is_measured_feature_by_feature_and_recorded(client) 
     r = client.post("/api/v1/compensation/command", headers=H,
                     json={"command": "reset", "tool": 3})
     assert r.status_code == 404 and "has tools [1, 2]" in r.json()["detail"]
+    # An insert change names its tool in a job of several; it is a reset, logged as such.
+    r = client.post("/api/v1/compensation/command", headers=H,
+                    json={"command": "insert_change"})
+    assert r.status_code == 422 and "names the tool" in r.json()["detail"], r.text
+    r = client.post("/api/v1/compensation/command", headers={"X-API-Key": OPERATOR},
+                    json={"command": "insert_change", "tool": 1})
+    assert r.status_code == 403
+    r = client.post("/api/v1/compensation/command", headers=H,
+                    json={"command": "insert_change", "tool": 1})
+    d = r.json()["decision"]
+    assert r.status_code == 200 and (d["code"], d["tool"], d["kind"]) == (
+        "insert_change", 1, "reset"), r.text
 
 
 ONE_TOOL = {"part_number": "SH-1T", "name": "two steps, one tool", "features": [
