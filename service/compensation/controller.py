@@ -344,9 +344,9 @@ class CompensationController(OffsetBook):
         STOPPED or ALARM; the CNC's total at the next reading becomes the reference of the
         cumulative limit. Refused while an offset's fate is unknown. ``insert``: a person
         recorded an insert change (its wear offset zeroed at the CNC), logged as such."""
-        what = "insert change" if insert else "reset"
         if self.state in (State.PENDING, State.UNCERTAIN):
-            return self._decision(Kind.HELD, "reset_unsettled", f"{what} refused: offset "
+            return self._decision(Kind.HELD, "reset_unsettled",
+                                  f"{_RESET[insert][0]} refused: offset "
                                   f"{self.persisted.pending_seq} is still unsettled", now,
                                   who=who)
         before = self.persisted.cumulative_mm
@@ -357,16 +357,8 @@ class CompensationController(OffsetBook):
         self._law.clear()
         # Parts cut before the reset (a new insert) say nothing of the process after it.
         self._law.restart(now)
-        if insert:
-            return self._decision(
-                Kind.RESET, "insert_change", "insert change recorded: the process is "
-                "estimated again from the new insert's parts, nothing corrected before they "
-                "are measured; cumulative offset back to 0, the CNC's total at the next "
-                "reading (its wear offset zeroed) is the new baseline", now, before_mm=before,
-                after_mm=0.0, who=who)
-        return self._decision(Kind.RESET, "reset", "compensation reset: cumulative offset "
-                              "back to 0; the CNC's total at the next reading is the new "
-                              "baseline", now, before_mm=before, after_mm=0.0, who=who)
+        return self._decision(Kind.RESET, "insert_change" if insert else "reset",
+                              _RESET[insert][1], now, before_mm=before, after_mm=0.0, who=who)
 
     def note_settings(self, what: str, now: float, who: str) -> Decision:
         """Record a change of a setting outside the controller (for the audit trail)."""
@@ -376,6 +368,17 @@ class CompensationController(OffsetBook):
         """Record a reset that was asked for and not carried out."""
         return self._decision(Kind.REFUSED, "reset_refused", f"reset refused: {why}", now,
                               who=who)
+
+
+_RESET = {
+    False: ("reset", "compensation reset: cumulative offset back to 0; the CNC's total at the "
+            "next reading is the new baseline"),
+    True: ("insert change", "insert change recorded: the process is estimated again from the "
+           "new insert's parts, nothing corrected before they are measured; cumulative offset "
+           "back to 0, the CNC's total at the next reading (its wear offset zeroed) is the new "
+           "baseline")}
+"""What a reset is called and its log's text, and those of an insert change a person
+recorded."""
 
 
 def refusal(s: CompensationSettings, m: MeasurementIn, now: float, last_seq: int,

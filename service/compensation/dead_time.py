@@ -193,11 +193,11 @@ class DeadTimeEstimator:
         refute the prior (see the module's docstring), else the prior once enough clear steps
         confirm it (steps at a steady cadence fit a dead time one cadence longer almost as
         well: only evidence against the typed one replaces it)."""
-        scatter = self.scatter_mm()
-        if scatter <= 0.0:
-            return None
         first = self.taken - len(self.deviations)
         seen = [(at, e) for at, e in self.steps if at >= first + 2]
+        scatter = self.scatter_mm() if seen else 0.0  # no step, nothing to tell: none
+        if scatter <= 0.0:
+            return None
         # A step needs measurements after it to be seen at all, by at least the candidate.
         max_dead = min(MAX_DEAD, self.taken - (min(at for at, _ in seen) if seen else 0) - 2,
                        MAX_DEAD if prior is None else PRIOR_SPAN * (prior + 1))

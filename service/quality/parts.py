@@ -76,7 +76,9 @@ class PartAssembler:
     _counter: int | None = None
     _started: float = 0.0
     _last: tuple[int, float] | None = None  # the feature and time last measured
-    _values: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+    _values: dict[int, list[float]] = field(default_factory=dict)
+    """Each feature's fusion so far: [sum of weights, sum of weight x (d - first d), count,
+    first d] (running sums: a part of one feature measured all shift long is one part)."""
 
     def add(self, feature: int, diameter_mm: float, uncertainty_mm: float, time_s: float,
             part_counter: int | None = None) -> PartRecord | None:
@@ -95,7 +97,11 @@ class PartAssembler:
             done = self.finish()
         if not self._values:
             self._started, self._counter = time_s, part_counter
-        self._values.setdefault(feature, []).append((diameter_mm, max(uncertainty_mm, 1e-6)))
+        w = 1.0 / max(uncertainty_mm, 1e-6) ** 2
+        acc = self._values.setdefault(feature, [0.0, 0.0, 0, diameter_mm])
+        acc[0] += w
+        acc[1] += w * (diameter_mm - acc[3])
+        acc[2] += 1
         self._last = (feature, time_s)
         return done
 
@@ -123,15 +129,15 @@ class PartAssembler:
             return None
         results = []
         for f in self.job.features:
-            got = self._values.get(f.number, [])
+            got = self._values.get(f.number)
             if not got:
                 results.append(FeatureResult(f.number, f.name, f.nominal_mm, None, None, 0,
                                              "missing", f.tol_lower_mm, f.tol_upper_mm))
                 continue
-            w = [1.0 / u ** 2 for _, u in got]
-            d = sum(wi * di for wi, (di, _) in zip(w, got, strict=True)) / sum(w)
+            sum_w, sum_wd, n, first = got
+            d = first + sum_wd / sum_w
             results.append(FeatureResult(f.number, f.name, f.nominal_mm, d,
-                                         1.0 / math.sqrt(sum(w)), len(got), judge(f, d),
+                                         1.0 / math.sqrt(sum_w), int(n), judge(f, d),
                                          f.tol_lower_mm, f.tol_upper_mm))
         verdicts = {r.verdict for r in results}
         verdict = "out" if verdicts & {"above", "below"} else \

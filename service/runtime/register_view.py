@@ -130,7 +130,9 @@ class RegisterView:
         update = {"part_verdict": part_verdict(r.part, r.finished), "part": r.number & 0xFFFF,
                   "features": len(features)}
         moved_blocks = []
-        for k in range(1, FEATURE_BLOCKS + 1):
+        # The blocks in use, and those in use before (cleared): the rest stand at 0.
+        in_use = max(len(features), self._results_shown.get("features", FEATURE_BLOCKS))
+        for k in range(1, in_use + 1):
             f = features[k - 1] if k <= len(features) else None
             res = got.get(f.number) if f is not None else None
             verdict = feature_verdict(res)

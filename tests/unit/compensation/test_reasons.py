@@ -23,6 +23,13 @@ def literal(node: ast.AST | None) -> str | None:
         else None
 
 
+def literals(node: ast.AST) -> set[str]:
+    """The codes an argument can be: a literal, or either literal of ``a if c else b``."""
+    if isinstance(node, ast.IfExp):
+        return literals(node.body) | literals(node.orelse)
+    return {literal(node)} - {None}
+
+
 def codes_in_source() -> set[str]:
     """Every code the source can give: the literal codes of the calls that log one, the
     ``(code, why)`` tuples the refusals return, ``status_<status>`` for every measurement
@@ -37,8 +44,8 @@ def codes_in_source() -> set[str]:
                 f = node.func
                 name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
                 at = DECIDERS.get(name)
-                if at is not None and len(node.args) > at and literal(node.args[at]):
-                    codes.add(literal(node.args[at]))
+                if at is not None and len(node.args) > at:
+                    codes |= literals(node.args[at])
                 if name == "hold_offsets":
                     holds |= {literal(k.value) for k in node.keywords if k.arg == "code"}
             elif isinstance(node, ast.FunctionDef) and node.name == "hold_offsets":
