@@ -48,7 +48,9 @@ def poses(calibration_images, detections):
     the others' rendered here."""
     def of(target: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
         if target != "11x8x8":
-            return rendered(target)
+            off, on = rendered(target)
+            detect_kept(off + on, parse_board(target), detections)
+            return off, on
         read = [cv2.imread(str(calibration_images / "plane" / f"pose{i}_{kind}.png"),
                            cv2.IMREAD_GRAYSCALE) for kind in ("off", "on") for i in range(4)]
         detect_kept(read, parse_board(target), detections)
@@ -116,7 +118,9 @@ def test_the_command_line_takes_colour_jpegs_with_the_laser_on_alone(tmp_path,
     """Views and laser-on poses as a phone writes them (colour JPEG): the intrinsics say
     what became of the colour, the plane which channel held the line."""
     views, on_only = [], []
-    for png in sorted((calibration_images / "views").glob("*.png")):
+    # Every other view (7 of 14: the intrinsics' precision is test_recover_rig's; here the
+    # colour JPEGs' way through the command line, and the plane they give).
+    for png in sorted((calibration_images / "views").glob("*.png"))[::2]:
         path = tmp_path / f"{png.stem}.jpg"
         cv2.imwrite(str(path), cv2.merge([cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)] * 3),
                     [cv2.IMWRITE_JPEG_QUALITY, 95])
