@@ -15,6 +15,7 @@ Pure: measurements, requests and time in (seconds, one clock); answers out.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 from service.compensation.job import Job
@@ -181,9 +182,13 @@ class Results:
 class PartResults:
     """What the part program reads back, kept from one measurement to the next: the
     handshake, whether a request names the feature (and what was named before it), the
-    features answered refused, the last answer, the last part finished."""
+    features answered refused, the last answer, the last part finished.
+
+    The handshake's steps are atomic (``measured`` in the thread that publishes measurements,
+    ``request`` and ``tick`` in another): a request is answered once, whoever answers it."""
 
     handshake: MeasureHandshake = field(default_factory=MeasureHandshake)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     naming: bool = False
     """A request waiting names the feature (``request``)."""
     named_before: int | None = None
@@ -198,7 +203,9 @@ class PartResults:
         feature to be named from now on. A request opened names its feature until it is
         answered; ``seq`` 0 drops one waiting (the feature named before it is named again)
         and clears the last answer (``measured_seq`` reads 0)."""
-        if not self.handshake.request(seq, feature, now_s):
+        with self._lock:
+            opened = self.handshake.request(seq, feature, now_s)
+        if not opened:
             return False, named
         if seq == 0:
             self.answer = self.answered = None
@@ -228,7 +235,13 @@ class PartResults:
             self.refused.pop(feature, None)
         refusal = "" if good else status if status != "ok" else \
             "other_feature" if self.naming else "no_feature"
-        return self.handshake.measured(feature, refusal, taken_s, now_s)
+        with self._lock:
+            return self.handshake.measured(feature, refusal, taken_s, now_s)
+
+    def tick(self, now_s: float) -> Answer | None:
+        """The answer to a request that waited its time out (``MeasureHandshake.tick``)."""
+        with self._lock:
+            return self.handshake.tick(now_s)
 
     def answered_with(self, answer: Answer, part: PartRecord | None) -> bool:
         """``answer`` given, with ``part`` the part under way; True when the request named

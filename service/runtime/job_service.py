@@ -294,7 +294,7 @@ class JobService:
 
     def tick(self, now_s: float) -> None:
         """A request whose time ran out with no measurement (the camera away): refused."""
-        if (answer := self.results_kept.handshake.tick(now_s)) is not None:
+        if (answer := self.results_kept.tick(now_s)) is not None:
             self._answered(answer)
 
     def _answered(self, answer: Answer | None) -> None:

@@ -445,7 +445,9 @@ def test_the_dead_time_the_gauge_measured_is_shown_beside_the_typed(tmp_path, br
                       headers={"X-API-Key": TECH_KEY}, timeout=10)
         assert r.status_code == 200, r.text
         dead: dict = {}
-        for _ in range(24):  # up to two minutes of the lathe's time, 5 s at a time
+        # Up to four minutes of the lathe's time, 5 s at a time (two are enough on an idle
+        # machine; a loaded one measures the lathe less steadily).
+        for _ in range(48):
             lathe_loop.follow(svc, 5.0)
             dead = svc.get("/api/v1/status").json()["compensation"]["dead_time"]
             if dead["measured"] is not None and dead["differs"]:

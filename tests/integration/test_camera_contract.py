@@ -15,6 +15,7 @@ from drivers.camera.aravis import AravisCamera, enable_fake_interface
 from drivers.camera.base import Camera, CameraConfig, CameraState
 from drivers.camera.rig_camera import RigCamera
 from tests.integration.conftest import take_frames
+from tests.waiting import until
 
 IMPLEMENTATIONS = ["gige-sim", "gige-sim-udp", "aravis-fake", "rig"]
 
@@ -74,7 +75,9 @@ def test_slow_consumer_drops_oldest_and_counts(make_camera) -> None:
     cam = make_camera(queue_size=2)
     cam.start()
     take_frames(cam, 1)
-    time.sleep(1.0)  # 20 fps: about 20 frames arrive for a queue of 2
+    # Nobody takes a frame while eight arrive (however long a loaded machine takes to make
+    # them): one taken, two queued, five dropped at least.
+    until(lambda: cam.status().counters.completed >= 8, "eight frames arrived")
     first = cam.get_frame(1.0)
     st = cam.status()
     assert st.counters.dropped >= 5, st
