@@ -127,11 +127,6 @@ class MeasureHandshake:
         """A request waits for its answer."""
         return self._open
 
-    def before(self, taken_s: float) -> bool:
-        """A frame taken at ``taken_s`` was taken before the request waiting (it shows what
-        was under the laser before the CNC named the feature: not the feature)."""
-        return self._open and taken_s < self._since_s
-
     def measured(self, feature: int | None, refusal: str, taken_s: float, now_s: float
                  ) -> Answer | None:
         """A measurement published, of a frame taken at ``taken_s``: a good one of

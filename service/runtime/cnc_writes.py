@@ -14,7 +14,7 @@ from dataclasses import replace
 from calib_store.store import NotStoredError
 from drivers.plc.registers import Command, units_to_mm
 from service.compensation import Decision
-from service.compensation.job import JobError, job_from_doc
+from service.compensation.job import Job, JobError, job_from_doc
 from service.config import ModbusSettings
 from service.runtime.compensating import CompensationService
 from service.runtime.job_service import JobService
@@ -28,6 +28,18 @@ _FEATURE = {"nominal": "nominal_mm", "tol_upper": "tol_upper_mm", "tol_lower": "
 def feature_changes(entries: list[tuple[str, int]]) -> dict[str, float | None]:
     """The nominal and tolerances a write holds, mm (None: cleared)."""
     return {_FEATURE[name]: units_to_mm(value) for name, value in entries if name in _FEATURE}
+
+
+def _not_in(job: Job | None, name: str, feature: int) -> str:
+    """Why ``feature``, written as ``name``, cannot be taken: no job in force, or none such
+    in it ("" when it can)."""
+    if job is None:
+        return f"{name}: no job is in force"
+    try:
+        job.feature(feature)
+    except KeyError as err:
+        return f"{name}: {err.args[0]}"
+    return ""
 
 
 class CncWriteRules:
@@ -54,23 +66,14 @@ class CncWriteRules:
                 return f"job: {err.args[0]}"
             except JobError as err:
                 return f"job {values['job']}: {err}"
-        if values.get("feature"):
-            if job is None:
-                return "feature: no job is in force"
-            try:
-                job.feature(values["feature"])
-            except KeyError as err:
-                return f"feature: {err.args[0]}"
+        if values.get("feature") and (why := _not_in(job, "feature", values["feature"])):
+            return why
         if values.get("measure_request"):
             if "measure_feature" not in values:  # the pair in one write: never half a request
                 return ("measure_request: write measure_feature with it, in the same write "
                         "(registers 182-183)")
-            if job is None:
-                return "measure_request: no job is in force"
-            try:
-                job.feature(values["measure_feature"])
-            except KeyError as err:
-                return f"measure_feature: {err.args[0]}"
+            if why := _not_in(job, "measure_feature", values["measure_feature"]):
+                return why
         tool = values.get("cnc_tool")
         # The settings' single feature has whatever tool the CNC compensates.
         if tool and self.jobs.stored is not None and (job is None

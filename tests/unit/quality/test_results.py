@@ -22,12 +22,10 @@ def test_a_request_is_answered_after_its_good_measurements_of_the_feature() -> N
     assert h.request(8, 1, 11.0)  # a new number opens a new one, counted afresh
     assert h.measured(1, "", 11.1, 11.1) is None
     # Frames taken before the request, published after it, count for nothing.
-    assert h.before(10.9) and not h.before(11.0)
     for _ in range(5):
         assert h.measured(1, "", 10.9, 11.2) is None
     assert h.measured(1, "", 11.2, 11.3) is None
     assert h.measured(1, "", 11.3, 11.4) == Answer(8, 1, 0)
-    assert not h.before(10.0)  # none waiting
 
 
 def test_a_request_not_measured_in_time_is_refused_with_the_last_reason() -> None:
