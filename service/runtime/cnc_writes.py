@@ -12,7 +12,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import replace
 
 from calib_store.store import NotStoredError
-from drivers.plc.registers import Command, units_to_mm
+from drivers.plc.registers import BY_NAME, Command, units_to_mm
 from service.compensation import Decision
 from service.compensation.job import Job, JobError, job_from_doc
 from service.config import ModbusSettings
@@ -71,7 +71,8 @@ class CncWriteRules:
         if values.get("measure_request"):
             if "measure_feature" not in values:  # the pair in one write: never half a request
                 return ("measure_request: write measure_feature with it, in the same write "
-                        "(registers 182-183)")
+                        f"(registers {BY_NAME['measure_feature'].address}-"
+                        f"{BY_NAME['measure_request'].address})")
             if why := _not_in(job, "measure_feature", values["measure_feature"]):
                 return why
         tool = values.get("cnc_tool")
