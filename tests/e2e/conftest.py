@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import signal
 import ssl
 import subprocess
 import time
@@ -18,6 +16,7 @@ import httpx
 import pytest
 
 from tests.integration.conftest import SHAFTGAUGE, free_port
+from tests.processes import end_group
 
 TECH_KEY = "e2e-technician-key-0123456789"
 UI_WAIT_MS = 60_000
@@ -161,15 +160,9 @@ path = "{data / 'gauge.db'}"
 def stop_service(svc: Service) -> None:
     """SIGTERM the service (it stops its simulators), then make sure nothing of its process
     group is left: a leftover simulated camera would hold the GigE Vision port."""
-    if svc.proc.poll() is None:
-        # The service alone: it stops its simulated camera and PLC itself (signalled too, the
-        # camera would vanish under the gauge's feet and its stop wait for a dead device).
-        svc.proc.send_signal(signal.SIGTERM)
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            svc.proc.wait(30)
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(svc.proc.pid, signal.SIGKILL)
-    svc.proc.wait(10)
+    # The service alone first: it stops its simulated camera and PLC itself (signalled too,
+    # the camera would vanish under the gauge's feet and its stop wait for a dead device).
+    end_group(svc.proc, term_wait_s=30)
 
 
 def measuring_workers(pid: int) -> list[int]:

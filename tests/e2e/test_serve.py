@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import os
 import signal
@@ -28,6 +27,7 @@ from tests.e2e.conftest import (
     wait_ready,
 )
 from tests.integration.conftest import free_port
+from tests.processes import end_group
 from tests.waiting import DEADLINE_S, until
 
 
@@ -207,8 +207,7 @@ def test_a_failed_start_ends_by_itself_and_says_why(tmp_path) -> None:
             assert f"cannot listen on 127.0.0.1:{taken.getsockname()[1]} (modbus.port" in err
             assert ": stopped (stopped)" in err  # the camera it had started
         finally:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
+            end_group(proc)
 
 
 def test_a_start_on_a_taken_api_port_exits_at_once_with_nothing_listening(tmp_path) -> None:
@@ -231,8 +230,7 @@ def test_a_start_on_a_taken_api_port_exits_at_once_with_nothing_listening(tmp_pa
             with socket.socket() as probe:  # nothing of it listens
                 assert probe.connect_ex(("127.0.0.1", modbus)) != 0
         finally:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
+            end_group(proc)
 
 
 @pytest.mark.parametrize("when", ["simulators starting", "kernels compiling"])
@@ -258,8 +256,7 @@ def test_sigterm_while_starting_ends_everything_before_it_serves(tmp_path, when:
         assert proc.returncode == 128 + signal.SIGTERM
         assert "Application startup complete" not in log.read_text(), log.read_text()[-2000:]
     finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
+        end_group(proc)
 
 
 def test_sigterm_to_the_service_alone_reaps_its_children_before_it_ends(tmp_path) -> None:

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
-import signal
 import subprocess
 import sys
 import time
@@ -16,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.processes import end_group
 from tests.unit.service.conftest import client  # noqa: F401 (the API on simulated parts)
 
 SHAFTGAUGE = str(Path(sys.executable).with_name("shaftgauge"))
@@ -47,17 +46,12 @@ class SimCameraProcess:
 
     def kill(self) -> None:
         """Vanish at once, as a camera whose cable is pulled."""
-        if self.proc and self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(10)
+        if self.proc:
+            end_group(self.proc)
 
     def stop(self) -> None:
-        if self.proc and self.proc.poll() is None:
-            self.proc.terminate()
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                self.proc.wait(10)
-        self.kill()
+        if self.proc:
+            end_group(self.proc, term_wait_s=10)
 
 
 def sim_camera_process(tmp: Path, serial: str, diameter: float = 30.0, fps: float = 10.0,
@@ -130,14 +124,12 @@ class SimPlcProcess:
         return self
 
     def kill(self) -> None:
-        if self.proc and self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(10)
+        if self.proc:
+            end_group(self.proc)
 
     def stop(self) -> None:
-        if self.proc and self.proc.poll() is None:
-            self.proc.terminate()
-            self.proc.wait(10)
+        if self.proc:
+            end_group(self.proc, term_wait_s=10)
 
 
 @pytest.fixture
