@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import ssl
@@ -14,6 +15,8 @@ from typing import Any
 
 import httpx
 import pytest
+from playwright.sync_api import Browser, sync_playwright
+from playwright.sync_api import Error as PlaywrightError
 
 from tests.integration.conftest import SHAFTGAUGE, free_port
 from tests.processes import end_group
@@ -239,3 +242,39 @@ def wait_for_js(page, expression: str, timeout_s: float = UI_WAIT_MS / 1000) -> 
         if time.monotonic() > deadline:
             raise AssertionError(f"not true within {timeout_s} s: {expression}")
         time.sleep(0.1)
+
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        "--disable-dev-shm-usage"]  # a container's /dev/shm can be 64 MB
+
+
+@pytest.fixture(scope="module")
+def chromium():
+    """Debian's Chromium for the module: one Playwright, the browser launched when a test
+    needs it and it is not running (a crash then fails one test, not every test after it)."""
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: deploy/bootstrap.sh installs Debian's chromium")
+    with sync_playwright() as p:
+        running: list[Browser] = []
+
+        def launched() -> Browser:
+            if not running or not running[-1].is_connected():
+                running.append(p.chromium.launch(executable_path=CHROMIUM, args=ARGS))
+            return running[-1]
+
+        yield launched
+        if running[-1:] and running[-1].is_connected():
+            running[-1].close()
+
+
+@pytest.fixture
+def browser(chromium) -> Iterator[Browser]:
+    """The browser, each test's pages closed after it: a dashboard left open polls its dead
+    service for the rest of the module, burning the CPU the next tests need."""
+    b = chromium()
+    yield b
+    for context in b.contexts:
+        with contextlib.suppress(PlaywrightError):
+            context.close()

@@ -6,20 +6,17 @@ Screenshots land in test-artifacts/screenshots/."""
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
 import re
 import signal
 import ssl
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
-from playwright.sync_api import Browser, Page, expect, sync_playwright
-from playwright.sync_api import Error as PlaywrightError
+from playwright.sync_api import Page, expect
 
 from drivers.sim.control import control
 from tests.e2e import test_lathe_loop as lathe_loop
@@ -33,41 +30,7 @@ from tests.e2e.conftest import (
 )
 from tests.waiting import until
 
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--disable-dev-shm-usage"]  # a container's /dev/shm can be 64 MB
 SHOTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "screenshots"
-
-
-@pytest.fixture(scope="module")
-def chromium():
-    """Debian's Chromium for the module: one Playwright, the browser launched when a test
-    needs it and it is not running (a crash then fails one test, not every test after it)."""
-    if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: deploy/bootstrap.sh installs Debian's chromium")
-    with sync_playwright() as p:
-        running: list[Browser] = []
-
-        def launched() -> Browser:
-            if not running or not running[-1].is_connected():
-                running.append(p.chromium.launch(executable_path=CHROMIUM, args=ARGS))
-            return running[-1]
-
-        yield launched
-        if running[-1:] and running[-1].is_connected():
-            running[-1].close()
-
-
-@pytest.fixture
-def browser(chromium) -> Iterator[Browser]:
-    """The browser, each test's pages closed after it: a dashboard left open polls its dead
-    service for the rest of the module, burning the CPU the next tests need."""
-    b = chromium()
-    yield b
-    for context in b.contexts:
-        with contextlib.suppress(PlaywrightError):
-            context.close()
 
 
 def open_page(browser, url: str, width: int = 1280, height: int = 800,

@@ -2,12 +2,12 @@
 camera shows, and the camera shows what a virtual lathe cuts with the simulated CNC's applied
 total (read over Modbus); the offsets the gauge writes change what it sees a dead time later.
 
-The lathe's time is driven by the test in step with the gauge: a tenth of a second for each
-frame the gauge has measured (``LathePacer``); it stands until then, however long the
-service takes to start (``sim_lathe_paced``). On a slow or loaded machine the gauge measures
-fewer frames a second and the lathe wears as much slower; its dead time, the camera's lag and
-the law's dead time (in measurements) keep their proportions, so the outcome is the machine's
-no more than the physics'.
+The lathe's time is driven by the test in step with the gauge: it moves on as far as the
+frames the gauge has measured (``LathePacer``), and stands until the first, however long the
+service takes to start (``sim_lathe_paced``). It moves by the frames' own clock, not by
+their count: a slow or loaded machine measures fewer frames of the same seconds, as a slow
+gauge on a real lathe would, and the dead times typed in seconds stay true (paced by the
+count, the lathe slowed under load while the law's seconds did not, and the law overshot).
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ from tests.integration.conftest import free_port
 
 WEAR_UM_PER_MIN = 60.0   # 1 um a second: out of +-20 um in 20 s uncompensated
 TOLERANCE_MM = 0.020
-FPS = 10.0               # the tests' camera (spawn_service)
 
 
 def camera(wear_um_per_min: float = WEAR_UM_PER_MIN, thermal_um: float = 0.0,
@@ -71,15 +70,10 @@ dead_time_s = 1.5
 max_step_mm = 0.010
 shadow = true
 """
-# The same law, its dead time typed in measurements: the lathe's time is paced by them, so on
-# a loaded machine that measures fewer frames a second the dead time keeps its proportion to
-# the lathe's (in seconds it would fall short of it, and the law overshoot, as issue 59 says).
-PREDICTIVE_COUNTED = PREDICTIVE.replace("dead_time_measurements = 0\ndead_time_s = 1.5",
-                                        "dead_time_measurements = 18\ndead_time_s = 0")
 
 
 class LathePacer:
-    """Drives the camera's lathe: a frame's time (1 / FPS) for each frame the service has
+    """Drives the camera's lathe: as far as the time of the last frame the service has
     measured, read five times a second, until closed. ``before`` (a CNC of the test's) is
     called before each step: the lathe never cuts on with a total it was not told."""
 
@@ -89,20 +83,26 @@ class LathePacer:
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
-    def _measured(self) -> int:
-        return int(self.svc.get("/api/v1/status").json()["pipeline"]["measured"])
+    def _frame_time_s(self) -> float | None:
+        """When the frame of the latest measurement was received (None: none yet)."""
+        r = self.svc.get("/api/v1/measurements/latest")
+        if r.status_code != 200:
+            return None
+        m = r.json()
+        return float(m["time"]) - float(m["latency_ms"]) / 1000.0
 
     def _run(self) -> None:
-        last = self._measured()
+        last = None
         control(self.svc.control_port, {"do": "advance_lathe", "s": 0.0})
         while not self._stop.wait(0.2):
-            with contextlib.suppress(httpx.HTTPError, OSError):
-                now = self._measured()
-                if now > last:
+            with contextlib.suppress(httpx.HTTPError, OSError, KeyError, TypeError):
+                now = self._frame_time_s()
+                if now is not None and last is None:
+                    last = now  # the first frame: the lathe starts here
+                elif now is not None and now > last:
                     if self.before is not None:
                         self.before()
-                    control(self.svc.control_port,
-                            {"do": "advance_lathe", "s": (now - last) / FPS})
+                    control(self.svc.control_port, {"do": "advance_lathe", "s": now - last})
                     last = now
 
     def close(self) -> None:
@@ -212,7 +212,7 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
     svc = pacer = None
     try:
         svc = start_service(tmp_path, camera_toml=camera(20.0, 30.0, 6.0),
-                            compensation_toml=PREDICTIVE_COUNTED, plc_port=cnc.port)
+                            compensation_toml=PREDICTIVE, plc_port=cnc.port)
         assert wait_ready(svc)
         cnc.tell(svc.control_port)
         pacer = LathePacer(svc, before=lambda: cnc.tell(svc.control_port))
@@ -226,7 +226,8 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
             if lathe(svc)["cnc_total_mm"] < -0.030:
                 break
             before += follow(svc, 2.5)
-        assert max(abs(s["cut_diameter_mm"] - 30.0) for s in before[-10:]) * 1000 < 20.0
+        held_um = [round((s["cut_diameter_mm"] - 30.0) * 1000.0, 1) for s in before]
+        assert max(abs(d) for d in held_um[-10:]) < 20.0, held_um
         assert lathe(svc)["cnc_total_mm"] < -0.030  # growth and wear carried by the offset
         assert control(svc.control_port, {"do": "new_insert"})["ok"]
         cnc.zero_by_hand()
@@ -245,10 +246,10 @@ def test_an_insert_change_that_loses_the_growth_comes_back_by_itself(tmp_path) -
         assert comp["state"] in ("active", "pending")
         dead = comp["dead_time"]
         print(f"FIGURES dead time after the loop: {dead}")
-        assert dead["typed"] == {"measurements": 18, "seconds": 0.0}, dead
-        # Typed in measurements, a measured dead time that differs is used in measurements.
+        assert dead["typed"] == {"measurements": 0, "seconds": 1.5}, dead
+        # Typed in seconds, a measured dead time that differs is used in seconds too.
         assert dead["in_use"] == (dead["typed"] if not dead["differs"] else {
-            "measurements": dead["measured"]["measurements"], "seconds": 0.0}), dead
+            "measurements": 0, "seconds": dead["measured"]["seconds"]}), dead
     finally:
         if pacer is not None:
             pacer.close()

@@ -21,7 +21,7 @@ from tests.e2e.conftest import (
     wait_for_js,
     wait_ready,
 )
-from tests.e2e.test_dashboard import browser, enter_key, open_page, shot  # noqa: F401
+from tests.e2e.test_dashboard import enter_key, open_page, shot
 from tests.faults.test_cnc_trust import read_register
 
 FAST = """
@@ -76,7 +76,7 @@ def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None
         stop_service(svc)
 
 
-def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) -> None:  # noqa: F811
+def test_spc_view_and_a_study_from_the_technician_view(tmp_path: Path, browser) -> None:
     svc = start_service(tmp_path, fps=25.0, extra_toml=FAST)
     try:
         assert wait_ready(svc)
