@@ -269,13 +269,15 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
         seed=args.seed, replay_frames=args.replay, rig=RigConfig(disturbances=spec),
         lathe=lathe, lathe_paced=args.lathe_paced, stepped=stepped)
     camera = SimGigECamera(settings)
+    done = threading.Event()  # set: the simulator stops (and its CNC followers with it)
     try:
         camera.start()
     except (RuntimeError, ValueError) as err:
         return _fail(str(err))
     if args.cnc:
-        if lathe is None:
-            return _fail("--cnc: the CNC's total moves a virtual lathe: give --lathe too")
+        if lathe is None and stepped is None:
+            return _fail("--cnc: the CNC's totals move a virtual lathe or a stepped part: "
+                         "give --lathe or --stepped too")
         from drivers.plc.client import CncTotalReader
         from drivers.plc.offset_map import PlcOffsetMap
         from drivers.plc.registers import WordOrder
@@ -283,13 +285,18 @@ def cmd_sim_camera(args: argparse.Namespace) -> int:
         host, _, port = args.cnc.rpartition(":")
         if not host or not port.isdigit():
             return _fail(f"--cnc: write HOST:PORT, got {args.cnc!r}")
-        camera.follow_cnc(CncTotalReader(host, int(port), PlcOffsetMap(
-            total_address=args.cnc_total_address, unit_id=args.cnc_unit_id,
-            word_order=WordOrder(args.cnc_word_order))))
+        offsets = PlcOffsetMap(total_address=args.cnc_total_address,
+                               unit_id=args.cnc_unit_id,
+                               word_order=WordOrder(args.cnc_word_order),
+                               tool_stride=args.cnc_tool_stride)
+        if camera.lathe is not None:
+            camera.lathe.follow(CncTotalReader(host, int(port), offsets), done)
+        elif camera.stepped is not None:  # each tool's own offset block (its T number)
+            camera.stepped.follow({t: CncTotalReader(host, int(port), offsets.for_offset(t))
+                                   for t in camera.stepped.part.tools}, done)
     if args.calibration_out:
         save_calibration(camera.renderer.calibration, args.calibration_out)
     server = serve_control(camera, args.control_port)
-    done = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: done.set())
     print(json.dumps({"event": "ready", "device_id": camera.device_id,
@@ -720,8 +727,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "\"wear_um_per_min\": {\"1\": 0.4, \"2\": 0.8}}'")
     p.add_argument("--cnc", metavar="HOST:PORT",
                    help="with --lathe: the push CNC (sim-plc) whose applied total the lathe "
-                   "follows, read over Modbus TCP")
+                   "follows, read over Modbus TCP; with --stepped: each tool's total "
+                   "(its T number's block), a part cut with those in force as it starts")
     p.add_argument("--cnc-total-address", type=int, default=106)
+    p.add_argument("--cnc-tool-stride", type=int, default=0,
+                   help="registers between the CNC's offset blocks (sim-plc --tool-stride)")
     p.add_argument("--cnc-unit-id", type=int, default=1)
     p.add_argument("--cnc-word-order", choices=("big", "little"), default="big")
     p.set_defaults(func=cmd_sim_camera)

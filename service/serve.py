@@ -43,7 +43,7 @@ from drivers.plc.tls import TlsFiles, client_context
 from service.api.app import create_app
 from service.calibrate.session import CalibrationSessions
 from service.compensation.job import OffsetEntry
-from service.config import CameraSettings, Settings
+from service.config import CameraSettings, PlcSettings, Settings
 from service.https import https_files
 from service.measure.diameter import MeasureParams
 from service.measure.result import Method
@@ -147,12 +147,18 @@ def sim_lathe_args(settings: Settings) -> list[str]:
              "insert_every": max(1, round(period)) if period > 0 else 0,
              "thermal_mm": cam.sim_lathe_thermal_um / 1000.0,
              "thermal_tau_min": cam.sim_lathe_thermal_tau_s / 60.0}
-    args = ["--lathe", json.dumps(lathe), *(["--lathe-paced"] if cam.sim_lathe_paced else [])]
-    if plc.source == "sim":
-        args += ["--cnc", f"{plc.host}:{plc.port}", "--cnc-total-address",
-                 str(plc.total_address), "--cnc-unit-id", str(plc.unit_id),
-                 "--cnc-word-order", plc.word_order]
-    return args
+    return ["--lathe", json.dumps(lathe), *(["--lathe-paced"] if cam.sim_lathe_paced else []),
+            *_sim_cnc_args(plc)]
+
+
+def _sim_cnc_args(plc: PlcSettings) -> list[str]:
+    """The simulated PLC as the CNC whose totals a simulated part follows (none with
+    another PLC: a test's own tells the camera)."""
+    if plc.source != "sim":
+        return []
+    return ["--cnc", f"{plc.host}:{plc.port}", "--cnc-total-address", str(plc.total_address),
+            "--cnc-unit-id", str(plc.unit_id), "--cnc-word-order", plc.word_order,
+            "--cnc-tool-stride", str(plc.stride())]
 
 
 def embedded_job(cam: CameraSettings) -> dict:
@@ -169,9 +175,16 @@ def embedded_job(cam: CameraSettings) -> dict:
          "tol_upper_mm": 0.015, "tol_lower_mm": -0.015, "tool": 2}]}
 
 
+SIM_SETUP_MM = {"1": 0.007, "2": -0.011}
+"""Where the embedded default's tools were set up, off their features' nominals: inside the
+tolerances, so that the first parts are good and compensation has something to correct."""
+
+
 def sim_stepped_args(settings: Settings) -> list[str]:
     """The simulated camera's stepped shaft (``camera.sim_part``), its tools wearing at
-    the drift's rate and twice it, a new insert every ``sim_drift_period_min``."""
+    the drift's rate and twice it, a new insert every ``sim_drift_period_min``, each set up
+    off its nominals (``SIM_SETUP_MM``) and moved by its wear offset at the simulated CNC
+    from the next part on."""
     cam = settings.camera
     if cam.source != "sim" or not (cam.sim_feature and cam.sim_part == "stepped") \
             or cam.sim_lathe:
@@ -182,18 +195,28 @@ def sim_stepped_args(settings: Settings) -> list[str]:
                          for f in embedded_job(cam)["features"]],
             "dwell_s": 3.0, "wear_um_per_min": {"1": rate, "2": 2 * rate},
             "insert_every_min": cam.sim_drift_period_min, "part_sigma_mm": 0.0015,
-            "seed": cam.sim_seed}
-    return ["--stepped", json.dumps(spec)]
+            "seed": cam.sim_seed, "setup_mm": SIM_SETUP_MM}
+    return ["--stepped", json.dumps(spec), *_sim_cnc_args(settings.plc)]
+
+
+EMBEDDED_LOOP = {"shadow": False, "judge": "segment", "dead_time_measurements": 1,
+                 "dead_time_s": 0.0}
+"""The embedded default's loop on its stepped shaft and simulated CNC, closed: a segment a
+feature a part, an offset showing from the next part on (a segment of its tool's later)."""
 
 
 def embedded_feature(settings: Settings) -> Settings:
     """With the simulated camera, ``sim_feature`` on and no nominal set: the feature is the
-    simulated shaft (``camera.sim_feature``)."""
+    simulated shaft (``camera.sim_feature``); on the stepped shaft with the simulated PLC and
+    no ``[compensation]`` of the settings' own, the loop closed (``EMBEDDED_LOOP``). An
+    installation's compensation starts in shadow mode, as the installing page says."""
     cam, comp = settings.camera, settings.compensation
     if cam.source != "sim" or not cam.sim_feature or comp.nominal_mm is not None:
         return settings
+    closed = sim_stepped_args(settings) and settings.plc.source == "sim" \
+        and "compensation" not in settings.model_fields_set
     return settings.model_copy(update={"compensation": dataclasses.replace(
-        comp, nominal_mm=cam.sim_diameter_mm)})
+        comp, nominal_mm=cam.sim_diameter_mm, **(EMBEDDED_LOOP if closed else {}))})
 
 
 def build(settings: Settings, children: Children) -> tuple[Gauge, dict]:

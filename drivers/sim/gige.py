@@ -29,9 +29,10 @@ import math
 import threading
 import time
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from ctypes import CFUNCTYPE, POINTER, byref, c_char_p, c_double, c_size_t, c_uint32, c_void_p
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -111,7 +112,7 @@ class SimCameraSettings:
     a multiple of 360: a frame rate locked to the spindle)."""
     lathe: LatheConfig | None = None
     """A virtual lathe decides the diameter shown (continuous turning, the laser a dead time
-    behind the tool; ``set_cnc_total`` or ``follow_cnc`` tell it the CNC's wear offset);
+    behind the tool; ``set_cnc_total`` or its ``follow`` tell it the CNC's wear offset);
     ``diameter_mm`` and the drift are then not used."""
     lathe_paced: bool = False
     """The lathe's time stands at 0 until ``advance`` moves it (else: the wall clock from
@@ -192,6 +193,52 @@ class CameraLathe:
                 "dead_time_s": self._view.dead_time_s, "cnc_error": self.cnc_error}
 
 
+class CameraStepped:
+    """The stepped part behind a simulated camera, its tools moved by their wear offsets at
+    the CNC: a part is cut with the offsets in force when it comes under the tool, so an
+    offset shows from the next part on; thread-safe."""
+
+    def __init__(self, part: SteppedPart) -> None:
+        self.part = part
+        self._lock = threading.Lock()
+        self._cnc_mm: dict[int, float] = {}  # each tool's wear offset at the CNC now
+        self._cut: tuple[int, dict[int, float]] = (-1, {})  # the part under the laser, and
+        self.cnc_error = ""                                 # the offsets it was cut with
+
+    def follow(self, readers: Mapping[int, Callable[[], float]], stop: threading.Event,
+               period_s: float = 0.2) -> None:
+        """Read each tool's wear offset (mm of diameter) every ``period_s`` in a thread of
+        its own until ``stop``; a reader that fails (OSError, ValueError) leaves its tool's
+        as it was, said in the stats."""
+        def follow() -> None:
+            while not stop.wait(period_s):
+                errors = []
+                for tool, read in readers.items():
+                    try:
+                        total = float(read())
+                    except (OSError, ValueError) as err:
+                        errors.append(f"tool {tool}: {err or type(err).__name__}")
+                        continue
+                    with self._lock:
+                        self._cnc_mm[tool] = total
+                self.cnc_error = "; ".join(errors)
+        threading.Thread(target=follow, name="sim-stepped-cnc", daemon=True).start()
+
+    def diameter_mm(self, t_s: float) -> float:
+        """The diameter under the laser ``t_s`` seconds from the start."""
+        with self._lock:
+            if self.part.part_at(t_s) != self._cut[0]:  # the next part: cut with those now
+                self._cut = (self.part.part_at(t_s), dict(self._cnc_mm))
+            return self.part.at(t_s, self._cut[1])
+
+    def stats(self) -> dict[str, Any]:
+        """The part under the laser, the offsets it was cut with, and a reading's failure."""
+        with self._lock:
+            return {"part": self._cut[0], "offsets_mm": {str(k): v for k, v in
+                                                          self._cut[1].items()},
+                    "cnc_error": self.cnc_error}
+
+
 class SimGigECamera:
     """The simulated GigE Vision camera, in this process (run it in its own process for tests
     that kill it: ``shaftgauge sim-camera``)."""
@@ -211,6 +258,8 @@ class SimGigECamera:
         self._d0 = settings.diameter_mm
         self.lathe = CameraLathe(settings.lathe, settings.seed, settings.lathe_paced) \
             if settings.lathe is not None else None
+        self.stepped = CameraStepped(settings.stepped) if settings.stepped is not None \
+            else None
         self._scene: tuple[Shot, Board] | None = None   # None: the shaft
         self._scene_image: tuple[tuple[Shot, Board], np.ndarray] | None = None
         self._gv: int | None = None
@@ -291,12 +340,6 @@ class SimGigECamera:
                              "it the CNC's offset")
         self.lathe.set_total(total_mm)
 
-    def follow_cnc(self, read_total_mm: Callable[[], float], period_s: float = 0.2) -> None:
-        """The virtual lathe follows the CNC's total (``CameraLathe.follow``) until stopped."""
-        if self.lathe is None:
-            raise ValueError("no virtual lathe to follow the CNC with")
-        self.lathe.follow(read_total_mm, self._stop, period_s)
-
     def set_turning(self, turning: Turning, spindle_deg_per_frame: float) -> None:
         """Show a surface off the spindle axis or out of round (``Turning()``: none), frame
         ``n`` at spindle angle ``n * spindle_deg_per_frame`` (as an encoder-triggered camera
@@ -319,8 +362,8 @@ class SimGigECamera:
         if self.lathe is not None:
             return self.lathe.diameter_mm()
         with self._lock:
-            if self.settings.stepped is not None:  # its segments in turn
-                return self.settings.stepped.at(time.monotonic() - self._t0)
+            if self.settings.stepped is not None and self.stepped is not None:
+                return self.stepped.diameter_mm(time.monotonic() - self._t0)
             minutes = (time.monotonic() - self._t0) / 60.0
             if self.settings.drift_period_min > 0:
                 minutes %= self.settings.drift_period_min
@@ -371,7 +414,8 @@ class SimGigECamera:
                 "disturbances": bool(self.settings.rig.disturbances),
                 "eccentricity_mm": self.settings.rig.turning.eccentricity_mm,
                 "rerendered": self._ring.rerendered if self._ring else 0,
-                "lathe": None if self.lathe is None else self.lathe.stats()}
+                "lathe": None if self.lathe is None else self.lathe.stats(),
+                "stepped": None if self.stepped is None else self.stepped.stats()}
 
     # ---- sensor -------------------------------------------------------------------------
 

@@ -53,6 +53,12 @@ class CompensationSettings:
         visible, not how long to wait. ``window``: a measuring cycle's mean value: wait out
         the dead time after a correction, fill the window, correct ``gain`` of its median or
         mean.
+    judge : {'frame', 'segment'}
+        What a law takes as one measurement. ``frame`` (the default): each frame measured.
+        ``segment``: with a job, the frames of one feature in a row fused into one value (a
+        part's segment under the laser; ``service.compensation.segments``), so that a part
+        counts once and the dead time is counted in segments; for a gauge that sees each
+        part's features in turn. Without a job, frames.
     gain : float
         The **feedback** (0-1]: ``predictive``: the share of each measurement taken into the
         process estimate (a mean value over about ``2 / gain - 1`` parts; Siemens' ``1/_K``);
@@ -123,6 +129,7 @@ class CompensationSettings:
     shadow: bool = True
     offset_resolution_mm: float = 0.0001
     law: Literal["window", "predictive"] = "predictive"
+    judge: Literal["frame", "segment"] = "frame"
     trend_gain: float = 0.15
     mean_value_band_mm: float = 0.0
     plausibility_mm: float | None = None
@@ -187,6 +194,8 @@ class CompensationSettings:
             p.append("offset_sign must be +1 or -1")
         if self.law not in ("window", "predictive"):
             p.append("law must be 'window' or 'predictive'")
+        if self.judge not in ("frame", "segment"):
+            p.append("judge must be 'frame' or 'segment'")
         return p
 
 

@@ -24,6 +24,7 @@ from service.compensation import (
     State,
 )
 from service.compensation.job import Job, JobFeature, OffsetEntry
+from service.compensation.segments import SegmentFusion
 from service.measurement_record import Feature, MeasurementRecord
 from service.runtime.entry_channels import (
     SETTINGS_ENTRY,
@@ -127,6 +128,7 @@ class CompensationService:
         self.entries.set_job(None, self._settings, None)
         self._hold: OffsetHold | None = None
         self._queue: asyncio.Queue[tuple[MeasurementIn, JobFeature | None]] | None = None
+        self._segments: SegmentFusion[JobFeature] = SegmentFusion()
         self.dropped = 0
         self.errors = 0
 
@@ -214,6 +216,8 @@ class CompensationService:
         """The job in force (None: the settings' single feature): a channel for each of its
         offset entries, each measurement judged against its feature and taken into its
         entry's law."""
+        if (ended := self._segments.flush()) is not None:
+            self._queued(*ended)
         self.entries.set_job(job, self.settings, self._calibration_id)
 
     def submit(self, record: MeasurementRecord, received_s: float, held: str | None = None,
@@ -221,19 +225,31 @@ class CompensationService:
         """Queue a published measurement (of ``feature`` of the job) for the controller (the
         oldest is dropped and counted when the queue is full). Held measurements go in with a
         held status: while offsets are held, or when ``held`` names why this one may not move
-        the tool (``held_for_<held>``)."""
+        the tool (``held_for_<held>``). With ``judge = "segment"`` a job's good frames go
+        in a segment at a time, fused (``SegmentFusion``)."""
+        if self._queue is None:
+            return
+        hold = self._hold.code if self.offset_hold() and self._hold else held
+        if self.log_problem():  # an offset that cannot be logged is not written, nor
+            hold = "log_unwritable"  # proposed anew with each measurement meanwhile
+        m = MeasurementIn(
+            record.seq, received_s, ("held_for_" + hold) if hold else record.status,
+            record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id)
+        if self.settings.judge == "segment" and feature is not None and m.status == "ok" \
+                and m.diameter_mm is not None and m.uncertainty_mm is not None:
+            ended = self._segments.add(m, feature, feature.number)
+            if ended is None:
+                return
+            m, feature = ended
+        self._queued(m, feature)
+
+    def _queued(self, m: MeasurementIn, feature: JobFeature | None) -> None:
         if self._queue is None:
             return
         if self._queue.full():
             self._queue.get_nowait()
             self.dropped += 1
-        hold = self._hold.code if self.offset_hold() and self._hold else held
-        if self.log_problem():  # an offset that cannot be logged is not written, nor
-            hold = "log_unwritable"  # proposed anew with each measurement meanwhile
-        self._queue.put_nowait((MeasurementIn(
-            record.seq, received_s, ("held_for_" + hold) if hold else record.status,
-            record.compensation_diameter_mm, record.uncertainty_mm, record.calibration_id),
-            feature))
+        self._queue.put_nowait((m, feature))
 
     async def run(self) -> None:
         """Judge queued measurements until cancelled."""

@@ -525,10 +525,14 @@ def test_make_runs_stepped_shaft_shows_each_feature_with_its_own_nominal(tmp_pat
                                                                          browser) -> None:
     """``make run``'s embedded default turns a stepped shaft of four features, 3 s each:
     the operator view names each while it is under the laser, with its own nominal and
-    tolerance (it showed the first feature's nominal beside the collar's diameter)."""
+    tolerance (it showed the first feature's nominal beside the collar's diameter). Its loop
+    is closed on the simulated CNC, whose tools were set up off their nominals: within two
+    minutes the compensation view shows offsets written to the CNC for each tool, and the
+    parts held in tolerance."""
     svc = start_service(tmp_path, embedded=True)
     try:
         wait_ready(svc)
+        started = time.monotonic()
         page = open_page(browser, svc.url + "/ui/#operator")
         for name, nominal, tolerance in (
                 ("feature 1 journal", "30.0000 mm", "+20 µm / -20 µm"),
@@ -540,5 +544,25 @@ def test_make_runs_stepped_shaft_shows_each_feature_with_its_own_nominal(tmp_pat
             expect(page.locator("#tolerance")).to_have_text(tolerance)
         shot(page, "operator-stepped-shaft")
         assert not page.errors  # type: ignore[attr-defined]
+        page.goto(svc.url + "/ui/#compensation")
+        expect(page.locator("#shadow")).not_to_be_checked(timeout=UI_WAIT_MS)
+        tools = page.locator("#comp-tools tr")
+        expect(tools).to_have_count(2, timeout=UI_WAIT_MS)
+        for tool in (1, 2):  # an offset of each tool's acknowledged by the CNC
+            expect(page.locator(f'#comp-tools tr[data-tool="{tool}"]')).to_contain_text(
+                "written to the CNC", timeout=UI_WAIT_MS)
+            until(lambda t=tool: [e for e in svc.get("/api/v1/status").json()["compensation"]
+                                  ["entries"] if e["tool"] == t and e["offset_seq"] > 0],
+                  f"no offset of tool {tool}'s written within 2 minutes",
+                  timeout_s=max(0.0, 120.0 - (time.monotonic() - started)))
+        took_s = time.monotonic() - started
+        expect(page.locator('#decisions tr[data-kind="applied"]').first).to_be_visible(
+            timeout=UI_WAIT_MS)
+        shot(page, "compensation-embedded-default")
+        # Offsets within two minutes of the gauge's start on a machine that is not loaded; a
+        # loaded one measures fewer frames of the same parts, and the 120 s above end it.
+        print(f"\nFIGURES make run: an offset of each tool written {took_s:.0f} s after ready")
+        parts = svc.get("/api/v1/parts", params={"limit": 4}).json()["items"]
+        assert parts and parts[0]["verdict"] == "ok", parts[:1]  # held in tolerance
     finally:
         stop_service(svc)

@@ -41,7 +41,9 @@ def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None
         assert wait_ready(svc)
         st = svc.get("/api/v1/status").json()
         comp = svc.get("/api/v1/compensation").json()
-        assert comp["settings"]["nominal_mm"] == 30.0 and comp["settings"]["shadow"]
+        # Its loop closed on the simulated CNC (issue 60), a segment a feature a part.
+        assert comp["settings"]["nominal_mm"] == 30.0 and not comp["settings"]["shadow"]
+        assert comp["settings"]["judge"] == "segment"
         assert st["job"]["job"]["part_number"] == "DEMO-4" and st["job"]["job"]["tools"] == 2
         assert st["compensation"]["state"] != "alarm"
         deadline, spc = time.monotonic() + 30, {}

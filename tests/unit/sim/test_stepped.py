@@ -38,3 +38,16 @@ def test_a_bad_spec_is_refused_naming_it() -> None:
     part = SteppedPart.from_json('{"segments": [{"diameter_mm": 30, "tool": 2}], '
                                  '"wear_um_per_min": {"2": 0.5}, "part_sigma_mm": 0}')
     assert part.at(60.0) == pytest.approx(30.0005)
+
+
+def test_each_tools_setup_and_wear_offset_move_only_its_own_segments() -> None:
+    part = SteppedPart.from_json('{"segments": [{"diameter_mm": 30, "tool": 1}, '
+                                 '{"diameter_mm": 34, "tool": 2}], "dwell_s": 2, '
+                                 '"wear_um_per_min": {"1": 0, "2": 0}, "part_sigma_mm": 0, '
+                                 '"setup_mm": {"2": -0.012}}')
+    assert part.tools == [1, 2]
+    assert part.at(1.0) == pytest.approx(30.0) and part.at(3.0) == pytest.approx(33.988)
+    cut = {1: -0.005, 2: 0.010}
+    assert part.at(1.0, cut) == pytest.approx(29.995)
+    assert part.at(3.0, cut) == pytest.approx(33.998)
+    assert [part.part_at(t) for t in (0.0, 3.9, 4.0, 9.0)] == [0, 0, 1, 2]
