@@ -60,10 +60,12 @@ class ArchiveReading:
                             to_time: float | None = None, limit: int = 1_000_000
                             ) -> dict[str, Any]:
         """What a file's header needs of the first ``limit`` archived rows between two times,
-        without reading them into memory: how many are good values (``good``), the last row
-        with a nominal (``judged``: its nominal and tolerance, or None), whether any good one
-        knew the run-out (``tir``) or the roundness (``ront``), and the last row's number
-        (``last_seq``: the rows archived later are not the file's)."""
+        without reading them into memory: how many are good values (``good``), each feature
+        the good ones were measured as (``features``, None first for rows of no feature: its
+        number and ``judged``, the nominal and tolerance of its last row with a nominal, or
+        None), whether any good one knew the run-out (``tir``) or the roundness (``ront``),
+        and the last row's number (``last_seq``: the rows archived later are not the
+        file's)."""
         lo = -math.inf if from_time is None else from_time
         hi = math.inf if to_time is None else to_time
         rows = ("SELECT * FROM measurements WHERE wall_time BETWEEN ? AND ? ORDER BY seq "
@@ -76,11 +78,15 @@ class ArchiveReading:
             count, tir, ront = self._read.execute(
                 f"SELECT COUNT(*), COUNT(tir_mm), COUNT(ront_mm) FROM ({rows}) WHERE {good} "
                 "AND seq <= ?", (lo, hi, limit, last_seq)).fetchone()
-            judged = self._read.execute(
-                f"SELECT nominal_mm, tol_lower_mm, tol_upper_mm FROM ({rows}) WHERE "
-                "nominal_mm IS NOT NULL AND seq <= ? ORDER BY seq DESC LIMIT 1",
-                (lo, hi, limit, last_seq)).fetchone()
+            seen = [f for (f,) in self._read.execute(
+                f"SELECT DISTINCT feature FROM ({rows}) WHERE {good} AND seq <= ? "
+                "ORDER BY feature", (lo, hi, limit, last_seq))]  # NULL first
+            # SQLite: a bare column beside MAX() is the maximal row's.
+            judged = {f: dict(zip(("nominal_mm", "tol_lower_mm", "tol_upper_mm"), v,
+                                  strict=True)) for f, *v, _ in self._read.execute(
+                f"SELECT feature, nominal_mm, tol_lower_mm, tol_upper_mm, MAX(seq) FROM "
+                f"({rows}) WHERE nominal_mm IS NOT NULL AND seq <= ? GROUP BY feature",
+                (lo, hi, limit, last_seq))}
         return {"good": int(count), "tir": tir > 0, "ront": ront > 0, "last_seq": last_seq,
-                "judged": None if judged is None else dict(zip(
-                    ("nominal_mm", "tol_lower_mm", "tol_upper_mm"), judged, strict=True))}
+                "features": [{"feature": f, "judged": judged.get(f)} for f in seen]}
 

@@ -579,7 +579,14 @@ def cmd_export(args: argparse.Namespace) -> int:
     """Write the store's archived measurements as a Q-DAS AQDEF transfer file."""
     from calib_store.compensation_log import CompensationLog
     from calib_store.store import StoreError
-    from service.plant.aqdef import archive_part, archive_values, as_text, header_lines, value_lines
+    from service.plant.aqdef import (
+        archive_part,
+        archive_values,
+        as_text,
+        encoded,
+        header_lines,
+        value_lines,
+    )
 
     if args.start is not None and args.end is not None and args.start > args.end:
         return _fail("--from is after --to")
@@ -595,12 +602,11 @@ def cmd_export(args: argparse.Namespace) -> int:
                             None if args.max_tir_um is None else args.max_tir_um / 1000.0)
         rows = 0
         with out.open("wb") as f:
-            f.write(as_text(header_lines(part)).encode("latin-1", "replace"))
+            f.write(encoded(as_text(header_lines(part))))
             for page in log_.measurement_pages(args.start, args.end, 2**62,
                                                last_seq=summary["last_seq"]):
                 rows += len(page)
-                f.write(as_text(value_lines(part, archive_values(part, page)))
-                        .encode("latin-1", "replace"))
+                f.write(encoded(as_text(value_lines(part, archive_values(part, page)))))
     except OSError as err:
         return _fail(f"{out}: cannot write ({err.strerror})")
     finally:

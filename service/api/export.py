@@ -16,6 +16,7 @@ from service.plant.aqdef import (
     archive_part,
     archive_values,
     as_text,
+    encoded,
     from_parts,
     header_lines,
     value_lines,
@@ -108,15 +109,15 @@ def router(log: CompensationLog | None, gauge_id: str, store_error: str,
         return {"Content-Disposition": f'attachment; filename="{name}"'}
 
     def dfq(text: str) -> Response:
-        return Response(text.encode("latin-1", "replace"), media_type=DFQ_TYPE,
+        return Response(encoded(text), media_type=DFQ_TYPE,
                         headers={**attachment(),
                                  "X-Values": str(sum(1 for x in text.split("\r\n")
                                                      if x.startswith("K0001")))})
     return r
 
 
-DFQ_TYPE = "text/plain; charset=iso-8859-1"
+DFQ_TYPE = "text/plain; charset=windows-1252"
 
 
 def _encoded(lines: list[str]) -> bytes:
-    return as_text(lines).encode("latin-1", "replace")
+    return encoded(as_text(lines))

@@ -72,6 +72,7 @@ class JobService:
                 self.store_error = f"the active job cannot be read: {err}"
         self._job: Job | None = None
         self.parts: PartAssembler | None = None
+        self._parts_job: int | None = None  # the stored job the part under way is of
         self._rebuild()
 
     def on_change(self, listener: Callable[[], None]) -> None:
@@ -112,6 +113,7 @@ class JobService:
         self._in_view = None
         self.latest = {}
         self.parts = PartAssembler(job) if job is not None else None
+        self._parts_job = None if self.stored is None else self.stored.id
         self._new_jobs.tell(None)
         self._changed()
 
@@ -314,7 +316,7 @@ class JobService:
     def _record(self, part: PartRecord | None) -> None:
         if part is not None:  # a part finished
             self.results_kept.finished(part)
-            self.part_log.add(part, None if self.stored is None else self.stored.id)
+            self.part_log.add(part, self._parts_job)  # the job it was of, not the next
 
     def status(self) -> dict[str, Any]:
         """The job's part of the service status."""

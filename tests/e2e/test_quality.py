@@ -5,14 +5,18 @@ driven in Debian's Chromium."""
 from __future__ import annotations
 
 import re
+import sqlite3
+import subprocess
 import time
 from pathlib import Path
 
 import httpx
+import pytest
 from playwright.sync_api import expect
 
 from drivers.plc.registers import FaultBit
 from drivers.sim.control import control
+from tests.aqdef_reading import characteristics
 from tests.e2e.conftest import (
     TECH_KEY,
     UI_WAIT_MS,
@@ -23,6 +27,8 @@ from tests.e2e.conftest import (
 )
 from tests.e2e.test_dashboard import enter_key, open_page, shot
 from tests.faults.test_cnc_trust import read_register
+from tests.integration.conftest import SHAFTGAUGE
+from tests.waiting import until
 
 FAST = """
 [measurement]
@@ -33,6 +39,37 @@ member_spacing = 3
 every_s = 0
 baseline_subgroups = 3
 """
+
+
+def archive_per_feature(svc, tmp_path: Path) -> None:
+    """``shaftgauge export aqdef`` on the embedded default's store, once a whole part is
+    archived, as an independent reader takes it: a characteristic a feature of the stepped
+    shaft, each with its feature's limits, no value out of them that was in tolerance (the
+    four features' diameters, 26 to 34 mm, were one characteristic with 30 mm's limits)."""
+    until(lambda: svc.get("/api/v1/parts").json()["items"], "no part finished")
+    store, out = tmp_path / "data" / "gauge.db", tmp_path / "archive.dfq"
+    done = subprocess.run([SHAFTGAUGE, "export", "aqdef", "--store", str(store), "--output",
+                           str(out)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    declared, chars = characteristics(out)
+    assert declared == len(chars)
+    job_id = svc.get("/api/v1/status").json()["job"]["job"]["id"]
+    features = svc.get(f"/api/v1/jobs/{job_id}").json()["document"]["features"]
+    diameters = {c["description"]: c for c in chars if c["description"].startswith("diam")}
+    assert sorted(diameters) == [f"diameter feature {f['number']}" for f in features]
+    with sqlite3.connect(store) as db:
+        out_rows = db.execute("SELECT feature, COALESCE(fused_diameter_mm, diameter_mm) FROM "
+                              "measurements WHERE status = 'ok' AND in_tolerance = 0").fetchall()
+    for f in features:
+        c = diameters[f"diameter feature {f['number']}"]
+        assert (c["lower"], c["upper"]) == pytest.approx(
+            (f["nominal_mm"] + f["tol_lower_mm"], f["nominal_mm"] + f["tol_upper_mm"]))
+        assert c["values"], c
+        out_of_spec = [v for v in c["values"] if not c["lower"] <= v <= c["upper"]]
+        assert all(any(n == f["number"] and abs(v - d) <= 0.5e-4 for n, d in out_rows)
+                   for v in out_of_spec), (f, out_of_spec)
+    print(f"\nembedded default archive: {declared} characteristics, "
+          f"{sum(len(c['values']) for c in chars)} values")
 
 
 def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None:
@@ -53,6 +90,7 @@ def test_the_embedded_default_fills_spc_and_runs_a_study(tmp_path: Path) -> None
         assert spc["cpk"] is not None and spc["n"] >= 5, spc
         print(f"\nembedded default SPC after {30 - (deadline - time.monotonic()):.0f} s: "
               f"n {spc['n']}, Cpk {spc['cpk']:.2f}")
+        archive_per_feature(svc, tmp_path)
         # The embedded default turns a stepped shaft: the technician clamps the master.
         assert control(svc.control_port, {"set": {"diameter_mm": 30.0}})["ok"]
         r = httpx.post(svc.url + "/api/v1/gauge-studies", timeout=10,

@@ -137,7 +137,7 @@ def test_with_the_spindle_angle_an_off_axis_part_is_measured_and_held_for_its_ru
         # And the quality department's AQDEF export: the run-out (limit 20 um) and the
         # roundness as characteristics 2 and 3 of the archived parts.
         time.sleep(1.5)  # an archived row (one a second) after the roundness was known
-        header, parts = read_aqdef(svc.get("/api/v1/export/aqdef").content.decode("latin-1"))
+        header, parts = read_aqdef(svc.get("/api/v1/export/aqdef").content.decode("cp1252"))
         assert header["2002/2"] == "run-out TIR" and header["2111/2"] == "0.0200", header
         assert header["2002/3"] == "roundness RONt", header
         tirs = [float(p["0001/2"]) for p in parts if "0001/2" in p]

@@ -12,7 +12,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from service.plant.aqdef import AqdefPart, AqdefValue, aqdef_text, from_archive, from_parts
+from service.plant.aqdef import (
+    AqdefPart,
+    AqdefValue,
+    aqdef_text,
+    encoded,
+    from_archive,
+    from_parts,
+)
 
 K_LINE = re.compile(r"^K(\d{4})(?:/(\d+))? (.*)$")
 
@@ -29,8 +36,8 @@ def read_aqdef(text: str) -> tuple[dict[str, str], list[dict[str, str]]]:
         key, index, value = m.groups()
         name = key if index in (None, "1") else f"{key}/{index}"
         if key.startswith("00") and key != "0100":
-            if name == "0001":
-                values.append({})
+            if key == "0001" and (not values or name in values[-1]):
+                values.append({})  # the next value (a characteristic's comes with the part's)
             assert values, f"{line!r} before any K0001"
             assert name not in values[-1], f"{line!r}: twice for one part"
             values[-1][name] = value
@@ -54,9 +61,13 @@ def test_header_and_value_fields() -> None:
     header, values = read_aqdef(aqdef_text(part(), [AqdefValue(30.00123, t, "812", "cal3")]))
     assert header == {"0100": "1", "1001": "4711-A", "1002": "drive shaft", "2001": "1",
                       "2002": "diameter", "2022": "4", "2101": "30.0000", "2110": "29.9800",
-                      "2111": "30.0200", "2142": "mm"}
+                      "2111": "30.0200", "2142": "mm",
+                      "4090": "1", "4092": "the gauge (unattended)",  # the catalogues
+                      "4070": "1", "4072": "lathe-7"}
     assert values == [{"0001": "30.0012", "0004": "29.11.2026/14:05:09", "0005": "0",
-                       "0006": "cal3", "0008": "lathe-7", "0012": "lathe-7", "0014": "812"}]
+                       "0006": "cal3", "0008": "1", "0012": "1", "0014": "812"}]
+    text = aqdef_text(part(), [])
+    assert "K1001/1 4711-A\r\n" in text and "K1002/1 drive shaft\r\n" in text  # indexed
 
 
 def test_no_nominal_leaves_the_limits_out_and_nan_values_out() -> None:
@@ -161,3 +172,60 @@ def test_ten_parts_of_four_features_parse_back_per_characteristic_and_part() -> 
                 assert got is None
             else:
                 assert got == pytest.approx(f["nominal_mm"] + k / 1e4, abs=1e-9)
+
+
+def test_text_is_cut_to_its_fields_lengths_and_written_in_cp1252_naming_the_rest() -> None:
+    text = aqdef_text(part(part_number="P" * 47,
+                           part_description="Welle Ø30 \u2013 \u7b2c\u4e00"), [])
+    header, _ = read_aqdef(text)
+    assert header["1001"] == "P" * 30  # K1001: 30 characters
+    data = encoded(text)
+    back = data.decode("cp1252")
+    assert "Welle Ø30 \u2013 " in back  # what cp1252 holds, as it is
+    assert "\\N{CJK UNIFIED IDEOGRAPH-7B2C}" in back and "?" not in back  # the rest named
+
+
+def feature_row(seq: int, feature: int | None, diameter: float, nominal: float | None,
+                tol: float = 0.012) -> dict:
+    return {**row(seq, fused=diameter, nominal=nominal), "feature": feature,
+            "tol_lower_mm": -tol, "tol_upper_mm": tol}
+
+
+STEPPED = [(1, 30.0, 0.020), (2, 26.0, 0.012), (3, 34.0, 0.025), (4, 28.0, 0.015)]
+
+
+def test_an_archive_of_a_stepped_shaft_has_a_characteristic_a_feature_with_its_limits() -> None:
+    rows = [feature_row(10 * k + n, n, nominal + 0.001 * (k % 3), nominal, tol)
+            for k in range(6) for n, nominal, tol in STEPPED]
+    header, values = read_aqdef(from_archive(rows, "g", "DEMO-4"))
+    assert header["0100"] == "4"
+    for i, (n, nominal, tol) in enumerate(STEPPED, 1):
+        key = "" if i == 1 else f"/{i}"
+        assert header[f"2002{key}"] == f"diameter feature {n}"
+        assert (float(header[f"2110{key}"]), float(header[f"2111{key}"])) == \
+            pytest.approx((nominal - tol, nominal + tol))
+    inside = 0
+    for v in values:
+        for k, x in v.items():
+            if k.startswith("0001"):
+                i = 1 if k == "0001" else int(k.split("/")[1])
+                key = "" if i == 1 else f"/{i}"
+                assert float(header[f"2110{key}"]) <= float(x) <= float(header[f"2111{key}"])
+                inside += 1
+    assert inside == len(rows)  # every row a value of its own feature, none out
+
+
+def test_rows_of_no_feature_keep_the_one_characteristic_they_always_had() -> None:
+    rows = [feature_row(1, None, 30.001, 30.0), feature_row(2, 2, 26.001, 26.0)]
+    header, values = read_aqdef(from_archive(rows, "g"))
+    assert header["0100"] == "2" and header["2002"] == "diameter"
+    assert header["2002/2"] == "diameter feature 2" and header["2101/2"] == "26.0000"
+    assert [v.get("0001") for v in values] == ["30.0010"]
+    assert values[0]["0001/2"] == "26.0010"
+
+
+def test_one_feature_alone_keeps_the_characteristics_name() -> None:
+    rows = [feature_row(1, 1, 30.001, 30.0), feature_row(2, 1, 30.002, 30.0)]
+    header, values = read_aqdef(from_archive(rows, "g", characteristic="bearing seat"))
+    assert (header["0100"], header["2002"]) == ("1", "bearing seat")
+    assert [v["0001"] for v in values] == ["30.0010", "30.0020"]

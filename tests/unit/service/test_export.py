@@ -9,6 +9,7 @@ from fastapi.testclient import TestClient
 
 from service.api.app import create_app
 from service.serve import Children, build
+from tests.aqdef_reading import characteristics
 from tests.integration.conftest import SHAFTGAUGE
 from tests.unit.plant.test_aqdef import read_aqdef
 from tests.unit.service.conftest import make_settings
@@ -27,7 +28,8 @@ def test_the_aqdef_export_holds_the_archived_measurements(tmp_path) -> None:
         assert r.status_code == 200, r.text
         assert r.headers["content-type"].startswith("text/plain")
         assert r.headers["content-disposition"].endswith('.dfq"')
-        header, values = read_aqdef(r.content.decode("latin-1"))
+        header, values = read_aqdef(r.content.decode("cp1252"))
+        r_first = r.content
         assert header["1001"] == "4711" and header["2101"] == "30.0000"
         assert len(values) >= 5 and int(r.headers["x-values"]) == len(values)
         assert all(abs(float(v["0001"]) - 30.0) < 0.01 for v in values)
@@ -47,9 +49,19 @@ def test_the_aqdef_export_holds_the_archived_measurements(tmp_path) -> None:
                            "--output", str(out), "--part", "4711"], capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    _, from_cli = read_aqdef(out.read_bytes().decode("latin-1"))
+    _, from_cli = read_aqdef(out.read_bytes().decode("cp1252"))
     assert len(from_cli) >= len(values)
     assert [v["0001"] for v in from_cli[:len(values)]] == [v["0001"] for v in values]
+    # Both as an independent reader takes them: one characteristic (the rows are of no
+    # job's feature), its limits the header's, its values the rows'.
+    (tmp_path / "api.dfq").write_bytes(r_first)
+    for path, expected in ((tmp_path / "api.dfq", values), (out, from_cli)):
+        declared, chars = characteristics(path)
+        assert declared == len(chars) == 1
+        c = chars[0]
+        assert (c["nominal"], c["lower"], c["upper"]) == (
+            float(header["2101"]), float(header["2110"]), float(header["2111"]))
+        assert c["values"] == [float(v["0001"]) for v in expected]
     bad = subprocess.run([SHAFTGAUGE, "export", "aqdef", "--store", str(tmp_path / "no.db"),
                           "--output", str(out)], capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "missing" in bad.stderr
