@@ -125,7 +125,8 @@ def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | Non
         read = how_read(raw)
     out: dict[str, Any] = {"step": "plane", "ok": bool(res), "reason": res.reason,
                            "read": read, "how": {str(k): v for k, v in res.how.items()},
-                           "rms_mm": res.rms_mm, "per_pose_points": res.per_pose_points,
+                           "rms_mm": res.rms_mm, "poses_used": len(res.per_pose_points),
+                           "per_pose_points": res.per_pose_points,
                            "per_pose_rms_mm": res.per_pose_rms_mm, "points": res.points,
                            "worst_mm": res.worst_mm,
                            "rejected": {str(k): v for k, v in res.rejected.items()}}
@@ -173,6 +174,7 @@ def build_step(intrinsics: str, plane: str, axis: str) -> tuple[Calibration | No
                        p.get("rms_mm", float("nan")), p.get("worst_mm", float("nan")),
                        p.get("points", 0),
                        p.get("per_pose_points", []), p.get("per_pose_rms_mm", []),
+                       rejected={int(k): v for k, v in p.get("rejected", {}).items()},
                        reason=p.get("reason", ""),
                        how={int(k): v for k, v in p.get("how", {}).items()})
     ares = AxisResult(np.array(a["direction"]) if a.get("ok") else None,

@@ -177,7 +177,7 @@ def calibrate_plane(pairs: list[tuple[np.ndarray, np.ndarray]], board: Board, K:
         pts.append(on_plane(xy, plane, K, dist))
         counts.append(len(xy))
         how[i] = "the difference of the laser-off and laser-on images"
-    return _fitted(pts, counts, rejected, how, min_poses)
+    return plane_of_poses(pts, counts, rejected, how, min_poses)
 
 
 def on_plane(xy: np.ndarray, plane: BoardPlane, K: np.ndarray, dist: np.ndarray
@@ -217,12 +217,22 @@ def calibrate_plane_laser_on(images: list[np.ndarray], board: Board, K: np.ndarr
         pts.append(on_plane(line.points, pose.plane, K, dist))
         counts.append(len(line.points))
         how[i] = f"laser on only: {line.how}"
-    return _fitted(pts, counts, rejected, how, min_poses)
+    return plane_of_poses(pts, counts, rejected, how, min_poses)
 
 
-def _fitted(pts: list[np.ndarray], counts: list[int], rejected: dict[int, str],
-            how: dict[int, str], min_poses: int) -> PlaneResult:
-    """The plane through every pose's points, or why there is none."""
+MAX_PLANE_RMS_MM = 1.0
+"""A plane whose own points lie farther from it than this, RMS, is refused: they contradict
+it (a line found on something else than the sheet's trace, a pose's board plane wrong). A
+laser line on a board is a few tenths of a millimetre wide; a good plane's points lie tens
+of micrometres from it."""
+
+
+def plane_of_poses(pts: list[np.ndarray], counts: list[int], rejected: dict[int, str],
+                   how: dict[int, str], min_poses: int) -> PlaneResult:
+    """The plane through every pose's points (``pts``: each pose's 3-D points, mm, in the
+    camera frame; ``counts``: how many each), or why there is none: too few poses, poses
+    that do not span a plane, or points that lie farther from the plane than
+    ``MAX_PLANE_RMS_MM`` (the figures kept, each pose's too)."""
     if len(counts) < min_poses:
         return PlaneResult(None, per_pose_points=counts, rejected=rejected, reason=(
             f"the laser line was measured on {len(counts)} board poses, need {min_poses}: "
@@ -234,5 +244,14 @@ def _fitted(pts: list[np.ndarray], counts: list[int], rejected: dict[int, str],
             "the laser lines do not span a plane: tilt the board between poses"))
     res = allp @ n - d
     per_pose = [float(np.sqrt(np.mean(r**2))) for r in np.split(res, np.cumsum(counts)[:-1])]
-    return PlaneResult(n, d, float(np.sqrt(np.mean(res**2))), float(np.abs(res).max()),
-                       len(allp), counts, per_pose, rejected, how=how)
+    rms, worst = float(np.sqrt(np.mean(res**2))), float(np.abs(res).max())
+    reason = ""
+    if rms > MAX_PLANE_RMS_MM:
+        poses = ", ".join(f"{r:.1f}" for r in per_pose)
+        reason = (f"the plane's own points lie {rms:.1f} mm RMS from it (worst {worst:.1f} "
+                  f"mm; by pose {poses} mm), more than {MAX_PLANE_RMS_MM:g} mm: they do not "
+                  "lie on one plane. Check that the line found is the laser's on the board "
+                  "(its colour, the board's margin) and that the board is flat; take the "
+                  "poses again")
+    return PlaneResult(None if reason else n, d, rms, worst, len(allp), counts, per_pose,
+                       rejected, reason, how)

@@ -114,14 +114,17 @@ def assess(intr: IntrinsicsResult, plane: PlaneResult | None = None,
             f"the corners covered {intr.coverage:.0%} of the image")
     r.judge(len(intr.used), LIMITS["images"], f"{len(intr.used)} images with the board found")
     if plane is not None:
+        # Refused or not: how many poses it rests on, and what became of the rest.
+        r.figures["light_plane"] = {
+            "rms_mm": _finite(plane.rms_mm), "worst_mm": _finite(plane.worst_mm),
+            "points": plane.points, "poses_used": len(plane.per_pose_points),
+            "per_pose_points": plane.per_pose_points,
+            "per_pose_rms_mm": plane.per_pose_rms_mm,
+            "how": {str(k): v for k, v in plane.how.items()},
+            "rejected": {str(k): v for k, v in plane.rejected.items()}}
         if not plane:
             r.refuse(f"light plane: {plane.reason}")
         else:
-            r.figures["light_plane"] = {"rms_mm": plane.rms_mm, "worst_mm": plane.worst_mm,
-                                        "points": plane.points,
-                                        "per_pose_points": plane.per_pose_points,
-                                        "per_pose_rms_mm": plane.per_pose_rms_mm,
-                                        "how": {str(k): v for k, v in plane.how.items()}}
             r.judge(plane.rms_mm, LIMITS["plane_rms_mm"],
                     f"light-plane residual {plane.rms_mm * 1000:.0f} um RMS")
             r.judge(len(plane.per_pose_points), LIMITS["plane_poses"],
@@ -144,3 +147,7 @@ def assess(intr: IntrinsicsResult, plane: PlaneResult | None = None,
         r.judge(angle, LIMITS["plane_axis_deg"],
                 f"the light plane meets the axis at {angle:.0f} degrees")
     return r
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
