@@ -66,7 +66,10 @@ function showReport(report) {
   }
   if (f.light_plane) {
     lines.push(`light plane residual ${um(f.light_plane.rms_mm)} RMS over ` +
-               `${f.light_plane.points} points`);
+               `${f.light_plane.points} points of ` +
+               `${f.light_plane.poses_used ?? (f.light_plane.per_pose_points || []).length} poses` +
+               (Object.keys(f.light_plane.rejected || {}).length
+                 ? `, ${Object.keys(f.light_plane.rejected).length} left out` : ""));
   }
   if (f.axis) lines.push(`axis: board turned through ${f.axis.rotation_span_deg.toFixed(0)}°,` +
                          ` residual ${um(f.axis.plane_residual_mm)}`);
