@@ -4,10 +4,12 @@ total (read over Modbus); the offsets the gauge writes change what it sees a dea
 
 The lathe's time is driven by the test in step with the gauge: it moves on as far as the
 frames the gauge has measured (``LathePacer``), and stands until the first, however long the
-service takes to start (``sim_lathe_paced``). It moves by the frames' own clock, not by
-their count: a slow or loaded machine measures fewer frames of the same seconds, as a slow
-gauge on a real lathe would, and the dead times typed in seconds stay true (paced by the
-count, the lathe slowed under load while the law's seconds did not, and the law overshot).
+service takes to start (``sim_lathe_paced``). It moves by the frames' own clock: a slow or
+loaded machine measures fewer frames of the same seconds, as a slow gauge on a real lathe
+would, and the dead times typed in seconds stay true (paced by the frames' count, the lathe
+slowed under load while the law's seconds did not, and the law overshot). A test that needs
+as much to measure from each frame whatever the load paces it by their count instead
+(``per_frame_s``).
 """
 
 from __future__ import annotations
@@ -74,17 +76,23 @@ shadow = true
 
 class LathePacer:
     """Drives the camera's lathe: as far as the time of the last frame the service has
-    measured, read five times a second, until closed. ``before`` (a CNC of the test's) is
-    called before each step: the lathe never cuts on with a total it was not told."""
+    measured (``per_frame_s``: that much for each frame measured), read five times a second,
+    until closed. ``before`` (a CNC of the test's) is called before each step: the lathe
+    never cuts on with a total it was not told."""
 
-    def __init__(self, svc, before: Callable[[], None] | None = None) -> None:
-        self.svc, self.before = svc, before
+    def __init__(self, svc, before: Callable[[], None] | None = None,
+                 per_frame_s: float | None = None) -> None:
+        self.svc, self.before, self.per_frame_s = svc, before, per_frame_s
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
     def _frame_time_s(self) -> float | None:
-        """When the frame of the latest measurement was received (None: none yet)."""
+        """When the frame of the latest measurement was received, or the frames measured
+        times ``per_frame_s`` (None: none yet)."""
+        if self.per_frame_s is not None:
+            measured = self.svc.get("/api/v1/status").json()["pipeline"]["measured"]
+            return int(measured) * self.per_frame_s if measured else None
         r = self.svc.get("/api/v1/measurements/latest")
         if r.status_code != 200:
             return None
