@@ -128,7 +128,8 @@ def plane_step(intrinsics: str, pairs: list[str], laser_on_only: list[str] | Non
                            "rms_mm": res.rms_mm, "poses_used": len(res.per_pose_points),
                            "per_pose_points": res.per_pose_points,
                            "per_pose_rms_mm": res.per_pose_rms_mm, "points": res.points,
-                           "worst_mm": res.worst_mm,
+                           "worst_mm": res.worst_mm, "normal_u_deg": res.normal_u_deg,
+                           "axis_u_mm": res.axis_u_mm,
                            "rejected": {str(k): v for k, v in res.rejected.items()}}
     if res:
         out["normal"] = [float(x) for x in res.normal]
@@ -176,7 +177,9 @@ def build_step(intrinsics: str, plane: str, axis: str) -> tuple[Calibration | No
                        p.get("per_pose_points", []), p.get("per_pose_rms_mm", []),
                        rejected={int(k): v for k, v in p.get("rejected", {}).items()},
                        reason=p.get("reason", ""),
-                       how={int(k): v for k, v in p.get("how", {}).items()})
+                       how={int(k): v for k, v in p.get("how", {}).items()},
+                       normal_u_deg=p.get("normal_u_deg", float("nan")),
+                       axis_u_mm=p.get("axis_u_mm", float("nan")))
     ares = AxisResult(np.array(a["direction"]) if a.get("ok") else None,
                       np.array(a["point"]) if a.get("ok") else None,
                       a.get("rotation_span_deg", 0.0), a.get("plane_residual_mm", float("nan")),

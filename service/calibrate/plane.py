@@ -135,6 +135,11 @@ class PlaneResult:
     reason: str = ""
     how: dict[int, str] = field(default_factory=dict)
     """How each pose's line was found (a pose's index: its pair, or its laser-on image)."""
+    normal_u_deg: float = math.nan
+    """The normal's standard uncertainty, degrees, from the spread of the poses (each left
+    out in turn: a jackknife)."""
+    axis_u_mm: float = math.nan
+    """The same for where the plane meets the camera's optical axis, mm."""
 
     def __bool__(self) -> bool:
         return self.normal is not None and not self.reason
@@ -253,5 +258,30 @@ def plane_of_poses(pts: list[np.ndarray], counts: list[int], rejected: dict[int,
                   "lie on one plane. Check that the line found is the laser's on the board "
                   "(its colour, the board's margin) and that the board is flat; take the "
                   "poses again")
+    normal_u, axis_u = leave_one_pose_out(pts, n)
     return PlaneResult(None if reason else n, d, rms, worst, len(allp), counts, per_pose,
-                       rejected, reason, how)
+                       rejected, reason, how, normal_u, axis_u)
+
+
+def leave_one_pose_out(pts: list[np.ndarray], normal: np.ndarray) -> tuple[float, float]:
+    """The plane's standard uncertainties from the spread of its poses: the plane fitted
+    with each pose left out in turn, the jackknife's spread of the normals (degrees) and of
+    where the plane meets the optical axis (mm; ``z = d / n_z``). NaN with fewer than three
+    poses, or a plane along the axis."""
+    k = len(pts)
+    if k < 3:
+        return math.nan, math.nan
+    normals, crossings = [], []
+    for i in range(k):
+        n, d, _ = fit_plane(np.concatenate(pts[:i] + pts[i + 1:]))
+        if n @ normal < 0:
+            n, d = -n, -d
+        normals.append(n)
+        crossings.append(d / n[2] if abs(n[2]) > 1e-9 else math.nan)
+    mean = np.mean(normals, axis=0)
+    mean /= np.linalg.norm(mean)
+    angles = np.arccos(np.clip(np.asarray(normals) @ mean, -1.0, 1.0))
+    z = np.asarray(crossings)
+    scale = (k - 1) / k
+    return (math.degrees(float(np.sqrt(scale * np.sum(angles ** 2)))),
+            float(np.sqrt(scale * np.sum((z - z.mean()) ** 2))))

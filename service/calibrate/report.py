@@ -118,6 +118,7 @@ def assess(intr: IntrinsicsResult, plane: PlaneResult | None = None,
         r.figures["light_plane"] = {
             "rms_mm": _finite(plane.rms_mm), "worst_mm": _finite(plane.worst_mm),
             "points": plane.points, "poses_used": len(plane.per_pose_points),
+            "normal_u_deg": _finite(plane.normal_u_deg), "axis_u_mm": _finite(plane.axis_u_mm),
             "per_pose_points": plane.per_pose_points,
             "per_pose_rms_mm": plane.per_pose_rms_mm,
             "how": {str(k): v for k, v in plane.how.items()},

@@ -58,3 +58,18 @@ def test_the_report_says_what_became_of_the_poses_left_out() -> None:
                                       30.0, list(range(12))), res).figures["light_plane"]
     assert figures["poses_used"] == 3
     assert figures["rejected"] == {"1": "laser line missing or too short (4 points)"}
+
+
+def test_the_planes_uncertainty_grows_with_its_poses_scatter_and_covers_the_truth() -> None:
+    got = {}
+    for noise_mm in (0.02, 0.2):
+        rng = np.random.default_rng(4)
+        pts = [pose_line(rng, t, noise_mm=noise_mm) for t in (0.0, 0.4, 0.8, 1.2, 1.6)]
+        res = plane_of_poses(pts, [60] * 5, {}, {}, 3)
+        assert res, res.reason
+        err_deg = np.degrees(np.arccos(min(1.0, abs(float(res.normal @ NORMAL)))))
+        assert err_deg < 3.0 * res.normal_u_deg, (err_deg, res.normal_u_deg)
+        got[noise_mm] = (res.normal_u_deg, res.axis_u_mm)
+    ratio = got[0.2][0] / got[0.02][0]
+    assert 4.0 < ratio < 25.0, got  # about tenfold: the scatter's
+    assert got[0.02][1] < 0.1 and got[0.2][1] > got[0.02][1], got
