@@ -51,10 +51,14 @@ def grey_of(image: np.ndarray) -> np.ndarray:
 def line_colour(image: np.ndarray, on_board: np.ndarray) -> int | None:
     """The channel (BGR index) a coloured line stands out in on the board, or None: the one
     above both others by ``MIN_COLOUR_EXCESS`` on the most pixels, at least
-    ``MIN_COLOUR_PIXELS`` (a line is a small share of a board)."""
+    ``MIN_COLOUR_PIXELS`` (a line is a small share of a board). The channels are balanced
+    on the board's white first: a webcam's blue cast over the whole board is not a line."""
     if image.ndim == 2:
         return None
     bgr = image[..., :3].astype(np.float32) * np.float32(255.0 / _full_scale(image))
+    if np.count_nonzero(on_board) >= MIN_COLOUR_PIXELS:
+        white = np.percentile(bgr[on_board], 80, axis=0)  # the print's white, per channel
+        bgr = bgr * (white.max() / np.maximum(white, 1.0)).astype(np.float32)
     counts = []
     for c in range(3):
         others = np.delete(bgr, c, axis=2).max(axis=2)
