@@ -420,7 +420,7 @@ def test_the_dead_time_the_gauge_measured_is_shown_beside_the_typed(tmp_path, br
     one in use (the measured one where it differs: the lathe's and the camera's). The
     machine warms up 30 um in its first seconds: offsets of different sizes, whose landings
     tell the dead time (a steady stream of equal ones fits any dead time alike)."""
-    typed_s = 3.6  # the lathe's 1 s to the laser and the camera's 0.8 s ring, doubled
+    typed_s = 3.6  # the lathe's 1 s to the laser and the camera's ring: over twice it
     svc = start_service(tmp_path, camera_toml=lathe_loop.camera(20.0, 30.0, 6.0),
                         compensation_toml=lathe_loop.PREDICTIVE.replace(
                             "dead_time_s = 1.5", f"dead_time_s = {typed_s}"))
@@ -449,9 +449,9 @@ def test_the_dead_time_the_gauge_measured_is_shown_beside_the_typed(tmp_path, br
         page = open_page(browser, svc.url + "/ui/#compensation")
         shown = (rf"typed 0 meas\. / {typed_s} s; measured {measured['measurements']} meas\. "
                  rf"\(\d+ s\)")
-        # The harness's dead time is the lathe's 1 s and the camera's 0.8 s on an idle
-        # machine, longer under a loaded suite (3.1 s measured once): its figure is the
-        # benches' and the unit tests', this test reads what the gauge shows of it.
+        # The harness's dead time is the lathe's 1 s and the camera's ring on an idle
+        # machine, longer under a loaded suite: its figure is the benches' and the unit
+        # tests', this test reads what the gauge shows of it.
         if dead["differs"]:
             assert dead["in_use"] == {"measurements": 0, "seconds": measured["seconds"]}, dead
             log = svc.get("/api/v1/compensation/log", params={"limit": 1000}).json()["items"]

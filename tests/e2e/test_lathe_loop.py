@@ -41,13 +41,16 @@ sim_drift_period_min = 0
 sim_lathe_dead_time_s = 1.0
 sim_lathe_thermal_um = {thermal_um}
 sim_lathe_thermal_tau_s = {thermal_tau_s}
-sim_replay_frames = 8
+sim_replay_frames = 2
 """
+# A ring of 2 frames: the frames sent after a change show the old diameter until the ring is
+# rendered again, which a loaded machine does slowly (a ring of 8 added seconds of dead time
+# under a loaded suite, and the insert-change loop swung out to 61 um).
 
 
 # The window law (the default until the predictive one held on varied lathes): its dead time
-# covers the lathe's (1 s: 10 frames), the camera's ring (8 frames rendered again after a
-# change) and the window (5 measurements).
+# covers the lathe's (1 s: 10 frames), the camera's ring (rendered again after a change) and
+# the window (5 measurements).
 COMPENSATION = f"""[compensation]
 law = "window"
 gain = 0.7
@@ -62,7 +65,7 @@ max_step_mm = 0.010
 shadow = true
 """
 # The default law, the predictive one, with its dead time as it is: from the cut to the
-# laser (1 s) and the camera's ring (8 frames, 0.8 s) to a measurement that shows it.
+# laser (1 s) and the camera's ring (2 frames) to a measurement that shows it, with a margin.
 PREDICTIVE = f"""[compensation]
 nominal_mm = 30.0
 tol_upper_mm = {TOLERANCE_MM}
