@@ -170,11 +170,16 @@ def test_offsets_written_by_the_service_hold_the_cut_in_tolerance(tmp_path) -> N
                    - total) < 1e-6
         # Shadow mode from here: offsets proposed into the void, the CNC's total stays and
         # the tool wears the part out of tolerance.
+        # 1 um of wear a second: out within 40 s from anywhere in the tolerance (a cut held
+        # at -19 um needs 39 s; 24 s of lathe time, as long as the loop was near nominal).
         shadow = follow(svc, 24.0)
+        while len(shadow) * 0.5 < 48.0 and max(
+                abs(s["cut_diameter_mm"] - 30.0) for s in shadow) <= TOLERANCE_MM:
+            shadow += follow(svc, 4.0)
         worst_um = max(abs(s["cut_diameter_mm"] - 30.0) for s in shadow) * 1000.0
         print(f"\nFIGURES compensated 30 s: {min(deviations_um)}..{max(deviations_um)} um, "
-              f"{len(applied)} offsets, CNC total {total * 1000:+.1f} um; then shadow 24 s: "
-              f"worst {worst_um:.1f} um")
+              f"{len(applied)} offsets, CNC total {total * 1000:+.1f} um; then shadow "
+              f"{len(shadow) * 0.5:.0f} s: worst {worst_um:.1f} um")
         assert all(s["cnc_total_mm"] == total for s in shadow)
         assert worst_um > TOLERANCE_MM * 1000.0, shadow[-1]
         assert svc.get("/api/v1/compensation/log",
